@@ -1,0 +1,1 @@
+"""Object descriptions shipped with wholehand (YCB registry, procedural shapes, grasps)."""

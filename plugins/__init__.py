@@ -1,0 +1,1 @@
+"""Built-in wholehand plug-ins, one module each, registered through entry points."""

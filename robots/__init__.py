@@ -1,0 +1,1 @@
+"""Hand descriptions shipped with wholehand: one folder per hand, each with a hand.toml."""

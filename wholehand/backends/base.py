@@ -1,0 +1,56 @@
+"""The backend interface: where joint torques go and states come from (simulation or hardware)."""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class HandObjectState:
+    """One observation of the hand and the tracked object.
+
+    Poses are 4x4 homogeneous transforms ``aMb`` (pose of frame b in frame a) throughout wholehand.
+    """
+
+    q: FloatArray
+    """(n_q,) hand joint positions [rad or m], in the order of the hand's Pinocchio model."""
+    dq: FloatArray
+    """(n_v,) hand joint velocities [rad/s or m/s]."""
+    wMb: FloatArray
+    """(4, 4) pose of the hand base (root link) in the world."""
+    wMo: FloatArray
+    """(4, 4) pose of the object frame in the world."""
+    stamp_q: float
+    """Time at which q and dq were measured [s]."""
+    stamp_object: float
+    """Time at which the object pose was measured [s]."""
+
+
+class Backend(abc.ABC):
+    """A hand-object system that can be read, commanded and advanced in time.
+
+    Registered in the ``wholehand.backends`` entry-point group.
+    """
+
+    @abc.abstractmethod
+    def read_state(self) -> HandObjectState:
+        """The latest observation."""
+
+    @abc.abstractmethod
+    def apply_torques(self, tau: FloatArray) -> None:
+        """Command (n_v,) joint torques [N*m], held until the next command."""
+
+    @abc.abstractmethod
+    def step(self, duration: float) -> None:
+        """Advance time by ``duration`` seconds (simulation) or wait for it (hardware)."""
+
+    @property
+    @abc.abstractmethod
+    def time(self) -> float:
+        """Current time of the backend [s]."""

@@ -1,0 +1,39 @@
+"""Exception hierarchy of wholehand.
+
+Every error raised on purpose by the library derives from :class:`WholehandError`, so a user can
+catch one type. Messages name the file, link, joint or value at fault and say how to fix it;
+errors from the libraries underneath are wrapped with ``raise ... from err``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class WholehandError(Exception):
+    """Root of every error raised on purpose by wholehand."""
+
+
+class ConfigError(WholehandError):
+    """A configuration file or argument is malformed or names something that does not exist."""
+
+
+class AssetError(WholehandError):
+    """A URDF, mesh or other asset is missing, unreadable or unusable as it is."""
+
+
+class PluginError(WholehandError):
+    """A plug-in cannot be found, imported or constructed."""
+
+
+class SolverError(WholehandError):
+    """A numerical solve failed; carries the problem and the solver's result for debugging.
+
+    Inside the control loop allocators never raise this: they return the last feasible torque
+    with a status instead. It is raised by offline tools that have no safe fallback.
+    """
+
+    def __init__(self, message: str, problem: Any = None, result: Any = None) -> None:
+        super().__init__(message)
+        self.problem = problem
+        self.result = result

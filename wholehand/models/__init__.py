@@ -1,0 +1,1 @@
+"""Hand and object models: kinematics, geometry, surface samples and signed distance fields."""

@@ -61,7 +61,6 @@ class PluginSpec:
                 f"{self.value!r} of distribution {self.distribution!r}) failed to import: "
                 f"{type(err).__name__}: {err}. Reinstall {self.distribution!r} or fix the module."
             ) from err
-    return cls(**params)
 
     def description(self) -> str:
         """First line of the plug-in's docstring, or why it could not be read."""

@@ -1,15 +1,97 @@
-"""The ``wholehand`` command."""
+"""The ``wholehand`` command: run, study, bench, plugins, info."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 import sys
+from collections.abc import Callable
+
+from wholehand.errors import WholehandError
+
+
+def _cmd_plugins(args: argparse.Namespace) -> int:
+    from wholehand import registry
+
+    for group, entry_group in registry.GROUPS.items():
+        print(f"{entry_group}:")
+        specs = registry.available(group)
+        if not specs:
+            print("  (none installed)")
+        for name, spec in specs.items():
+            origin = "" if spec.builtin else f"  [{spec.distribution}]"
+            print(f"  {name:<20} {spec.description()}{origin}")
+    return 0
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from wholehand.models.hand import load_hand
+    from wholehand.models.objects import load_object
+
+    hand = load_hand(args.hand)
+    obj = load_object(args.object)
+    report = {"hand": hand.summary(), "object": obj.summary()}
+    if not args.verbose:
+        report["hand"].pop("points_per_link")
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+def _cmd_hands(args: argparse.Namespace) -> int:
+    from wholehand.models.hand_config import available_hands
+
+    print("\n".join(available_hands()))
+    return 0
+
+
+def _cmd_objects(args: argparse.Namespace) -> int:
+    from wholehand.models.objects import available_objects
+
+    print("\n".join(available_objects()))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="wholehand",
+        description="Real-time force regulation of whole-hand dexterous grasps.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("plugins", help="list installed plug-ins by group")
+    p.set_defaults(func=_cmd_plugins)
+
+    p = sub.add_parser("hands", help="list the shipped hands")
+    p.set_defaults(func=_cmd_hands)
+
+    p = sub.add_parser("objects", help="list the loadable objects")
+    p.set_defaults(func=_cmd_objects)
+
+    p = sub.add_parser("info", help="load a hand and an object and print their summary (JSON)")
+    p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
+    p.add_argument("--object", default="077_rubiks_cube", help="YCB name, primitive or mesh path")
+    p.set_defaults(func=_cmd_info)
+
+    from wholehand.cli import bench as bench_cli
+
+    bench_cli.add_parser(sub)
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="wholehand")
-    parser.parse_args(argv)
-    return 0
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s"
+    )
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except WholehandError as err:
+        print(f"wholehand: error: {err}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -1,0 +1,66 @@
+"""Forward kinematics, batched transforms and point Jacobians against finite differences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wholehand.errors import ConfigError
+from wholehand.models.kinematics import HandKinematics
+from wholehand.models.poses import pose_from_xyz_rpy
+
+
+@pytest.fixture
+def state(allegro):
+    rng = np.random.default_rng(3)
+    q = allegro.neutral() + 0.2 * rng.standard_normal(allegro.nq)
+    wMb = pose_from_xyz_rpy([0.1, -0.2, 0.3], [0.3, -0.2, 1.0])
+    kin = HandKinematics(allegro)
+    kin.update(q, wMb)
+    return kin, q, wMb, rng
+
+
+def test_transformed_samples_match_pinocchio_frames(state, allegro):
+    kin, q, wMb, _ = state
+    i = allegro.link_index("link_15.0_tip")
+    rows = allegro.samples.link == i
+    p_world = kin.transform_points(allegro.samples.p_joint[rows], allegro.samples.joint[rows])
+    jid = int(allegro.link_joint[i])
+    data = allegro.model.createData()
+    pin.forwardKinematics(allegro.model, data, q)
+    expected = [(wMb @ data.oMi[jid].homogeneous @ np.r_[p, 1.0])[:3] for p in allegro.samples.p_joint[rows]]
+    np.testing.assert_allclose(p_world, expected, atol=1e-12)
+
+
+def test_point_jacobians_match_finite_differences(state, allegro):
+    kin, q, wMb, rng = state
+    idx = rng.choice(len(allegro.samples), 60, replace=False)
+    p_joint, joint = allegro.samples.p_joint[idx], allegro.samples.joint[idx]
+    p0 = kin.transform_points(p_joint, joint)
+    J = kin.point_jacobians(joint, p0)
+    eps = 1e-7
+    J_fd = np.zeros_like(J)
+    for k in range(allegro.nv):
+        dq = np.zeros(allegro.nv)
+        dq[k] = eps
+        kin.update(q + dq, wMb)
+        J_fd[:, :, k] = (kin.transform_points(p_joint, joint) - p0) / eps
+    np.testing.assert_allclose(J, J_fd, atol=1e-6)
+
+
+def test_points_on_the_palm_do_not_move_with_the_joints(state, allegro):
+    kin, _, _, _ = state
+    rows = np.flatnonzero(allegro.samples.link == allegro.link_index("palm_link"))[:5]
+    p = kin.transform_points(allegro.samples.p_joint[rows], allegro.samples.joint[rows])
+    assert np.all(kin.point_jacobians(allegro.samples.joint[rows], p) == 0.0)
+
+
+def test_bad_configuration_is_rejected(allegro):
+    kin = HandKinematics(allegro)
+    with pytest.raises(ConfigError, match="q has shape"):
+        kin.update(np.zeros(3))
+    with pytest.raises(ConfigError, match="NaN"):
+        kin.update(np.full(allegro.nq, np.nan))
+    with pytest.raises(ConfigError, match="wMb"):
+        kin.update(allegro.neutral(), np.ones((4, 4)))

@@ -1,0 +1,56 @@
+"""``wholehand bench ...``: latency benchmarks that print JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def _cmd_contacts(args: argparse.Namespace) -> int:
+    from wholehand.contacts.bench import run_contact_benchmark
+
+    result = run_contact_benchmark(
+        hand=args.hand,
+        obj=args.object,
+        estimator=args.estimator,
+        cycles=args.cycles,
+        seed=args.seed,
+        d_thresh=args.d_thresh,
+        k=args.k,
+    )
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def _cmd_allocate(args: argparse.Namespace) -> int:
+    from wholehand.allocation.bench import run_allocation_benchmark
+
+    kwargs = {"cycles": args.cycles, "seed": args.seed, "out_dir": Path(args.out)}
+    if args.solvers:
+        kwargs["solvers"] = tuple(args.solvers.split(","))
+    result = run_allocation_benchmark(**kwargs)
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    bench = sub.add_parser("bench", help="latency benchmarks (JSON with p50/p95/p99)")
+    bsub = bench.add_subparsers(dest="bench", required=True)
+
+    p = bsub.add_parser("contacts", help="contact-estimation latency at grasp-like states")
+    p.add_argument("--hand", default="allegro_right")
+    p.add_argument("--object", default="077_rubiks_cube")
+    p.add_argument("--estimator", default="mesh_sdf")
+    p.add_argument("--cycles", type=int, default=2000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--d-thresh", type=float, default=None, help="[m], default: paper's 0.01")
+    p.add_argument("--k", type=int, default=None, help="contacts per link, default: paper's 5")
+    p.set_defaults(func=_cmd_contacts)
+
+    p = bsub.add_parser("allocate", help="force-allocation QP solve time vs contact count")
+    p.add_argument("--solvers", default="", help="comma-separated qpsolvers names")
+    p.add_argument("--cycles", type=int, default=300)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="out/bench", help="folder for allocate.png")
+    p.set_defaults(func=_cmd_allocate)

@@ -1,0 +1,349 @@
+"""The hand model: Pinocchio kinematics, coal geometry, link table and surface samples.
+
+Links are the URDF links that carry geometry of the sampled surface kind. Surface samples are
+stored in the frame of each link's parent joint, so one forward-kinematics pass (joint
+placements) is all a cycle needs to move every sample.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import unquote, urlparse
+
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from wholehand import defaults
+from wholehand.errors import AssetError, ConfigError
+from wholehand.models import cache
+from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
+from wholehand.models.poses import pose_from_xyz_rpy
+from wholehand.models.surface import link_mesh_in_joint_frame, sample_link_surface
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
+
+SUPPORTED_JOINTS = {
+    "JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",
+    "JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned",
+}  # fmt: skip
+"""Pinocchio joint types a hand may have: revolute and prismatic, one DoF each (nq = nv)."""
+
+
+@dataclass(frozen=True)
+class SurfaceSamples:
+    """Candidate contact points on every link, stacked; rows grouped by link."""
+
+    p_joint: FloatArray
+    """(P, 3) points in the frame of their link's parent joint [m]."""
+    n_joint: FloatArray
+    """(P, 3) outward surface normals of the hand at the points, same frames."""
+    link: IntArray
+    """(P,) link index of each point."""
+    joint: IntArray
+    """(P,) Pinocchio joint index of each point's parent joint (0: the hand base)."""
+
+    def __len__(self) -> int:
+        return int(self.p_joint.shape[0])
+
+
+def _mesh_uris(urdf_path: Path, surface: str) -> list[str]:
+    root = ET.parse(urdf_path).getroot()
+    return [
+        m.get("filename", "")
+        for link in root.iter("link")
+        for elem in link.iter(surface)
+        for m in elem.iter("mesh")
+    ]
+
+
+def _resolve_mesh(uri: str, urdf_path: Path, package_dirs: tuple[Path, ...]) -> Path | None:
+    if uri.startswith("package://"):
+        rel = uri[len("package://") :]
+        for d in package_dirs:
+            if (d / rel).is_file():
+                return d / rel
+        return None
+    if uri.startswith("file://"):
+        path = Path(unquote(urlparse(uri).path))
+    else:
+        path = urdf_path.parent / uri
+    return path if path.is_file() else None
+
+
+def _check_meshes(cfg: HandConfig, surface: str) -> list[Path]:
+    found = []
+    for uri in _mesh_uris(cfg.urdf_path, surface):
+        path = _resolve_mesh(uri, cfg.urdf_path, cfg.package_dirs)
+        if path is None:
+            dirs = "\n  ".join(str(d) for d in cfg.package_dirs)
+            raise AssetError(
+                f"{cfg.urdf_path}: {surface} mesh {uri!r} not found. Searched relative to the "
+                f"URDF and in the package directories:\n  {dirs}\nInstall the package that ships "
+                "it or fix the filename in the URDF."
+            )
+        found.append(path)
+    return found
+
+
+class HandModel:
+    """A hand loaded from a hand.toml: kinematics, geometry, links, limits and samples.
+
+    Attributes:
+        config: the parsed hand.toml.
+        model: Pinocchio model with a fixed base at the root link (the hand base frame ``b``).
+        collision_model, visual_model: Pinocchio geometry models (coal geometry).
+        link_names: (L,) names of the links that carry geometry, in link-index order.
+        link_frame: (L,) Pinocchio frame id of each link.
+        link_joint: (L,) Pinocchio joint id of each link's parent joint (0 for the base).
+        link_actuated: (L,) True where forces are produced by actuated joints.
+        link_fingertip: (L,) True for the distal links named in hand.toml.
+        link_finger: (L,) finger name of each link ("" for links on no finger).
+        actuated_dofs: (n_v,) True for torque-controlled velocity dimensions.
+        tau_max: (n_v,) torque limits [N*m] (0 for dofs that are not actuated).
+        wMb: (4, 4) mount pose of the hand base in the world.
+        samples: the surface samples (see :class:`SurfaceSamples`).
+    """
+
+    def __init__(
+        self,
+        config: HandConfig,
+        n_uniform: int = defaults.UNIFORM_SAMPLES_PER_LINK,
+        density_per_cm2: float = defaults.SAMPLE_DENSITY_PER_CM2,
+        seed: int = 0,
+    ) -> None:
+        self.config = config
+        self.model = self._build_model()
+        self._check_joint_types()
+        self.collision_model = self._build_geometry(pin.GeometryType.COLLISION, "collision")
+        self.visual_model = self._build_geometry(pin.GeometryType.VISUAL, "visual")
+        self._build_link_table()
+        self._build_joint_tables()
+        self.wMb = pose_from_xyz_rpy(config.mount_xyz, config.mount_rpy)
+        self.sample_params = {
+            "n_uniform": int(n_uniform),
+            "density_per_cm2": float(density_per_cm2),
+            "seed": int(seed),
+            "surface": config.sample_surface,
+        }
+        self.samples_from_cache = False
+        self.samples = self._load_or_sample()
+
+    # --- construction -------------------------------------------------------------------------
+    def _build_model(self) -> pin.Model:
+        cfg = self.config
+        try:
+            return pin.buildModelFromUrdf(str(cfg.urdf_path))
+        except Exception as err:
+            raise AssetError(
+                f"{cfg.urdf_path}: Pinocchio cannot parse this URDF ({err}); check that it is "
+                "well-formed XML with one root link"
+            ) from err
+
+    def _check_joint_types(self) -> None:
+        for jid in range(1, self.model.njoints):
+            kind = self.model.joints[jid].shortname()
+            if kind not in SUPPORTED_JOINTS:
+                raise ConfigError(
+                    f"{self.config.urdf_path}: joint {self.model.names[jid]!r} has type {kind}, "
+                    "which a hand model does not support; use revolute (with limits) or "
+                    "prismatic joints, and fixed joints for rigid attachments"
+                )
+
+    def _build_geometry(self, kind: pin.GeometryType, surface: str) -> pin.GeometryModel:
+        cfg = self.config
+        _check_meshes(cfg, surface)
+        try:
+            return pin.buildGeomFromUrdf(
+                self.model, str(cfg.urdf_path), kind, package_dirs=[str(d) for d in cfg.package_dirs]
+            )
+        except Exception as err:
+            raise AssetError(f"{cfg.urdf_path}: cannot build the {surface} geometry: {err}") from err
+
+    def _frame_id(self, link: str, what: str) -> int:
+        if not self.model.existFrame(link, pin.FrameType.BODY):
+            raise ConfigError(
+                f"{self.config.path}: {what} {link!r} is not a link of {self.config.urdf_path.name}; "
+                f"valid links: {self.all_link_names}"
+            )
+        return self.model.getFrameId(link, pin.FrameType.BODY)
+
+    @property
+    def all_link_names(self) -> list[str]:
+        """Every link of the URDF (Pinocchio BODY frames)."""
+        return [f.name for f in self.model.frames if f.type == pin.FrameType.BODY]
+
+    def _build_link_table(self) -> None:
+        cfg = self.config
+        sampled = (
+            self.collision_model if cfg.sample_surface == "collision" else self.visual_model
+        )
+        by_frame: dict[int, list[pin.GeometryObject]] = {}
+        for obj in sampled.geometryObjects:
+            by_frame.setdefault(obj.parentFrame, []).append(obj)
+        self._link_geometry = by_frame
+        frames = sorted(by_frame)
+        self.link_names = [self.model.frames[f].name for f in frames]
+        self.link_frame = np.array(frames, dtype=np.intp)
+        self.link_joint = np.array([self.model.frames[f].parentJoint for f in frames], dtype=np.intp)
+
+        self.palm_link = cfg.palm_link
+        named = [(cfg.palm_link, "palm_link")]
+        named += [(n, "passive link") for n in cfg.passive_links]
+        named += [(n, "fingertip link") for n in cfg.fingertip_links]
+        named += [(n, f"link of finger {f!r}") for f, links in cfg.fingers.items() for n in links]
+        for link, what in named:
+            self._frame_id(link, what)
+            if link not in self.link_names:
+                raise ConfigError(
+                    f"{cfg.path}: {what} {link!r} has no {cfg.sample_surface} geometry in "
+                    f"{cfg.urdf_path.name}, so it can never touch the object; links with "
+                    f"geometry: {self.link_names}"
+                )
+        self.link_fingertip = np.array([n in cfg.fingertip_links for n in self.link_names])
+        finger_of = {link: f for f, links in cfg.fingers.items() for link in links}
+        self.link_finger = [finger_of.get(n, "") for n in self.link_names]
+
+    def _build_joint_tables(self) -> None:
+        cfg, model = self.config, self.model
+        moving = [model.names[j] for j in range(1, model.njoints)]
+        actuated = list(cfg.actuated_joints) if cfg.actuated_joints is not None else moving
+        for name in [*actuated, *cfg.torque_limits]:
+            if name not in moving:
+                raise ConfigError(
+                    f"{cfg.path}: joint {name!r} is not a moving joint of "
+                    f"{cfg.urdf_path.name}; valid joints: {moving}"
+                )
+        self.joint_names = moving
+        self.actuated_dofs = np.zeros(model.nv, dtype=bool)
+        self.tau_max = np.zeros(model.nv)
+        for name in actuated:
+            idx = model.joints[model.getJointId(name)].idx_v
+            self.actuated_dofs[idx] = True
+            self.tau_max[idx] = cfg.torque_limits.get(name, cfg.torque_limit_default)
+        # A link is actuated when some actuated joint moves it and it is not declared passive.
+        moved_by_actuated = []
+        for jid in self.link_joint:
+            support = [j for j in model.supports[int(jid)] if j > 0]
+            moved_by_actuated.append(
+                any(self.actuated_dofs[model.joints[j].idx_v] for j in support)
+            )
+        self.link_actuated = np.array(
+            [m and n not in cfg.passive_links for m, n in zip(moved_by_actuated, self.link_names)]
+        )
+        self.q_lower = np.asarray(model.lowerPositionLimit, dtype=float).copy()
+        self.q_upper = np.asarray(model.upperPositionLimit, dtype=float).copy()
+
+    # --- surface samples ----------------------------------------------------------------------
+    def _cache_key(self) -> str:
+        cfg = self.config
+        meshes = sorted(set(_check_meshes(cfg, cfg.sample_surface)))
+        return cache.content_hash(
+            cfg.urdf_path, *meshes, self.sample_params, {"links": self.link_names}
+        )
+
+    def _load_or_sample(self) -> SurfaceSamples:
+        key = self._cache_key()
+        stored = cache.load_arrays("link_samples", key)
+        if stored is not None:
+            self.samples_from_cache = True
+            return SurfaceSamples(**stored)
+        started = time.perf_counter()
+        samples = self._sample_surfaces()
+        cache.save_arrays("link_samples", key, samples.__dict__)
+        log.info(
+            "sampled %d candidate points on %d links of %s in %.2f s",
+            len(samples), len(self.link_names), self.config.name, time.perf_counter() - started,
+        )
+        return samples
+
+    def _sample_surfaces(self) -> SurfaceSamples:
+        p, n, link, joint = [], [], [], []
+        for i, frame in enumerate(self.link_frame):
+            mesh = link_mesh_in_joint_frame(self._link_geometry[int(frame)])
+            pts, normals = sample_link_surface(
+                mesh,
+                self.sample_params["n_uniform"],
+                self.sample_params["density_per_cm2"],
+                self.sample_params["seed"] + i,
+            )
+            p.append(pts)
+            n.append(normals)
+            link.append(np.full(len(pts), i, dtype=np.intp))
+            joint.append(np.full(len(pts), self.link_joint[i], dtype=np.intp))
+        return SurfaceSamples(
+            p_joint=np.concatenate(p),
+            n_joint=np.concatenate(n),
+            link=np.concatenate(link),
+            joint=np.concatenate(joint),
+        )
+
+    def link_mesh(self, link: int | str):
+        """Mesh of one link's sampled surface, in its parent-joint frame [m]."""
+        i = self.link_index(link) if isinstance(link, str) else link
+        return link_mesh_in_joint_frame(self._link_geometry[int(self.link_frame[i])])
+
+    # --- queries ------------------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+    @property
+    def nq(self) -> int:
+        return int(self.model.nq)
+
+    @property
+    def nv(self) -> int:
+        return int(self.model.nv)
+
+    def link_index(self, name: str) -> int:
+        """Index of a link in :attr:`link_names`."""
+        try:
+            return self.link_names.index(name)
+        except ValueError:
+            raise ConfigError(
+                f"{name!r} is not a link with geometry of hand {self.name!r}; "
+                f"valid links: {self.link_names}"
+            ) from None
+
+    def neutral(self) -> FloatArray:
+        """(n_q,) a configuration inside the joint limits (their midpoint where finite)."""
+        q = pin.neutral(self.model)
+        finite = np.isfinite(self.q_lower) & np.isfinite(self.q_upper)
+        q[finite] = 0.5 * (self.q_lower[finite] + self.q_upper[finite])
+        return q
+
+    def summary(self) -> dict[str, object]:
+        """Key facts about the hand, JSON-serialisable."""
+        counts = np.bincount(self.samples.link, minlength=len(self.link_names))
+        return {
+            "name": self.name,
+            "urdf": str(self.config.urdf_path),
+            "nq": self.nq,
+            "nv": self.nv,
+            "actuated_dofs": int(self.actuated_dofs.sum()),
+            "links_with_geometry": len(self.link_names),
+            "actuated_links": int(self.link_actuated.sum()),
+            "fingertip_links": int(self.link_fingertip.sum()),
+            "sample_surface": self.config.sample_surface,
+            "candidate_points": len(self.samples),
+            "points_per_link": dict(zip(self.link_names, counts.tolist())),
+            "samples_from_cache": self.samples_from_cache,
+        }
+
+
+def load_hand(name_or_path: str | Path = "allegro_right", **params: object) -> HandModel:
+    """Load a shipped hand by name, or a hand folder / hand.toml by path.
+
+    Keyword parameters go to :class:`HandModel` (``n_uniform``, ``density_per_cm2``, ``seed``).
+    """
+    config = parse_hand_config(resolve_hand_config(name_or_path))
+    return HandModel(config, **params)  # type: ignore[arg-type]

@@ -87,6 +87,29 @@ def grasp_matrix_world(p_world: FloatArray, p_com_world: FloatArray) -> FloatArr
     return Gw.reshape(6, 3 * n)
 
 
+def wrench_map(r_world: FloatArray, V: FloatArray) -> FloatArray:
+    """Wrench about the COM of forces spanned by per-contact world-axis vectors.
+
+    Args:
+        r_world: (N, 3) contact points relative to the COM, world axes [m].
+        V: (N, 3, k) per contact, k force directions in world axes (e.g. the frame columns, or
+            the friction-pyramid edges).
+
+    Returns:
+        (6, kN) matrix mapping the stacked coefficients ``[a_0 (k); ...; a_{N-1} (k)]`` of
+        ``f_world_i = V_i a_i`` to ``[sum f; sum r x f]`` [N; N*m].
+    """
+    n, _, k = V.shape
+    M = np.empty((6, n, k))
+    Vt = V.transpose(1, 0, 2)  # (3, N, k)
+    M[0:3] = Vt
+    rx, ry, rz = r_world[:, 0, None], r_world[:, 1, None], r_world[:, 2, None]
+    M[3] = ry * Vt[2] - rz * Vt[1]
+    M[4] = rz * Vt[0] - rx * Vt[2]
+    M[5] = rx * Vt[1] - ry * Vt[0]
+    return M.reshape(6, k * n)
+
+
 def grasp_matrix(
     p_world: FloatArray, n_world: FloatArray, p_com_world: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -104,12 +127,8 @@ def grasp_matrix(
         :func:`contact_frames`.
     """
     wRc = contact_frames(n_world)
-    n = wRc.shape[0]
     r = np.asarray(p_world, dtype=np.float64) - np.asarray(p_com_world, dtype=np.float64)
-    G = np.empty((6, n, 3))
-    G[0:3] = wRc.transpose(1, 0, 2)
-    G[3:6] = np.cross(r[:, None, :], wRc.transpose(0, 2, 1)).transpose(2, 0, 1)
-    return G.reshape(6, 3 * n), wRc
+    return wrench_map(r, wRc), wRc
 
 
 def local_to_world(wRc: FloatArray, f_local: FloatArray) -> FloatArray:

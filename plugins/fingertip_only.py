@@ -1,0 +1,57 @@
+"""Ablation of the paper's whole-hand allocation: the same QP on fingertip contacts only.
+
+The contacts are restricted to the distal (fingertip) links (``ContactSet.fingertip``) before the
+QP of :class:`wholehand_plugins.qp.QPAllocator` is built; every other contact gets zero force.
+The returned arrays keep one row per contact of the input set.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from wholehand_plugins.qp import QPAllocator
+
+from wholehand.allocation.base import Allocation
+from wholehand.contacts.base import ContactSet
+from wholehand.errors import ConfigError
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class FingertipOnlyAllocator(QPAllocator):
+    """Force-allocation QP restricted to fingertip contacts (paper ablation)."""
+
+    def allocate(
+        self, contacts: ContactSet, J_world: FloatArray, p_com_world: FloatArray
+    ) -> Allocation:
+        """Allocate over ``contacts.select(contacts.fingertip)``; see :meth:`QPAllocator.allocate`.
+
+        An input set without fingertip contacts gives status ``EMPTY``.
+        """
+        n = len(contacts)
+        J_world = np.asarray(J_world, dtype=np.float64)
+        if J_world.ndim != 3 or J_world.shape[:2] != (n, 3):
+            raise ConfigError(
+                f"{type(self).__name__}: J_world has shape {J_world.shape}, expected "
+                f"({n}, 3, n_v) for the {n} contacts of the set"
+            )
+        mask = contacts.fingertip
+        if mask.all():
+            return super().allocate(contacts, J_world, p_com_world)
+        sub = super().allocate(contacts.select(mask), J_world[mask], p_com_world)
+        f_local = np.zeros((n, 3))
+        f_world = np.zeros((n, 3))
+        f_local[mask] = sub.f_local
+        f_world[mask] = sub.f_world
+        return Allocation(
+            f_local=f_local,
+            f_world=f_world,
+            tau=sub.tau,
+            residual_wrench=sub.residual_wrench,
+            status=sub.status,
+            solve_time=sub.solve_time,
+            solver=sub.solver,
+        )
+
+
+__all__ = ["FingertipOnlyAllocator"]

@@ -1,0 +1,308 @@
+"""The paper's whole-hand force-allocation QP (Sec. III-C), with and without actuation consistency.
+
+Per cycle: build the QP over every current contact, palm included
+(:func:`wholehand.allocation.problem.build_allocation_qp`), solve it with the named solver
+(:func:`wholehand.allocation.solve.solve_allocation`, warm-started from the previous cycle) and
+command ``tau* = J_act^T f_act*``. A failed or infeasible solve never raises: the last feasible
+torque (initially zero) is returned with the status.
+
+Joints. By default all ``n_v`` columns of ``J_world`` are commanded joints. With
+``actuated_dofs`` only those are: the torque limits and ``J_act`` (hence the consistency basis)
+use their columns only, and every other joint gets ``tau = 0`` and no constraint. This fits joints
+driven by something else (a floating base, an arm under position control): forces they would
+have to resist are not this allocator's to command, and constraining ``J^T f`` to zero on them
+would wrongly forbid the hand from pushing against the arm. A truly free passive joint would
+need ``J^T f = 0`` on it, which the paper's model (all hand joints actuated) does not have.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand import defaults
+from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
+from wholehand.allocation.problem import (
+    N_EDGES,
+    REG,
+    AllocationParams,
+    AllocationQP,
+    build_allocation_qp,
+)
+from wholehand.allocation.solve import (
+    DEFAULT_SOLVER,
+    FEAS_TOL,
+    MATCH_RADIUS,
+    SCREEN_TOL,
+    AllocationSolution,
+    WarmStart,
+    binding_rows,
+    make_backend,
+    solve_allocation,
+)
+from wholehand.contacts.base import ContactSet
+from wholehand.errors import ConfigError
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class QPAllocator(Allocator):
+    """Whole-hand force-allocation QP with actuation consistency (paper Sec. III-C)."""
+
+    consistency_default: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        *,
+        mu: float = defaults.MU,
+        f_n_min: float = defaults.F_N_MIN,
+        tau_max: float | npt.ArrayLike = defaults.TAU_MAX,
+        eps_margin: float = defaults.EPS_MARGIN,
+        svd_tol: float = defaults.SVD_TOL,
+        reg: float = REG,
+        consistency: bool | None = None,
+        actuated_dofs: npt.ArrayLike | None = None,
+        solver: str = DEFAULT_SOLVER,
+        solver_settings: Mapping[str, Any] | None = None,
+        warm_start: bool = True,
+        screening: bool = True,
+        feas_tol: float = FEAS_TOL,
+        screen_tol: float = SCREEN_TOL,
+        match_radius: float = MATCH_RADIUS,
+    ) -> None:
+        """Args:
+        mu: Friction coefficient of the 4-sided pyramid [-], >= 0.
+        f_n_min: Lower bound on the sum of normal forces [N], >= 0.
+        tau_max: Torque limit per joint [N*m], > 0: a scalar or an (n_v,) array (``inf``
+            removes a joint's rows).
+        eps_margin: Bound on each force component in the SVD basis of ``Null(J_act^T)`` [N].
+        svd_tol: Absolute singular-value tolerance deciding ``rank(J_act)``.
+        reg: Ridge weight of the tie-break on the pyramid-edge weights (see
+            :mod:`wholehand.allocation.problem`), > 0.
+        consistency: Impose the actuation-consistency rows; None: the class default.
+        actuated_dofs: Commanded joints: an (n_v,) boolean mask or joint indices; None: all.
+        solver: QP solver name, see :func:`wholehand.allocation.solve.available_solvers`.
+        solver_settings: Solver settings on top of the adapter's tight defaults.
+        warm_start: Start each solve from the previous cycle's matched solution.
+        screening: Solve with a working subset of torque/consistency rows (exact).
+        feas_tol: Largest violation of an accepted solution [N or N*m].
+        screen_tol: Violation above which a left-out row joins the working set.
+        match_radius: Contacts on one link closer than this across cycles are the same [m].
+
+        Raises:
+            ConfigError: A value is out of range or the solver is not installed.
+        """
+        owner = type(self).__name__
+        self.params = AllocationParams.checked(
+            owner,
+            mu=mu,
+            f_n_min=f_n_min,
+            tau_max=tau_max,
+            eps_margin=eps_margin,
+            svd_tol=svd_tol,
+            reg=reg,
+            consistency=self.consistency_default if consistency is None else consistency,
+            actuated_dofs=actuated_dofs,
+        )
+        for name, value in (
+            ("feas_tol", feas_tol),
+            ("screen_tol", screen_tol),
+            ("match_radius", match_radius),
+        ):
+            if not (isinstance(value, int | float) and 0.0 <= value < np.inf):
+                raise ConfigError(
+                    f"{owner}: parameter {name}={value!r} is invalid; it must be a finite "
+                    "number >= 0"
+                )
+        if solver_settings is not None and not isinstance(solver_settings, Mapping):
+            raise ConfigError(
+                f"{owner}: parameter solver_settings={solver_settings!r} is invalid; it must be "
+                "a mapping of setting names to values"
+            )
+        self.backend = make_backend(solver, solver_settings, owner)
+        self.solver = solver
+        self.warm_start = bool(warm_start)
+        self.screening = bool(screening)
+        self.feas_tol = float(feas_tol)
+        self.screen_tol = float(screen_tol)
+        self._warm = WarmStart(match_radius=float(match_radius))
+        self._last_tau: FloatArray | None = None
+        self.counts: Counter[AllocationStatus] = Counter()
+        """Allocations per status since construction (or :meth:`reset`)."""
+        self.last_solution: AllocationSolution | None = None
+        """Solver outcome of the last cycle that reached the solver, for debugging."""
+
+    # --------------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the warm start, the last feasible torque and the counts."""
+        self._warm.clear()
+        self.backend.reset()
+        self._last_tau = None
+        self.counts.clear()
+        self.last_solution = None
+
+    @property
+    def last_tau(self) -> FloatArray | None:
+        """(n_v,) last commanded torque [N*m], None before the first cycle."""
+        return None if self._last_tau is None else self._last_tau.copy()
+
+    def _held(self, n_v: int) -> FloatArray:
+        if self._last_tau is None or self._last_tau.shape != (n_v,):
+            return np.zeros(n_v)
+        return self._last_tau.copy()
+
+    def _result(
+        self,
+        status: AllocationStatus,
+        n: int,
+        n_v: int,
+        *,
+        tau: FloatArray | None = None,
+        f_local: FloatArray | None = None,
+        f_world: FloatArray | None = None,
+        wrench: FloatArray | None = None,
+        solve_time: float = 0.0,
+    ) -> Allocation:
+        self.counts[status] += 1
+        if tau is None:
+            tau = self._held(n_v)
+        return Allocation(
+            f_local=np.zeros((n, 3)) if f_local is None else f_local,
+            f_world=np.zeros((n, 3)) if f_world is None else f_world,
+            tau=tau,
+            residual_wrench=np.zeros(6) if wrench is None else wrench,
+            status=status,
+            solve_time=solve_time,
+            solver=self.solver,
+        )
+
+    # --------------------------------------------------------------------------------------------
+    def allocate(
+        self, contacts: ContactSet, J_world: FloatArray, p_com_world: FloatArray
+    ) -> Allocation:
+        """Contact forces and joint torques for the current contacts.
+
+        Args:
+            contacts: The N contacts of this cycle.
+            J_world: (N, 3, n_v) point Jacobians at the contact points, world axes.
+            p_com_world: (3,) object centre of mass, world frame [m].
+
+        Returns:
+            The allocation. ``EMPTY`` / ``NO_ACTUATED_CONTACT``: zero forces and torque (and the
+            held torque is reset to zero: zero is what was commanded); ``INFEASIBLE`` /
+            ``SOLVER_FAILED`` (also for NaN/inf inputs, a non-finite solution or one violating
+            a constraint by more than ``feas_tol``): zero forces and the last feasible torque;
+            ``OK``: the new forces and torque. ``solve_time`` is the wall time of building and
+            solving the QP (all screening rounds) [s].
+
+        Raises:
+            ConfigError: Shapes of ``J_world`` / ``p_com_world`` do not match the contacts, or
+                ``tau_max`` / ``actuated_dofs`` do not match ``n_v``.
+        """
+        owner = type(self).__name__
+        n = len(contacts)
+        J_world = np.asarray(J_world, dtype=np.float64)
+        if J_world.ndim != 3 or J_world.shape[:2] != (n, 3):
+            raise ConfigError(
+                f"{owner}: J_world has shape {J_world.shape}, expected ({n}, 3, n_v) for the "
+                f"{n} contacts of the set"
+            )
+        n_v = J_world.shape[2]
+        self.params.dofs_and_limits(n_v, owner)  # shape errors raise even without contacts
+        if n == 0:
+            self._warm.clear()
+            self._last_tau = np.zeros(n_v)
+            return self._result(AllocationStatus.EMPTY, 0, n_v, tau=np.zeros(n_v))
+        if not contacts.actuated.any():
+            self._warm.clear()
+            self._last_tau = np.zeros(n_v)
+            return self._result(AllocationStatus.NO_ACTUATED_CONTACT, n, n_v, tau=np.zeros(n_v))
+
+        t0 = time.perf_counter_ns()
+        p_com = np.asarray(p_com_world, dtype=np.float64)
+        if not (
+            np.isfinite(contacts.p_world).all()
+            and np.isfinite(contacts.n_world).all()
+            and np.isfinite(J_world).all()
+            and np.isfinite(p_com).all()
+        ):
+            self._warm.clear()
+            return self._result(AllocationStatus.SOLVER_FAILED, n, n_v, solve_time=_since(t0))
+        qp = build_allocation_qp(contacts, J_world, p_com, self.params, owner)
+        kwargs = self._warm_kwargs(qp, contacts) if self.warm_start else {}
+        sol = solve_allocation(
+            qp, self.backend, screening=self.screening, screen_tol=self.screen_tol, **kwargs
+        )
+        self.last_solution = sol
+        dt = _since(t0)
+        if sol.x is None or sol.violation > self.feas_tol:
+            self._warm.clear()
+            status = (
+                AllocationStatus.INFEASIBLE
+                if sol.status == "infeasible"
+                else AllocationStatus.SOLVER_FAILED
+            )
+            return self._result(status, n, n_v, solve_time=dt)
+        lam = sol.x[: qp.n_lambda]
+        tau = qp.tau(lam)
+        self._last_tau = tau
+        self._remember(qp, contacts, sol)
+        return self._result(
+            AllocationStatus.OK,
+            n,
+            n_v,
+            tau=tau.copy(),
+            f_local=qp.f_local(lam),
+            f_world=qp.f_world(lam),
+            wrench=qp.G_lam @ lam,
+            solve_time=dt,
+        )
+
+    # --------------------------------------------------------------------------------------------
+    def _warm_kwargs(self, qp: AllocationQP, contacts: ContactSet) -> dict[str, Any]:
+        warm = self._warm
+        if warm.lam is None:
+            return {}
+        torque_sel = np.flatnonzero(np.isin(qp.dofs[qp.torque_rows], warm.torque_dofs))
+        null_sel = warm.null_rows if warm.same_links(contacts.link) else None
+        out: dict[str, Any] = {"warm": True, "torque_sel": torque_sel, "null_sel": null_sel}
+        if self.backend.primal_warm_start:
+            idx = warm.match(contacts.p_world, contacts.link)
+            if idx.size == warm.lam.shape[0] and (idx == np.arange(idx.size)).all():
+                lam0 = warm.lam.ravel()
+            else:
+                lam0 = np.full((qp.n_contacts, N_EDGES), self.params.f_n_min / qp.n_lambda)
+                hit = idx >= 0
+                lam0[hit] = warm.lam[idx[hit]]
+                lam0 = lam0.ravel()
+            out["x0"] = np.concatenate((lam0, qp.G_lam @ lam0))
+        return out
+
+    def _remember(self, qp: AllocationQP, contacts: ContactSet, sol: AllocationSolution) -> None:
+        warm = self._warm
+        t, z = binding_rows(qp, sol)
+        assert sol.x is not None
+        lam = sol.x[: qp.n_lambda]
+        warm.p_world = contacts.p_world.copy()
+        warm.link = contacts.link.copy()
+        warm.lam = lam.reshape(-1, N_EDGES).copy()
+        warm.torque_dofs = qp.dofs[qp.torque_rows[t]]
+        warm.null_rows = z
+
+
+class QPNoConsistencyAllocator(QPAllocator):
+    """Whole-hand force-allocation QP without the actuation-consistency rows (paper ablation)."""
+
+    consistency_default: ClassVar[bool] = False
+
+
+def _since(t0: int) -> float:
+    return (time.perf_counter_ns() - t0) * 1e-9
+
+
+__all__ = ["QPAllocator", "QPNoConsistencyAllocator"]

@@ -1,0 +1,604 @@
+"""Force allocation QP (paper Sec. III-C): constraints, optimality, signs, fallbacks, plug-ins."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+import qpsolvers
+from wholehand_plugins.fingertip_only import FingertipOnlyAllocator
+from wholehand_plugins.qp import QPAllocator, QPNoConsistencyAllocator
+
+from wholehand.allocation.base import Allocation, AllocationStatus
+from wholehand.allocation.bench import run_allocation_benchmark, synthetic_grasp
+from wholehand.allocation.problem import (
+    N_EDGES,
+    ActuationNullSpace,
+    AllocationParams,
+    AllocationQP,
+    build_allocation_qp,
+    direct_problem,
+    friction_edges,
+)
+from wholehand.allocation.solve import (
+    NATIVE_BACKENDS,
+    available_solvers,
+    make_backend,
+    solve_allocation,
+)
+from wholehand.contacts.base import ContactSet
+from wholehand.errors import ConfigError
+
+# Native adapters plus every qpsolvers backend through the generic adapter.
+SOLVERS = [*NATIVE_BACKENDS, *(f"qpsolvers:{s}" for s in qpsolvers.available_solvers)]
+
+TOL = 1e-6  # constraint tolerance of accepted solutions [N, N*m]
+
+# (N contacts, seed, tau_max): feasible synthetic grasps where torque and consistency rows bind.
+CASES = [(5, 0, 0.2), (8, 0, 0.2), (14, 2, 0.2), (14, 0, 0.05), (30, 1, 0.2)]
+
+
+# ------------------------------------------------------------------------------------------------
+# helpers
+# ------------------------------------------------------------------------------------------------
+
+
+def contact_set(
+    p: Any, n: Any, link: Any, link_actuated: Any, link_fingertip: Any = None
+) -> ContactSet:
+    link_actuated = np.asarray(link_actuated, dtype=bool)
+    if link_fingertip is None:
+        link_fingertip = np.zeros_like(link_actuated)
+    p = np.asarray(p, dtype=float).reshape(-1, 3)
+    return ContactSet(
+        p_world=p,
+        n_world=np.asarray(n, dtype=float).reshape(-1, 3),
+        link=np.asarray(link, dtype=np.intp),
+        distance=np.zeros(p.shape[0]),
+        link_actuated=link_actuated,
+        link_fingertip=np.asarray(link_fingertip, dtype=bool),
+    )
+
+
+def antipodal(lever: float = 0.01, d: float = 0.04) -> tuple[ContactSet, np.ndarray, np.ndarray]:
+    """Two fingertips at +-d x pressing along x, each moved along x by its own joint."""
+    cs = contact_set(
+        [[d, 0, 0], [-d, 0, 0]], [[1, 0, 0], [-1, 0, 0]], [1, 2], [False, True, True],
+        [False, True, True],
+    )  # fmt: skip
+    J = np.zeros((2, 3, 2))
+    J[0, 0, 0] = lever
+    J[1, 0, 1] = -lever
+    return cs, J, np.zeros(3)
+
+
+def settings_for(solver: str) -> dict[str, Any]:
+    """Tight tolerances for qpsolvers-driven solvers."""
+    if solver == "osqp":
+        return {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 100000}
+    base = solver.removeprefix("qpsolvers:")
+    return {
+        "osqp": {
+            "eps_abs": 1e-9,
+            "eps_rel": 1e-9,
+            "polishing": True,
+            "max_iter": 100000,
+            "raise_error": False,
+        },
+        "daqp": {"primal_tol": 1e-10},
+        "piqp": {"eps_abs": 1e-10, "eps_rel": 1e-10},
+    }.get(base, {})
+
+
+def objective(qp: AllocationQP, lam: np.ndarray) -> float:
+    w = qp.G_lam @ lam
+    return 0.5 * float(w @ w + qp.params.reg * lam @ lam)
+
+
+def reference(qp: AllocationQP) -> tuple[float, qpsolvers.Solution]:
+    """Optimal objective of the full (unscreened) problem, certified by KKT residuals."""
+    sol = qpsolvers.solve_problem(qp.to_problem(), solver="daqp", primal_tol=1e-10)
+    assert sol.found
+    assert sol.primal_residual() < 1e-9
+    assert sol.dual_residual() < 1e-9
+    assert abs(sol.duality_gap()) < 1e-9
+    return objective(qp, sol.x[: qp.n_lambda]), sol
+
+
+def check_allocation(
+    alloc: Allocation,
+    cs: ContactSet,
+    J: np.ndarray,
+    com: np.ndarray,
+    params: AllocationParams,
+    tol: float = TOL,
+) -> None:
+    """Every constraint, recomputed from the outputs with independent formulas."""
+    assert alloc.status is AllocationStatus.OK
+    f = alloc.f_local
+    assert np.isfinite(f).all() and np.isfinite(alloc.tau).all()
+    assert (f[:, 0] >= -tol).all()
+    assert (np.abs(f[:, 1]) + np.abs(f[:, 2]) <= params.mu * f[:, 0] + tol).all()
+    assert f[:, 0].sum() >= params.f_n_min - tol
+    # f_world = -n f_n + tangents; torque tau = sum over actuated contacts of J_i^T f_world_i.
+    np.testing.assert_allclose((alloc.f_world * cs.n_world).sum(1), -f[:, 0], atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(alloc.f_world, axis=1), np.linalg.norm(f, axis=1))
+    act = cs.actuated
+    tau = np.einsum("ncv,nc->v", J[act], alloc.f_world[act])
+    np.testing.assert_allclose(alloc.tau, tau, atol=1e-9)
+    assert (np.abs(alloc.tau) <= params.tau_max + tol).all()
+    w = np.concatenate([alloc.f_world.sum(0), np.cross(cs.p_world - com, alloc.f_world).sum(0)])
+    np.testing.assert_allclose(alloc.residual_wrench, w, atol=1e-9)
+    if params.consistency:
+        J_act = J[act].reshape(-1, J.shape[2])
+        m, k = J_act.shape
+        if m > k and np.linalg.svd(J_act, compute_uv=False).min() > params.svd_tol:
+            N_u = np.linalg.svd(J_act)[0][:, k:]  # numpy's own SVD basis (ours up to signs)
+        else:
+            N_u = ActuationNullSpace(J_act, params.svd_tol).basis()
+        assert (np.abs(N_u.T @ alloc.f_world[act].ravel()) <= params.eps_margin + tol).all()
+
+
+# ------------------------------------------------------------------------------------------------
+# optimality, constraints, solver agreement
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_reference_solutions_satisfy_kkt_for_every_solver(case: tuple[int, int, float]) -> None:
+    n, seed, tmax = case
+    cs, J, com = synthetic_grasp(seed, n).cycle()
+    params = AllocationParams.checked("test", tau_max=tmax)
+    qp = build_allocation_qp(cs, J, com, params)
+    best, _ = reference(qp)
+    for solver in qpsolvers.available_solvers:
+        sparse = solver in qpsolvers.sparse_solvers and solver not in qpsolvers.dense_solvers
+        sol = qpsolvers.solve_problem(
+            qp.to_problem(sparse=sparse), solver=solver, **settings_for(f"qpsolvers:{solver}")
+        )
+        assert sol.found, solver
+        assert sol.primal_residual() < 1e-6, solver
+        assert sol.dual_residual() < 1e-5, solver
+        assert abs(sol.duality_gap()) < 1e-5, solver
+        assert objective(qp, sol.x[: qp.n_lambda]) == pytest.approx(best, rel=1e-5, abs=1e-8)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("case", CASES)
+def test_allocator_optimum_and_constraints(solver: str, case: tuple[int, int, float]) -> None:
+    n, seed, tmax = case
+    cs, J, com = synthetic_grasp(seed, n).cycle()
+    alloc = QPAllocator(tau_max=tmax, solver=solver, solver_settings=settings_for(solver))
+    out = alloc.allocate(cs, J, com)
+    check_allocation(out, cs, J, com, alloc.params)
+    assert out.solver == solver and out.solve_time > 0.0
+    qp = build_allocation_qp(cs, J, com, alloc.params)
+    best, _ = reference(qp)
+    lam = alloc.last_solution.x[: qp.n_lambda]
+    assert objective(qp, lam) == pytest.approx(best, rel=1e-5, abs=1e-8)
+    np.testing.assert_allclose(qp.f_local(lam), out.f_local)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_screening_is_exact(case: tuple[int, int, float]) -> None:
+    n, seed, tmax = case
+    cs, J, com = synthetic_grasp(seed, n).cycle()
+    params = AllocationParams.checked("test", tau_max=tmax)
+    qp = build_allocation_qp(cs, J, com, params)
+    backend = make_backend("daqp")
+    full = solve_allocation(qp, backend, screening=False)
+    screened = solve_allocation(qp, backend, screening=True)
+    capped = solve_allocation(qp, backend, screening=True, max_rounds=1)  # falls back to full
+    assert screened.n_rows <= full.n_rows
+    for sol in (full, screened, capped):
+        assert sol.status == "optimal" and sol.violation < 1e-8
+        np.testing.assert_allclose(sol.x, full.x, rtol=1e-6, atol=1e-7)
+
+
+def test_warm_start_matches_cold_over_a_control_sequence() -> None:
+    grasp = synthetic_grasp(2, 14)
+    rng = np.random.default_rng(5)
+    warm, cold = QPAllocator(), QPAllocator(warm_start=False)
+    for _ in range(15):
+        cs, J, com = grasp.cycle(rng, 2e-4)
+        a, b = warm.allocate(cs, J, com), cold.allocate(cs, J, com)
+        check_allocation(a, cs, J, com, warm.params)
+        np.testing.assert_allclose(a.f_local, b.f_local, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(a.tau, b.tau, rtol=1e-6, atol=1e-8)
+    assert warm.counts[AllocationStatus.OK] == 15
+
+
+def test_warm_start_survives_contact_changes() -> None:
+    grasp = synthetic_grasp(0, 30)
+    rng = np.random.default_rng(1)
+    alloc, ref = QPAllocator(), QPAllocator(warm_start=False)
+    for k in range(12):
+        cs, J, com = grasp.cycle(rng, 1e-4)
+        keep = rng.random(len(cs)) > 0.2 if k % 3 else np.ones(len(cs), bool)
+        cs, J = cs.select(keep), J[keep]
+        a, b = alloc.allocate(cs, J, com), ref.allocate(cs, J, com)
+        assert a.status is b.status
+        if a.ok:
+            check_allocation(a, cs, J, com, alloc.params)
+            np.testing.assert_allclose(a.tau, b.tau, rtol=1e-5, atol=1e-7)
+
+
+# ------------------------------------------------------------------------------------------------
+# analytic cases
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_symmetric_antipodal_pair(solver: str) -> None:
+    cs, J, com = antipodal()
+    alloc = QPAllocator(solver=solver, solver_settings=settings_for(solver))
+    out = alloc.allocate(cs, J, com)
+    check_allocation(out, cs, J, com, alloc.params)
+    np.testing.assert_allclose(out.residual_wrench, 0.0, atol=1e-7)
+    np.testing.assert_allclose(out.f_local[:, 0], [5.0, 5.0], rtol=1e-5)
+    assert out.f_local[:, 0].sum() == pytest.approx(10.0, rel=1e-6)
+    np.testing.assert_allclose(out.f_local[:, 1:], 0.0, atol=1e-5)
+    np.testing.assert_allclose(out.f_world, [[-5, 0, 0], [5, 0, 0]], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(out.tau, [-0.05, -0.05], rtol=1e-5)
+
+
+@pytest.mark.parametrize("q", [0.0, 0.3, -1.2])
+@pytest.mark.parametrize("behind", [False, True])
+def test_torque_sign_by_virtual_work_on_one_link(q: float, behind: bool) -> None:
+    """tau * dq equals the work f . dp the hand does on the object (finite differences)."""
+    L = 0.05
+
+    def point(q: float) -> np.ndarray:  # revolute joint about world z at the origin
+        return L * np.array([np.cos(q), np.sin(q), 0.0])
+
+    h = 1e-6
+    dp = (point(q + h) - point(q - h)) / (2 * h)
+    # The object sits where the link moves to (or behind it); its normal faces the link.
+    n = -dp / np.linalg.norm(dp) * (-1.0 if behind else 1.0)
+    cs = contact_set(point(q), n, [1], [False, True], [False, True])
+    alloc = QPAllocator(f_n_min=1.0)
+    out = alloc.allocate(cs, dp.reshape(1, 3, 1), np.array([0.0, 0.3, 0.0]))
+    check_allocation(out, cs, dp.reshape(1, 3, 1), np.array([0.0, 0.3, 0.0]), alloc.params)
+    assert out.f_local[0, 0] == pytest.approx(1.0, rel=1e-6)
+    dq = 1e-4
+    work = out.f_world[0] @ (point(q + dq) - point(q))
+    assert out.tau[0] * dq == pytest.approx(work, rel=1e-3)
+    assert out.tau[0] == pytest.approx(-L if behind else L, rel=1e-6)
+
+
+def build_null_case() -> tuple[ContactSet, np.ndarray, np.ndarray]:
+    """Contact 1's joint moves it tangentially (along y): its normal push is invisible to tau."""
+    cs, J, com = antipodal()
+    J[0] = 0.0
+    J[0, 1, 0] = 0.01
+    return cs, J, com
+
+
+def test_consistency_bounds_null_space_components() -> None:
+    cs, J, com = build_null_case()
+    on = QPAllocator()
+    out = on.allocate(cs, J, com)
+    check_allocation(out, cs, J, com, on.params)
+    N_u = ActuationNullSpace(J.reshape(6, 2)).basis()
+    null = N_u.T @ out.f_world.ravel()
+    assert np.abs(null).max() == pytest.approx(0.5, abs=1e-6)  # the bound binds
+    assert np.linalg.norm(out.residual_wrench) > 1.0  # balance is given up for consistency
+
+
+def test_without_consistency_the_null_space_bound_is_exceeded() -> None:
+    cs, J, com = build_null_case()
+    off = QPNoConsistencyAllocator()
+    assert not off.params.consistency
+    out = off.allocate(cs, J, com)
+    check_allocation(out, cs, J, com, off.params)
+    np.testing.assert_allclose(out.residual_wrench, 0.0, atol=1e-7)
+    N_u = ActuationNullSpace(J.reshape(6, 2)).basis()
+    assert np.abs(N_u.T @ out.f_world.ravel()).max() > 0.5 + 1.0
+
+
+def test_passive_palm_contact_is_in_the_wrench_but_not_in_tau() -> None:
+    cs = contact_set([[0.04, 0, 0], [-0.04, 0, 0]], [[1, 0, 0], [-1, 0, 0]], [0, 1], [False, True])
+    J = np.zeros((2, 3, 1))
+    J[1, 0, 0] = 0.01
+    J[0, 1, 0] = 5.0  # a palm Jacobian must not leak into the torque
+    out = QPAllocator().allocate(cs, J, np.zeros(3))
+    np.testing.assert_allclose(out.f_local[:, 0], [5.0, 5.0], rtol=1e-5)
+    np.testing.assert_allclose(out.tau, [0.01 * 5.0], rtol=1e-5)
+
+
+# ------------------------------------------------------------------------------------------------
+# reformulation and null-space basis
+# ------------------------------------------------------------------------------------------------
+
+
+def test_pyramid_edges_span_exactly_the_friction_pyramid() -> None:
+    rng = np.random.default_rng(0)
+    for mu in (0.0, 0.3, 0.7, 1.5):
+        E = friction_edges(mu)
+        lam = rng.random((200, 4)) * (rng.random((200, 4)) > 0.3)
+        f = lam @ E.T
+        assert (f[:, 0] >= 0).all()
+        assert (np.abs(f[:, 1]) + np.abs(f[:, 2]) <= mu * f[:, 0] + 1e-12).all()
+        if mu == 0.0:
+            continue
+        # Any pyramid point has a non-negative edge decomposition (constructive proof).
+        fn = rng.random(200) * 5
+        frac = rng.random((200, 2))
+        frac /= np.maximum(1.0, frac.sum(1, keepdims=True))
+        ft = mu * fn[:, None] * frac * rng.choice([-1.0, 1.0], size=(200, 2))
+        s = fn - np.abs(ft).sum(1) / mu
+        dec = np.stack(
+            [
+                np.maximum(ft[:, 0], 0) / mu + s / 4,
+                np.maximum(-ft[:, 0], 0) / mu + s / 4,
+                np.maximum(ft[:, 1], 0) / mu + s / 4,
+                np.maximum(-ft[:, 1], 0) / mu + s / 4,
+            ],
+            axis=1,
+        )
+        assert (dec >= -1e-12).all()
+        np.testing.assert_allclose(dec @ E.T, np.column_stack([fn, ft]), atol=1e-12)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_edge_form_equals_direct_form(case: tuple[int, int, float]) -> None:
+    n, seed, tmax = case
+    cs, J, com = synthetic_grasp(seed, n).cycle()
+    params = AllocationParams.checked("test", tau_max=tmax, reg=1e-8)
+    qp = build_allocation_qp(cs, J, com, params)
+    direct, edge = direct_problem(qp), qp.to_problem()
+    # Same non-pyramid rows: direct rows composed with f = blockdiag(E) lambda are the edge rows.
+    Eb = np.kron(np.eye(qp.n_contacts), friction_edges(params.mu))
+    np.testing.assert_allclose(direct.G[4 * n :] @ Eb, edge.G[:, : qp.n_lambda], atol=1e-12)
+    np.testing.assert_allclose(direct.h[4 * n :], edge.h)
+    # Same optimal residual 1/2 ||G f||^2 (the ridges differ; reg is tiny here).
+    sd = qpsolvers.solve_problem(direct, solver="daqp", primal_tol=1e-10)
+    se = qpsolvers.solve_problem(edge, solver="daqp", primal_tol=1e-10)
+    assert sd.found and se.found
+    lam = se.x[: qp.n_lambda]
+    res_d = 0.5 * np.sum((qp.G @ sd.x) ** 2)
+    res_e = 0.5 * np.sum((qp.G_lam @ lam) ** 2)
+    assert res_e == pytest.approx(res_d, rel=1e-4, abs=1e-7)
+    # And each optimum is feasible for the other form.
+    assert qp.violation(lam) < 1e-8
+    f = qp.f_local(lam).ravel()
+    assert (direct.G @ f - direct.h).max() < 1e-8
+
+
+def test_null_space_basis_is_numpys_svd_basis_when_full_rank() -> None:
+    rng = np.random.default_rng(4)
+    for m, k in ((9, 4), (30, 16), (61, 16)):
+        J = rng.normal(size=(m, k))
+        ns = ActuationNullSpace(J)
+        U = np.linalg.svd(J)[0][:, k:]
+        assert ns.rank == k and ns.dim == m - k
+        np.testing.assert_allclose(np.abs(U.T @ ns.basis()), np.eye(m - k), atol=1e-10)
+        v = rng.normal(size=m)
+        np.testing.assert_allclose(np.abs(ns.project(v)), np.abs(U.T @ v), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "shape_rank", [((12, 6), 3), ((12, 6), 6), ((6, 9), 6), ((6, 9), 2), ((6, 3), 0)]
+)
+def test_null_space_basis_rank_deficient_and_wide(shape_rank: tuple[tuple[int, int], int]) -> None:
+    (m, k), r = shape_rank
+    rng = np.random.default_rng(7)
+    J = rng.normal(size=(m, r)) @ rng.normal(size=(r, k)) if r else np.zeros((m, k))
+    J[:, 0] = 0.0 if r < k else J[:, 0]  # an untouched joint
+    r = np.linalg.matrix_rank(J)
+    ns = ActuationNullSpace(J)
+    B = ns.basis()
+    assert ns.rank == r and B.shape == (m, m - r)
+    np.testing.assert_allclose(B.T @ B, np.eye(m - r), atol=1e-10)
+    np.testing.assert_allclose(J.T @ B, 0.0, atol=1e-10)
+    v = rng.normal(size=m)
+    np.testing.assert_allclose(ns.project(v), B.T @ v, atol=1e-12)
+    idx = np.array([m - r - 1, 0]) if m > r else np.zeros(0, np.intp)
+    np.testing.assert_allclose(ns.columns(idx), B[:, idx], atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------
+# fallbacks
+# ------------------------------------------------------------------------------------------------
+
+
+def test_empty_contact_set_gives_zero_torque() -> None:
+    alloc = QPAllocator()
+    cs = ContactSet.empty(np.array([False, True]), np.array([False, True]))
+    out = alloc.allocate(cs, np.zeros((0, 3, 5)), np.zeros(3))
+    assert out.status is AllocationStatus.EMPTY and not out.ok
+    assert out.tau.shape == (5,) and not out.tau.any()
+    assert out.f_local.shape == (0, 3) and out.f_world.shape == (0, 3)
+    assert out.residual_wrench.shape == (6,)
+
+
+def test_contacts_without_actuated_link_give_zero_torque() -> None:
+    cs = contact_set([[0.04, 0, 0]], [[1, 0, 0]], [0], [False, True])
+    out = QPAllocator().allocate(cs, np.ones((1, 3, 3)), np.zeros(3))
+    assert out.status is AllocationStatus.NO_ACTUATED_CONTACT
+    assert out.tau.shape == (3,) and not out.tau.any()
+    assert out.f_local.shape == (1, 3)
+
+
+def test_infeasible_keeps_last_feasible_torque() -> None:
+    alloc = QPAllocator()
+    cs, J, com = antipodal(lever=0.01)
+    first = alloc.allocate(cs, J, com)
+    assert first.ok
+    # Lever 1 m: 10 N of squeeze needs 5 N*m > tau_max at both joints.
+    bad = alloc.allocate(cs, J * 100.0, com)
+    assert bad.status is AllocationStatus.INFEASIBLE
+    np.testing.assert_array_equal(bad.tau, first.tau)
+    assert not bad.f_local.any()
+    again = alloc.allocate(cs, J * 100.0, com)
+    np.testing.assert_array_equal(again.tau, first.tau)
+    assert alloc.counts[AllocationStatus.INFEASIBLE] == 2
+    assert alloc.allocate(cs, J, com).ok  # recovers
+    fresh = QPAllocator(tau_max=1e-3, f_n_min=50.0)
+    out = fresh.allocate(cs, J, com)
+    assert out.status is AllocationStatus.INFEASIBLE and not out.tau.any()
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_infeasible_for_every_solver_never_raises(solver: str) -> None:
+    cs, J, com = antipodal(lever=1.0)
+    out = QPAllocator(solver=solver).allocate(cs, J, com)
+    assert out.status in (AllocationStatus.INFEASIBLE, AllocationStatus.SOLVER_FAILED)
+    assert not out.tau.any()
+
+
+def test_solver_failure_and_nan_input_keep_last_torque() -> None:
+    grasp = synthetic_grasp(2, 14)
+    cs, J, com = grasp.cycle()
+    alloc = QPAllocator()
+    first = alloc.allocate(cs, J, com)
+    assert first.ok
+    J_nan = J.copy()
+    J_nan[3, 1, 2] = np.nan
+    out = alloc.allocate(cs, J_nan, com)
+    assert out.status is AllocationStatus.SOLVER_FAILED
+    np.testing.assert_array_equal(out.tau, first.tau)
+    starved = QPAllocator(solver_settings={"iter_limit": 1})
+    out = starved.allocate(cs, J, com)
+    assert out.status is AllocationStatus.SOLVER_FAILED and not out.tau.any()
+    assert np.isfinite(out.tau).all()
+
+
+def test_reset_forgets_torque() -> None:
+    cs, J, com = antipodal()
+    alloc = QPAllocator()
+    alloc.allocate(cs, J, com)
+    alloc.reset()
+    assert alloc.last_tau is None
+    assert alloc.allocate(cs, J * 100, com).tau.tolist() == [0.0, 0.0]
+
+
+# ------------------------------------------------------------------------------------------------
+# joints, plug-ins, configuration
+# ------------------------------------------------------------------------------------------------
+
+
+def test_actuated_dofs_mask_zeroes_other_joints() -> None:
+    grasp = synthetic_grasp(0, 14)
+    cs, J, com = grasp.cycle()
+    mask = np.ones(16, bool)
+    mask[[0, 5]] = False
+    for dofs in (mask, np.flatnonzero(mask)):
+        alloc = QPAllocator(actuated_dofs=dofs, tau_max=np.linspace(0.1, 0.3, 16))
+        out = alloc.allocate(cs, J, com)
+        assert out.ok
+        assert out.tau[0] == 0.0 and out.tau[5] == 0.0
+        f = out.f_world[cs.actuated]
+        np.testing.assert_allclose(
+            out.tau[mask], np.einsum("ncv,nc->v", J[cs.actuated][:, :, mask], f), atol=1e-10
+        )
+        assert (np.abs(out.tau) <= np.linspace(0.1, 0.3, 16) + TOL).all()
+
+
+def test_fingertip_only_uses_distal_contacts() -> None:
+    grasp = synthetic_grasp(1, 30)
+    cs, J, com = grasp.cycle()
+    tips = cs.fingertip
+    assert 0 < tips.sum() < len(cs)
+    out = FingertipOnlyAllocator().allocate(cs, J, com)
+    ref = QPAllocator().allocate(cs.select(tips), J[tips], com)
+    assert out.status is ref.status
+    assert out.f_local.shape == (len(cs), 3) and out.f_world.shape == (len(cs), 3)
+    assert not out.f_local[~tips].any() and not out.f_world[~tips].any()
+    np.testing.assert_allclose(out.f_local[tips], ref.f_local)
+    np.testing.assert_allclose(out.tau, ref.tau)
+    palm_only = cs.select(~tips)
+    empty = FingertipOnlyAllocator().allocate(palm_only, J[~tips], com)
+    assert empty.status is AllocationStatus.EMPTY and empty.f_local.shape == (len(palm_only), 3)
+
+
+def test_plugin_docstrings_have_one_line_descriptions() -> None:
+    for cls in (QPAllocator, QPNoConsistencyAllocator, FingertipOnlyAllocator):
+        first = (cls.__doc__ or "").strip().splitlines()[0]
+        assert first and first.endswith(".") and len(first) < 100
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"mu": -0.1}, "mu"),
+        ({"mu": float("nan")}, "mu"),
+        ({"f_n_min": -1.0}, "f_n_min"),
+        ({"tau_max": 0.0}, "tau_max"),
+        ({"tau_max": -0.2}, "tau_max"),
+        ({"tau_max": [0.2, 0.0]}, "tau_max"),
+        ({"tau_max": [[0.2]]}, "tau_max"),
+        ({"tau_max": "big"}, "tau_max"),
+        ({"eps_margin": -0.5}, "eps_margin"),
+        ({"svd_tol": 0.0}, "svd_tol"),
+        ({"reg": 0.0}, "reg"),
+        ({"reg": float("inf")}, "reg"),
+        ({"actuated_dofs": [0, 0]}, "actuated_dofs"),
+        ({"actuated_dofs": [-1]}, "actuated_dofs"),
+        ({"actuated_dofs": [0.5]}, "actuated_dofs"),
+        ({"feas_tol": -1.0}, "feas_tol"),
+        ({"solver": "no_such_solver"}, "solver"),
+        ({"solver_settings": 3}, "solver_settings"),
+    ],
+)
+@pytest.mark.parametrize("cls", [QPAllocator, QPNoConsistencyAllocator, FingertipOnlyAllocator])
+def test_bad_configuration_raises(kwargs: dict[str, Any], name: str, cls: type) -> None:
+    with pytest.raises(ConfigError) as err:
+        cls(**kwargs)
+    assert cls.__name__ in str(err.value) and name in str(err.value)
+
+
+@pytest.mark.parametrize("solver", [*NATIVE_BACKENDS, "qpsolvers:daqp"])
+def test_bad_solver_settings_raise_at_construction(solver: str) -> None:
+    with pytest.raises(ConfigError, match="solver_settings"):
+        QPAllocator(solver=solver, solver_settings={"no_such_setting_xyz": 1})
+
+
+def test_solver_exception_in_the_loop_becomes_a_status() -> None:
+    cs, J, com = antipodal()
+    alloc = QPAllocator()
+    first = alloc.allocate(cs, J, com)
+
+    def boom(*args: Any) -> None:
+        raise RuntimeError("solver crashed")
+
+    alloc.backend._solve = boom  # type: ignore[method-assign]
+    out = alloc.allocate(cs, J, com)
+    assert out.status is AllocationStatus.SOLVER_FAILED
+    np.testing.assert_array_equal(out.tau, first.tau)
+
+
+def test_unknown_solver_lists_installed_ones() -> None:
+    with pytest.raises(ConfigError, match="daqp"):
+        QPAllocator(solver="gurobi_but_not_installed")
+    assert set(NATIVE_BACKENDS) <= set(available_solvers())
+
+
+def test_shape_mismatches_raise() -> None:
+    cs, J, com = antipodal()
+    alloc = QPAllocator()
+    with pytest.raises(ConfigError, match="J_world"):
+        alloc.allocate(cs, J[:1], com)
+    with pytest.raises(ConfigError, match="J_world"):
+        alloc.allocate(cs, J[:, :2], com)
+    with pytest.raises(ConfigError, match="p_com_world"):
+        alloc.allocate(cs, J, np.zeros(2))
+    with pytest.raises(ConfigError, match="tau_max"):
+        QPAllocator(tau_max=[0.2, 0.2, 0.2]).allocate(cs, J, com)
+    with pytest.raises(ConfigError, match="actuated_dofs"):
+        QPAllocator(actuated_dofs=[3]).allocate(cs, J, com)
+    with pytest.raises(ConfigError, match="J_world"):
+        FingertipOnlyAllocator().allocate(cs, J[:1], com)
+
+
+def test_benchmark_runs_and_writes_plot(tmp_path: Any) -> None:
+    report = run_allocation_benchmark(
+        contact_counts=(6, 12), solvers=["daqp"], cycles=3, warmup=1, out_dir=tmp_path
+    )
+    assert (tmp_path / "allocate.png").stat().st_size > 0
+    assert (tmp_path / "allocate.json").exists()
+    assert {r["mode"] for r in report["results"]} == {"warm", "no_warm_start", "cold"}
+    assert set(report["best"]) == {"6", "12"}
+    assert all(r["n"] == 3 for r in report["results"])
+    assert N_EDGES == 4

@@ -1,0 +1,360 @@
+"""Benchmark of the force-allocation QP (``wholehand bench allocate``).
+
+Problems are synthetic but shaped like the paper's (Sec. IV-C, K sweep: 14 to 91 contacts):
+a 16-DoF hand of four 4-joint fingers (revolute joints with random axes, their origins 7 cm from
+the object's centre) and a passive palm; contacts lie on a 4 cm sphere around the COM, clustered
+per link (up to ``K = max(5, ceil(N / 17))`` per link), with the sphere's outward normals. The
+Jacobian of a contact on link k of a finger has the columns ``z_j x (p - o_j)`` of that finger's
+joints 0..k and zeros elsewhere (block-sparse, one chain per finger); palm contacts are passive.
+
+Per solver and contact count, two modes are timed with ``perf_counter_ns`` around the whole
+``allocate()`` call (problem building included), after a warm-up:
+
+- ``warm``: one allocator over a control-loop-like sequence, contact points jittered by 0.1 mm
+  about their nominal positions each cycle (normals and Jacobians recomputed);
+- ``no_warm_start``: the same with ``warm_start=False`` (no primal start, no remembered working
+  set), persistent solver objects kept: isolates the effect of the warm start;
+- ``cold``: the same sequence with ``reset()`` before every call (no warm start, no kept solver
+  object).
+
+DAQP is also timed without constraint screening (``screening: false``) for the A/B.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import time
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.contacts.base import ContactSet
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+
+MODES: tuple[str, ...] = ("warm", "no_warm_start", "cold")
+"""Timed modes, see the module docstring."""
+
+
+@dataclass(frozen=True)
+class SyntheticHand:
+    """A block-sparse stand-in hand: link 0 is the palm, then ``dofs`` links per finger."""
+
+    n_fingers: int
+    """Fingers (kinematic chains)."""
+    dofs: int
+    """Joints (and links) per finger."""
+    joint_origin: FloatArray
+    """(n_v, 3) a point on each joint axis, world frame [m]."""
+    joint_axis: FloatArray
+    """(n_v, 3) unit joint axes, world axes."""
+    link_direction: FloatArray
+    """(L, 3) unit direction from the COM where each link's contacts cluster."""
+
+    @property
+    def n_v(self) -> int:
+        return self.n_fingers * self.dofs
+
+    @property
+    def n_links(self) -> int:
+        return 1 + self.n_v
+
+    @property
+    def link_actuated(self) -> npt.NDArray[np.bool_]:
+        """(L,) every finger link is actuated, the palm is not."""
+        out = np.ones(self.n_links, dtype=bool)
+        out[0] = False
+        return out
+
+    @property
+    def link_fingertip(self) -> npt.NDArray[np.bool_]:
+        """(L,) the last link of each finger."""
+        out = np.zeros(self.n_links, dtype=bool)
+        out[self.dofs :: self.dofs] = True
+        return out
+
+    def jacobians(self, link: IntArray, p_world: FloatArray) -> FloatArray:
+        """(N, 3, n_v) point Jacobians of contacts at ``p_world`` (N, 3) on links ``link``."""
+        n = link.size
+        cross = np.cross(self.joint_axis[None, :, :], p_world[:, None, :] - self.joint_origin)
+        finger_link = link - 1  # -1 for the palm
+        j = np.arange(self.n_v)
+        same_finger = (finger_link[:, None] // self.dofs) == (j[None, :] // self.dofs)
+        proximal = (j[None, :] % self.dofs) <= (finger_link[:, None] % self.dofs)
+        mask = (finger_link[:, None] >= 0) & same_finger & proximal
+        return (cross * mask[:, :, None]).transpose(0, 2, 1).reshape(n, 3, self.n_v)
+
+
+def synthetic_hand(
+    rng: np.random.Generator, n_fingers: int = 4, dofs: int = 4, reach: float = 0.07
+) -> SyntheticHand:
+    """A random :class:`SyntheticHand` (joint origins at ``reach`` [m] from the COM)."""
+    n_v = n_fingers * dofs
+    origin = rng.normal(size=(n_v, 3))
+    origin *= reach / np.linalg.norm(origin, axis=1, keepdims=True)
+    axis = rng.normal(size=(n_v, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    direction = rng.normal(size=(1 + n_v, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    return SyntheticHand(n_fingers, dofs, origin, axis, direction)
+
+
+@dataclass(frozen=True)
+class SyntheticGrasp:
+    """Nominal contacts of one synthetic grasp."""
+
+    hand: SyntheticHand
+    link: IntArray
+    """(N,) link of each contact."""
+    direction: FloatArray
+    """(N, 3) unit direction of each contact from the COM (= outward normal)."""
+    radius: float
+    """Object radius [m]."""
+    p_com_world: FloatArray
+    """(3,) object COM [m]."""
+
+    def cycle(
+        self, rng: np.random.Generator | None = None, jitter: float = 0.0
+    ) -> tuple[ContactSet, FloatArray, FloatArray]:
+        """``(contacts, J_world, p_com_world)`` with points jittered by ``jitter`` [m] (std)."""
+        p = self.p_com_world + self.radius * self.direction
+        if rng is not None and jitter > 0.0:
+            p = p + jitter * rng.normal(size=p.shape)
+        r = p - self.p_com_world
+        n = r / np.linalg.norm(r, axis=1, keepdims=True)
+        contacts = ContactSet(
+            p_world=p,
+            n_world=n,
+            link=self.link,
+            distance=np.zeros(self.link.size),
+            link_actuated=self.hand.link_actuated,
+            link_fingertip=self.hand.link_fingertip,
+        )
+        return contacts, self.hand.jacobians(self.link, p), self.p_com_world.copy()
+
+
+def synthetic_grasp(
+    seed: int, n_contacts: int, radius: float = 0.04, spread: float = 0.25
+) -> SyntheticGrasp:
+    """A seeded random grasp of ``n_contacts`` contacts on a :func:`synthetic_hand`.
+
+    Args:
+        seed: Seed of everything random.
+        n_contacts: N.
+        radius: Sphere radius [m].
+        spread: Std of the per-contact direction around its link's direction [-] (~rad).
+    """
+    rng = np.random.default_rng(seed)
+    hand = synthetic_hand(rng)
+    k_max = max(5, math.ceil(n_contacts / hand.n_links))
+    counts = np.zeros(hand.n_links, dtype=np.intp)
+    for _ in range(n_contacts):
+        counts[rng.choice(np.flatnonzero(counts < k_max))] += 1
+    link = np.repeat(np.arange(hand.n_links), counts).astype(np.intp)
+    d = hand.link_direction[link] + spread * rng.normal(size=(n_contacts, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return SyntheticGrasp(hand, link, d, radius, np.zeros(3))
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version(), "machine": platform.machine()}
+    for dist in ("numpy", "scipy", "qpsolvers", "daqp", "osqp", "piqp"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
+    out["cpu_count"] = str(os.cpu_count())
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        out[var] = os.environ.get(var, "")
+    return out
+
+
+def _time_mode(
+    grasp: SyntheticGrasp,
+    make: Any,
+    cycles: int,
+    warmup: int,
+    seed: int,
+    mode: str,
+) -> dict[str, Any]:
+    from wholehand.timing import percentiles_us
+
+    rng = np.random.default_rng(seed + 1)
+    inputs = [grasp.cycle(rng, 1e-4) for _ in range(warmup + cycles)]
+    alloc = make(warm_start=mode != "no_warm_start")
+    cold = mode == "cold"
+    samples = np.empty(cycles, dtype=np.int64)
+    solve = np.empty(cycles)
+    statuses: Counter[str] = Counter()
+    rounds = []
+    residual = []
+    violation = 0.0
+    for i, (contacts, J, com) in enumerate(inputs):
+        if cold:
+            alloc.reset()
+        t0 = time.perf_counter_ns()
+        out = alloc.allocate(contacts, J, com)
+        dt = time.perf_counter_ns() - t0
+        if i < warmup:
+            continue
+        k = i - warmup
+        samples[k] = dt
+        solve[k] = out.solve_time
+        statuses[out.status.value] += 1
+        sol = alloc.last_solution
+        if sol is not None:
+            rounds.append(sol.rounds)
+            if out.ok:
+                violation = max(violation, sol.violation)
+        residual.append(float(np.linalg.norm(out.residual_wrench)))
+    stats = percentiles_us(samples)
+    stats["solve_p50_us"] = round(float(np.median(solve)) * 1e6, 2)
+    stats["status"] = dict(statuses)
+    stats["rounds_mean"] = round(float(np.mean(rounds)), 3) if rounds else 0.0
+    stats["max_violation"] = float(violation)
+    stats["residual_norm_p50"] = float(np.median(residual))
+    return stats
+
+
+def run_allocation_benchmark(
+    contact_counts: Sequence[int] = (14, 45, 90),
+    solvers: Sequence[str] | None = None,
+    cycles: int = 300,
+    warmup: int = 30,
+    seed: int = 0,
+    out_dir: str | Path | None = None,
+    unscreened: bool = True,
+    allocator_kwargs: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Time ``QPAllocator.allocate`` per solver, contact count and mode (see :data:`MODES`).
+
+    Args:
+        contact_counts: Numbers of contacts N.
+        solvers: Solver names (default: the natively driven ones that are installed).
+        cycles: Timed cycles per (solver, N, mode).
+        warmup: Untimed cycles before them.
+        seed: Seed of the problems and jitter.
+        out_dir: Folder for ``allocate.json`` and ``allocate.png``; None writes nothing.
+        unscreened: Also time DAQP without constraint screening (A/B).
+        allocator_kwargs: Extra ``QPAllocator`` keyword arguments (e.g. ``tau_max``).
+
+    Returns:
+        JSON-able dict: ``config``, ``environment``, ``results`` (one entry per solver, mode
+        of :data:`MODES`, screening and N with p50/p95/p99/mean/max [us] of the whole
+        ``allocate()`` call, ``solve_p50_us`` from ``Allocation.solve_time``, status counts,
+        mean screening rounds, largest accepted constraint violation and median residual-wrench
+        norm), ``best`` (per N, the fastest warm configuration) and ``plot`` (PNG path or None).
+    """
+    from wholehand_plugins.qp import QPAllocator
+
+    from wholehand.allocation.solve import NATIVE_BACKENDS
+
+    names = list(solvers) if solvers is not None else list(NATIVE_BACKENDS)
+    extra = dict(allocator_kwargs or {})
+    configs: list[tuple[str, bool]] = [(s, True) for s in names]
+    if unscreened and "daqp" in names:
+        configs.append(("daqp", False))
+    results: list[dict[str, Any]] = []
+    for n in contact_counts:
+        grasp = synthetic_grasp(seed, int(n))
+        for solver, screening in configs:
+            QPAllocator(solver=solver, **extra)  # fail early on a bad name
+
+            def make(
+                warm_start: bool, solver: str = solver, screening: bool = screening
+            ) -> QPAllocator:
+                return QPAllocator(
+                    solver=solver, screening=screening, warm_start=warm_start, **extra
+                )
+
+            for mode in MODES:
+                stats = _time_mode(grasp, make, cycles, warmup, seed, mode)
+                results.append(
+                    {"solver": solver, "screening": screening, "mode": mode, "n_contacts": int(n)}
+                    | stats
+                )
+    best: dict[str, Any] = {}
+    for n in contact_counts:
+        rows = [r for r in results if r["n_contacts"] == n and r["mode"] == "warm"]
+        if rows:
+            b = min(rows, key=lambda r: r["p50_us"])
+            best[str(n)] = {k: b[k] for k in ("solver", "screening", "p50_us", "p99_us")}
+    report: dict[str, Any] = {
+        "config": {
+            "contact_counts": [int(n) for n in contact_counts],
+            "solvers": names,
+            "cycles": cycles,
+            "warmup": warmup,
+            "seed": seed,
+            "allocator_kwargs": {k: repr(v) for k, v in extra.items()},
+            "timed": "whole QPAllocator.allocate() call, perf_counter_ns",
+        },
+        "environment": _versions(),
+        "results": results,
+        "best": best,
+        "plot": None,
+    }
+    if out_dir is not None:
+        import json
+
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        report["plot"] = str(_plot(results, out / "allocate.png"))
+        (out / "allocate.json").write_text(json.dumps(report, indent=2))
+    return report
+
+
+def _plot(results: list[dict[str, Any]], path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax50, ax99) = plt.subplots(1, 2, figsize=(10.5, 4.2), sharey=True)
+    keys = sorted({(r["solver"], r["screening"]) for r in results})
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    styles = {"warm": "-", "no_warm_start": ":", "cold": "--"}
+    for i, (solver, screening) in enumerate(keys):
+        label = solver if screening else f"{solver} (no screening)"
+        for mode, style in styles.items():
+            rows = sorted(
+                (r for r in results if (r["solver"], r["screening"], r["mode"]) == (
+                    solver, screening, mode)),
+                key=lambda r: r["n_contacts"],
+            )  # fmt: skip
+            if not rows:
+                continue
+            x = [r["n_contacts"] for r in rows]
+            kw = {"marker": "o", "color": colors[i % len(colors)]}
+            ax50.plot(x, [r["p50_us"] for r in rows], style, label=f"{label}, {mode}", **kw)
+            if mode == "warm":
+                ax99.plot(x, [r["p99_us"] for r in rows], style, label=f"{label}, {mode}", **kw)
+    for ax, what in ((ax50, "p50, every mode"), (ax99, "p99, warm")):
+        ax.set_xlabel("contacts N")
+        ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.set_title(f"allocate() time per cycle ({what})", fontsize=10)
+    ax50.set_ylabel("time [us]")
+    ax50.legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+__all__ = [
+    "SyntheticGrasp",
+    "SyntheticHand",
+    "run_allocation_benchmark",
+    "synthetic_grasp",
+    "synthetic_hand",
+]

@@ -1,0 +1,584 @@
+"""The force-allocation QP of one control cycle (paper Sec. III-C), built separately from solving.
+
+Paper form (variables ``f``: the local forces ``[f_n, f_t1, f_t2]`` of all N contacts, 3N)::
+
+    min_f   1/2 ||G f||^2                                        residual wrench, unit weights
+    s.t.    f_n,i >= 0,   |f_t1,i| + |f_t2,i| <= mu f_n,i         unilateral + friction pyramid
+            sum_i f_n,i >= f_n_min                                minimum squeeze
+            -tau_max <= J_act^T f_act <= tau_max                  torque limits (actuated contacts)
+            -eps 1 <= N_u^T f_act <= eps 1                        actuation consistency
+
+where ``f_act`` stacks the *world-axis* forces of the contacts on actuated links, in the
+coordinates ``J_act`` acts on: ``f_act,i = wRc_i f_i`` (see :mod:`wholehand.allocation.grasp`
+for frames and signs). :func:`direct_problem` builds exactly this (plus the tie-break below).
+
+Torque sign. ``f`` is the force of the hand on the object, so the object pushes the hand with
+``-f``. A static hand needs ``tau + J^T (-f) = 0``, i.e. ``tau = J^T f``. One-joint check: a link
+turning about world z through the origin, contact point at ``p = (L, 0, 0)``: ``J = dp/dq =
+(0, L, 0)``. Pushing the object along +y with ``f = (0, F, 0)`` the link feels ``-F`` along y, a
+moment ``-L F`` about z, which the motor holds with ``tau = +L F = J^T f``. Equivalently, by
+virtual work, the motor does work ``tau dq = f . (J dq)`` on the object.
+
+Tie-break. ``1/2 ||G f||^2`` does not fix the magnitude (every feasible scaling of a balanced
+``f`` is optimal), and its Hessian ``G^T G`` has rank 6. A ridge ``reg/2 ||.||^2`` on the
+variables makes the optimum unique (the smallest balanced squeeze: a symmetric antipodal pair
+gets equal normal forces summing to exactly ``f_n_min``) and the Hessian positive definite. Its
+price is bounded: the residual part of the objective exceeds the true optimum by at most
+``reg/2 ||x*||^2`` (``x*`` the minimum-norm optimal point): below 1e-5 N^2 at the defaults
+(``reg = 1e-6``, ``f_n_min = 10 N``); residual wrenches of balanced synthetic grasps come out at
+1e-8..1e-6. DAQP, OSQP and PIQP were checked from ``reg = 1e-8`` to ``1e-4``.
+
+Solved form (what :class:`AllocationQP` and :meth:`AllocationQP.to_problem` carry). Two exact
+reformulations make the problem cheap for a dense active-set solver:
+
+1. Friction-pyramid edges. Per contact ``f_i = E lambda_i`` with ``lambda_i >= 0`` (4,) and
+   ``E = [[1, 1, 1, 1], [mu, -mu, 0, 0], [0, 0, mu, -mu]]``. The image of ``lambda >= 0`` is
+   exactly the pyramid (``f_n >= 0`` included): ``f_n = sum(lambda)``, ``|f_t1| + |f_t2| =
+   mu (|l1 - l2| + |l3 - l4|) <= mu f_n``; conversely, for ``f`` in the pyramid with slack
+   ``s = f_n - (|f_t1| + |f_t2|) / mu >= 0`` take ``l1,2 = max(+-f_t1, 0) / mu + s/4``,
+   ``l3,4 = max(+-f_t2, 0) / mu + s/4``. Unilateral and friction become simple bounds, and the
+   minimum squeeze is ``sum(lambda) >= f_n_min``.
+2. Wrench splitting. A free variable ``w`` (6,) with the equality ``G E lambda - w = 0`` turns the
+   objective into ``1/2 ||w||^2 + reg/2 ||lambda||^2``: a *diagonal* Hessian, so no dense
+   factorisation is needed.
+
+The tie-break is then a ridge on the edge weights (for a pure normal force ``||lambda||^2 =
+f_n^2 / 4``); optimal residuals agree with the paper form up to the bound above, and the tests
+check the feasible sets and optimal values against :func:`direct_problem`.
+
+Actuation-consistency basis. ``N_u`` (columns of ``U`` beyond rank in a full SVD
+``J_act = U S V^T``, rank by an *absolute* tolerance on the singular values, units of ``J``)
+is only defined up to a rotation within ``Null(J_act^T)`` when singular values are repeated
+zeros, and the box ``|N_u^T f| <= eps`` depends on that choice. :class:`ActuationNullSpace` uses
+the basis LAPACK's full SVD of a tall matrix produces (a Householder QR first, then the SVD of
+the small triangular factor): when ``J_act`` has full column rank it equals
+``numpy.linalg.svd(J_act)[0][:, n:]`` up to column signs, which leave the symmetric box
+unchanged. It is kept as Householder reflectors and applied in O(m n), never formed as an
+(m, m) matrix in the control loop.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+import scipy.sparse as spa
+from scipy.linalg import lapack
+
+from wholehand import defaults
+from wholehand.allocation.grasp import contact_frames, wrench_map
+from wholehand.errors import ConfigError
+
+if TYPE_CHECKING:
+    import qpsolvers
+
+    from wholehand.contacts.base import ContactSet
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
+
+REG: float = 1e-6
+"""Ridge weight of the tie-break ``reg/2 ||lambda||^2`` on the pyramid-edge weights [-]."""
+
+N_EDGES: int = 4
+"""Edges of the linearised friction pyramid per contact."""
+
+N_WRENCH: int = 6
+"""Size of the wrench ``[force; torque]``."""
+
+
+def friction_edges(mu: float) -> FloatArray:
+    """(3, 4) matrix ``E`` whose columns are the pyramid edges in local ``[n, t1, t2]`` axes."""
+    return np.array([[1.0, 1.0, 1.0, 1.0], [mu, -mu, 0.0, 0.0], [0.0, 0.0, mu, -mu]])
+
+
+@dataclass(frozen=True)
+class AllocationParams:
+    """Constants of the allocation QP; see :mod:`wholehand.defaults` for their meaning."""
+
+    mu: float = defaults.MU
+    """Friction coefficient of the pyramid [-]."""
+    f_n_min: float = defaults.F_N_MIN
+    """Lower bound on the sum of normal forces [N]."""
+    tau_max: float | FloatArray = defaults.TAU_MAX
+    """Joint torque limit, scalar or (n_v,) per joint [N*m]; ``inf`` disables a joint's rows."""
+    eps_margin: float = defaults.EPS_MARGIN
+    """Bound on the actuation-null-space force components [N]."""
+    svd_tol: float = defaults.SVD_TOL
+    """Absolute singular-value tolerance deciding rank(J_act) [units of J: m/rad or -]."""
+    reg: float = REG
+    """Ridge weight of the tie-break [-]."""
+    consistency: bool = True
+    """Impose the actuation-consistency rows (False: the paper's ablation)."""
+    actuated_dofs: IntArray | None = None
+    """Indices of the joints whose torque this allocator commands; None: all n_v joints."""
+
+    @classmethod
+    def checked(
+        cls,
+        owner: str,
+        *,
+        mu: float = defaults.MU,
+        f_n_min: float = defaults.F_N_MIN,
+        tau_max: float | npt.ArrayLike = defaults.TAU_MAX,
+        eps_margin: float = defaults.EPS_MARGIN,
+        svd_tol: float = defaults.SVD_TOL,
+        reg: float = REG,
+        consistency: bool = True,
+        actuated_dofs: npt.ArrayLike | None = None,
+    ) -> AllocationParams:
+        """Validated parameters; a bad value raises :class:`ConfigError` naming ``owner``."""
+
+        def bad(name: str, value: object, want: str) -> ConfigError:
+            return ConfigError(f"{owner}: parameter {name}={value!r} is invalid; it must be {want}")
+
+        def scalar(name: str, value: object, want: str, ok: Callable[[float], bool]) -> float:
+            try:
+                v = float(value)  # type: ignore[arg-type]
+            except (TypeError, ValueError) as err:
+                raise bad(name, value, want) from err
+            if np.isnan(v) or not ok(v):
+                raise bad(name, value, want)
+            return v
+
+        mu_ = scalar("mu", mu, "a finite number >= 0", lambda v: 0.0 <= v < np.inf)
+        fmin = scalar("f_n_min", f_n_min, "a finite number >= 0 [N]", lambda v: 0.0 <= v < np.inf)
+        eps = scalar("eps_margin", eps_margin, "a number >= 0 [N]", lambda v: v >= 0.0)
+        tol = scalar("svd_tol", svd_tol, "a finite number > 0", lambda v: 0.0 < v < np.inf)
+        reg_ = scalar("reg", reg, "a finite number > 0", lambda v: 0.0 < v < np.inf)
+        try:
+            tmax = np.array(tau_max, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise bad("tau_max", tau_max, "a number or 1-D array of numbers > 0 [N*m]") from err
+        if tmax.ndim > 1 or tmax.size == 0 or np.isnan(tmax).any() or (tmax <= 0.0).any():
+            raise bad("tau_max", tau_max, "a number or 1-D array of numbers > 0 [N*m]")
+        tau: float | FloatArray = float(tmax) if tmax.ndim == 0 else tmax
+        dofs: IntArray | None = None
+        if actuated_dofs is not None:
+            a = np.asarray(actuated_dofs)
+            want = "None, a 1-D boolean mask over the joints or 1-D unique joint indices >= 0"
+            if a.ndim != 1:
+                raise bad("actuated_dofs", actuated_dofs, want)
+            if a.dtype == np.bool_:
+                dofs = np.flatnonzero(a).astype(np.intp)
+            elif np.issubdtype(a.dtype, np.integer) or a.size == 0:
+                dofs = a.astype(np.intp)
+                if (dofs < 0).any() or np.unique(dofs).size != dofs.size:
+                    raise bad("actuated_dofs", actuated_dofs, want)
+                dofs = np.sort(dofs)
+            else:
+                raise bad("actuated_dofs", actuated_dofs, want)
+        return cls(mu_, fmin, tau, eps, tol, reg_, bool(consistency), dofs)
+
+    def dofs_and_limits(
+        self, n_v: int, owner: str = "AllocationParams"
+    ) -> tuple[IntArray, FloatArray]:
+        """Actuated joint indices (n_a,) and their torque limits (n_a,) [N*m] for ``n_v`` joints.
+
+        A mask or limit array whose length is not ``n_v`` raises :class:`ConfigError`.
+        """
+        if self.actuated_dofs is None:
+            dofs = np.arange(n_v, dtype=np.intp)
+        else:
+            dofs = self.actuated_dofs
+            if dofs.size and dofs[-1] >= n_v:
+                raise ConfigError(
+                    f"{owner}: actuated_dofs holds joint index {int(dofs[-1])} but J_world has "
+                    f"only n_v={n_v} columns; pass indices in [0, {n_v})"
+                )
+        if np.ndim(self.tau_max) == 0:
+            limits = np.full(dofs.size, float(self.tau_max))  # type: ignore[arg-type]
+        else:
+            tmax = np.asarray(self.tau_max)
+            if tmax.shape != (n_v,):
+                raise ConfigError(
+                    f"{owner}: tau_max has shape {tmax.shape} but J_world has n_v={n_v} joints; "
+                    f"pass a scalar or an array of shape ({n_v},)"
+                )
+            limits = tmax[dofs]
+        return dofs, limits
+
+
+class ActuationNullSpace:
+    """Orthonormal basis ``N_u`` (m, m - r) of ``Null(J_act^T)``, kept implicit.
+
+    ``N_u`` is the block of columns of ``U`` beyond the rank in a full SVD ``J_act = U S V^T``
+    (see the module docstring for which SVD). Only products are formed: :meth:`project` gives
+    ``N_u^T v`` and :meth:`columns` selected columns of ``N_u``.
+    """
+
+    def __init__(
+        self,
+        J_act: FloatArray,
+        svd_tol: float = defaults.SVD_TOL,
+        nonzero_cols: IntArray | None = None,
+    ) -> None:
+        """Args:
+        J_act: (m, k) stacked point Jacobians of the actuated contacts (3 rows per contact,
+            world axes) restricted to the actuated joints.
+        svd_tol: Absolute tolerance on the singular values deciding the rank.
+        nonzero_cols: Indices of the columns of ``J_act`` that are not all zero, if known.
+        """
+        m = J_act.shape[0]
+        self.m = m
+        """Rows of ``J_act`` (3 per actuated contact)."""
+        if nonzero_cols is None:
+            nonzero_cols = np.flatnonzero(np.any(J_act != 0.0, axis=0))
+        cols = nonzero_cols
+        k = cols.size
+        self._k = k
+        self._explicit: FloatArray | None = None
+        self._qr: FloatArray | None = None
+        self._tau: FloatArray | None = None
+        self._head: FloatArray | None = None
+        if k == 0:
+            self.singular_values = np.zeros(0)
+            self.rank = 0
+            self._explicit = np.eye(m)
+        elif m > k:
+            # Householder QR: J_c = Q [R; 0]; SVD(J_c) = Q [U_R 0; 0 I] [S; 0] V^T.
+            Jc = J_act if k == J_act.shape[1] else J_act[:, cols]
+            qr, tau, _, info = lapack.dgeqrf(Jc)
+            if info != 0:  # pragma: no cover - LAPACK argument error
+                raise ValueError(f"dgeqrf failed with info={info}")
+            R = np.triu(qr[:k])
+            _, s, _, info = lapack.dgesdd(R, compute_uv=0)
+            if info != 0:  # pragma: no cover - no convergence
+                s = np.linalg.svd(R, compute_uv=False)
+            r = int(np.count_nonzero(s > svd_tol))
+            self.singular_values = s
+            self.rank = r
+            self._qr, self._tau = qr, tau
+            if r < k:
+                U_R = np.linalg.svd(R)[0]
+                self._head = np.ascontiguousarray(U_R[:, r:])
+        else:
+            U, s, _ = np.linalg.svd(J_act[:, cols], full_matrices=True)
+            r = int(np.count_nonzero(s > svd_tol))
+            self.singular_values = s
+            self.rank = r
+            self._explicit = np.ascontiguousarray(U[:, r:])
+        self.dim = m - self.rank
+        """Dimension of ``Null(J_act^T)``: the number of consistency rows."""
+
+    def _apply_q(self, C: FloatArray, trans: str) -> FloatArray:
+        assert self._qr is not None and self._tau is not None
+        C = np.asfortranarray(C)
+        out, _, info = lapack.dormqr(
+            "L", trans, self._qr, self._tau, C, lwork=max(1, 64 * C.shape[1])
+        )
+        if info != 0:  # pragma: no cover - LAPACK argument error
+            raise ValueError(f"dormqr failed with info={info}")
+        return out
+
+    def project(self, v: FloatArray) -> FloatArray:
+        """``N_u^T v`` for (m,) ``v``: its (dim,) coordinates in the null-space basis."""
+        if self._explicit is not None:
+            return self._explicit.T @ v
+        y = self._apply_q(v.reshape(-1, 1), "T")[:, 0]
+        if self._head is None:
+            return y[self._k :]
+        return np.concatenate((self._head.T @ y[: self._k], y[self._k :]))
+
+    def columns(self, idx: IntArray) -> FloatArray:
+        """(m, len(idx)) columns ``N_u[:, idx]`` (``idx`` in ``[0, dim)``)."""
+        idx = np.asarray(idx, dtype=np.intp)
+        if self._explicit is not None:
+            return self._explicit[:, idx]
+        k = self._k
+        nh = 0 if self._head is None else self._head.shape[1]
+        Z = np.zeros((self.m, idx.size))
+        head = idx < nh
+        if head.any():
+            assert self._head is not None
+            Z[:k, head] = self._head[:, idx[head]]
+        tail = np.flatnonzero(~head)
+        Z[k + idx[tail] - nh, tail] = 1.0
+        return self._apply_q(Z, "N")
+
+    def basis(self) -> FloatArray:
+        """The explicit (m, dim) basis ``N_u`` (allocates (m, m); not for the control loop)."""
+        return self.columns(np.arange(self.dim))
+
+
+@dataclass(frozen=True)
+class AllocationQP:
+    """The allocation QP of one cycle in structured form (pyramid-edge, wrench-split).
+
+    Variables ``x = [lambda (4N); w (6)]``, ``lambda`` ordered contact-major (``4 i + k``).
+    """
+
+    params: AllocationParams
+    """Constants the problem was built with."""
+    n_v: int
+    """Number of joint velocities (columns of ``J_world``)."""
+    wRc: FloatArray  # noqa: N815 (pose notation: rotation of contact frames in world)
+    """(N, 3, 3) contact frames, columns ``[e_n (into the object), t_1, t_2]`` in world axes."""
+    r_world: FloatArray
+    """(N, 3) contact points relative to the COM, world axes [m]."""
+    W: FloatArray
+    """(N, 3, 4) pyramid edges of each contact in world axes: ``f_world_i = W_i lambda_i``."""
+    G_lam: FloatArray
+    """(6, 4N) grasp matrix on the edge weights: ``w = G_lam lambda``."""
+    act_idx: IntArray
+    """(N_act,) indices of the contacts on actuated links."""
+    dofs: IntArray
+    """(n_a,) indices of the commanded joints in ``[0, n_v)``."""
+    J_act: FloatArray
+    """(3 N_act, n_a) stacked point Jacobians of the actuated contacts, world axes, commanded
+    joints only; acts on world-axis forces of the hand on the object."""
+    tau_max: FloatArray
+    """(n_a,) torque limits of the commanded joints [N*m]."""
+    torque_rows: IntArray
+    """(n_t,) positions in ``dofs`` of the joints with torque rows (moved by some actuated
+    contact and with a finite limit)."""
+    T_lam: FloatArray
+    """(n_t, 4N) torque rows on ``lambda``: ``tau[dofs[torque_rows]] = T_lam @ lambda`` [N*m]."""
+    null: ActuationNullSpace | None
+    """Basis of ``Null(J_act^T)``; None when consistency is off or no contact is actuated."""
+
+    @functools.cached_property
+    def G(self) -> FloatArray:  # noqa: N802 - the paper's symbol
+        """(6, 3N) grasp matrix on local forces: wrench [N; N*m] about the COM, world axes."""
+        return wrench_map(self.r_world, self.wRc)
+
+    @property
+    def n_contacts(self) -> int:
+        return int(self.wRc.shape[0])
+
+    @property
+    def n_lambda(self) -> int:
+        """Number of edge weights, 4N."""
+        return N_EDGES * self.n_contacts
+
+    @property
+    def n_x(self) -> int:
+        """Number of variables, 4N + 6."""
+        return self.n_lambda + N_WRENCH
+
+    @property
+    def n_null(self) -> int:
+        """Number of actuation-consistency rows (0 when off)."""
+        return 0 if self.null is None else self.null.dim
+
+    def f_local(self, lam: FloatArray) -> FloatArray:
+        """(N, 3) local forces ``[f_n, f_t1, f_t2]`` [N] from (4N,) edge weights."""
+        E = friction_edges(self.params.mu)
+        return lam.reshape(-1, N_EDGES) @ E.T
+
+    def f_world(self, lam: FloatArray) -> FloatArray:
+        """(N, 3) world-axis forces of the hand on the object [N] from (4N,) edge weights."""
+        return np.einsum("nij,nj->ni", self.W, lam.reshape(-1, N_EDGES))
+
+    def f_act(self, lam: FloatArray) -> FloatArray:
+        """(3 N_act,) stacked world-axis forces of the actuated contacts [N]."""
+        W = self.W[self.act_idx]
+        return np.einsum("nij,nj->ni", W, lam.reshape(-1, N_EDGES)[self.act_idx]).ravel()
+
+    def tau(self, lam: FloatArray) -> FloatArray:
+        """(n_v,) joint torques ``J_act^T f_act`` [N*m]; zero on joints not commanded."""
+        tau = np.zeros(self.n_v)
+        tau[self.dofs] = self.J_act.T @ self.f_act(lam)
+        return tau
+
+    def null_values(self, lam: FloatArray) -> FloatArray:
+        """(n_null,) consistency values ``N_u^T f_act`` [N]."""
+        if self.null is None:
+            return np.zeros(0)
+        return self.null.project(self.f_act(lam))
+
+    def null_rows(self, idx: IntArray) -> FloatArray:
+        """(len(idx), 4N) consistency rows ``(N_u^T f_act)[idx]`` as functions of ``lambda``."""
+        assert self.null is not None
+        Nc = self.null.columns(idx).reshape(-1, 3, len(idx))  # (N_act, 3, k)
+        rows = np.zeros((len(idx), self.n_contacts, N_EDGES))
+        rows[:, self.act_idx, :] = np.einsum("ncj,nce->jne", Nc, self.W[self.act_idx])
+        return rows.reshape(len(idx), -1)
+
+    def violation(self, x: FloatArray) -> float:
+        """Largest violation of any constraint at ``x`` (4N + 6,) or ``lambda`` (4N,) [N, N*m].
+
+        The equality ``w = G_lam lambda`` is not counted: ``w`` is recomputed from ``lambda``.
+        """
+        lam = x[: self.n_lambda]
+        v = [0.0, float(-lam.min(initial=0.0)), self.params.f_n_min - float(lam.sum())]
+        if self.torque_rows.size:
+            t = self.T_lam @ lam
+            v.append(float((np.abs(t) - self.tau_max[self.torque_rows]).max()))
+        if self.n_null:
+            v.append(float(np.abs(self.null_values(lam)).max() - self.params.eps_margin))
+        out = max(v)
+        return out if np.isfinite(out) else np.inf
+
+    def to_problem(self, sparse: bool = False) -> qpsolvers.Problem:
+        """The full QP in the solved (edge, wrench-split) form as a :class:`qpsolvers.Problem`.
+
+        ``x = [lambda; w]``; ``P = diag(reg, ..., reg, 1, ..., 1)``, ``q = 0``; equality
+        ``G_lam lambda - w = 0``; inequalities ``-sum(lambda) <= -f_n_min``, ``+-T_lam lambda
+        <= tau_max``, ``+-C lambda <= eps_margin``; bounds ``lambda >= 0``.
+
+        Args:
+            sparse: Return CSC matrices (for sparse solvers) instead of dense arrays.
+        """
+        import qpsolvers
+
+        nl, n = self.n_lambda, self.n_x
+        P = np.concatenate((np.full(nl, self.params.reg), np.ones(N_WRENCH)))
+        A = np.hstack((self.G_lam, -np.eye(N_WRENCH)))
+        rows = [-np.ones((1, nl))]
+        h = [np.array([-self.params.f_n_min])]
+        if self.torque_rows.size:
+            rows += [self.T_lam, -self.T_lam]
+            h += [self.tau_max[self.torque_rows]] * 2
+        if self.n_null and np.isfinite(self.params.eps_margin):
+            C = self.null_rows(np.arange(self.n_null))
+            rows += [C, -C]
+            h += [np.full(self.n_null, self.params.eps_margin)] * 2
+        Gi = np.vstack(rows)
+        Gi = np.hstack((Gi, np.zeros((Gi.shape[0], N_WRENCH))))
+        hv = np.concatenate(h)
+        lb = np.concatenate((np.zeros(nl), np.full(N_WRENCH, -np.inf)))
+        ub = np.full(n, np.inf)
+        if sparse:
+            return qpsolvers.Problem(
+                spa.diags(P, format="csc"),
+                np.zeros(n),
+                spa.csc_matrix(Gi),
+                hv,
+                spa.csc_matrix(A),
+                np.zeros(N_WRENCH),
+                lb,
+                ub,
+            )
+        return qpsolvers.Problem(np.diag(P), np.zeros(n), Gi, hv, A, np.zeros(N_WRENCH), lb, ub)
+
+
+def build_allocation_qp(
+    contacts: ContactSet,
+    J_world: FloatArray,
+    p_com_world: FloatArray,
+    params: AllocationParams,
+    owner: str = "build_allocation_qp",
+) -> AllocationQP:
+    """The allocation QP of the current contacts.
+
+    Args:
+        contacts: The N contacts of this cycle (N >= 1).
+        J_world: (N, 3, n_v) point Jacobians at the contacts: linear velocity of each hand
+            contact point in world axes per joint velocity [m/rad or -].
+        p_com_world: (3,) object centre of mass in the world [m].
+        params: QP constants.
+        owner: Name used in error messages.
+
+    Raises:
+        ConfigError: ``J_world``, ``p_com_world``, ``tau_max`` or ``actuated_dofs`` do not match
+            the contacts or the number of joints.
+    """
+    n = len(contacts)
+    J_world = np.asarray(J_world, dtype=np.float64)
+    if J_world.ndim != 3 or J_world.shape[:2] != (n, 3):
+        raise ConfigError(
+            f"{owner}: J_world has shape {J_world.shape}, expected ({n}, 3, n_v) for {n} contacts"
+        )
+    p_com_world = np.asarray(p_com_world, dtype=np.float64)
+    if p_com_world.shape != (3,):
+        raise ConfigError(f"{owner}: p_com_world has shape {p_com_world.shape}, expected (3,)")
+    n_v = J_world.shape[2]
+    dofs, tau_max = params.dofs_and_limits(n_v, owner)
+    wRc = contact_frames(contacts.n_world)
+    E = friction_edges(params.mu)
+    r_world = contacts.p_world - p_com_world
+    W = wRc @ E  # (N, 3, 4) pyramid edges in world axes
+    G_lam = wrench_map(r_world, W)
+
+    act = contacts.actuated
+    act_idx = np.flatnonzero(act)
+    Ja3 = J_world[act_idx]
+    if dofs.size != n_v:
+        Ja3 = Ja3[:, :, dofs]
+    J_act = Ja3.reshape(-1, dofs.size)
+    # tau = sum_i J_i^T W_i lambda_i: (N_act, n_a, 4) blocks, laid out as (n_a, 4N) rows.
+    JW = np.matmul(Ja3.transpose(0, 2, 1), W[act_idx]).transpose(1, 0, 2)
+    if act_idx.size == n:
+        T = JW.reshape(dofs.size, -1)
+    else:
+        T = np.zeros((dofs.size, n, N_EDGES))
+        T[:, act_idx, :] = JW
+        T = T.reshape(dofs.size, -1)
+    nonzero = np.any(J_act != 0.0, axis=0)
+    moved = nonzero & np.isfinite(tau_max)
+    if moved.all():
+        torque_rows = np.arange(dofs.size, dtype=np.intp)
+        T_lam = T
+    else:
+        torque_rows = np.flatnonzero(moved)
+        T_lam = T[torque_rows]
+    null = None
+    if params.consistency and act_idx.size:
+        null = ActuationNullSpace(J_act, params.svd_tol, np.flatnonzero(nonzero))
+    return AllocationQP(
+        params=params,
+        n_v=n_v,
+        wRc=wRc,
+        r_world=r_world,
+        W=W,
+        G_lam=G_lam,
+        act_idx=act_idx,
+        dofs=dofs,
+        J_act=J_act,
+        tau_max=tau_max,
+        torque_rows=torque_rows,
+        T_lam=T_lam,
+        null=null,
+    )
+
+
+def direct_problem(qp: AllocationQP, reg: float | None = None) -> qpsolvers.Problem:
+    """The paper's form on local forces ``f`` (3N,) as a dense :class:`qpsolvers.Problem`.
+
+    ``min 1/2 ||G f||^2 + reg/2 ||f||^2`` subject to ``f_n >= 0`` (bounds), four friction rows
+    per contact, the minimum squeeze, the torque rows and the consistency rows (same ``N_u`` as
+    ``qp``). A reference for tests and A/B comparisons, not used in the control loop.
+
+    Args:
+        qp: Structured problem of the cycle.
+        reg: Ridge weight on ``f`` (default ``qp.params.reg``).
+    """
+    import qpsolvers
+
+    p = qp.params
+    n = qp.n_contacts
+    reg = p.reg if reg is None else reg
+    P = qp.G.T @ qp.G + reg * np.eye(3 * n)
+    fric = np.zeros((n, 4, n, 3))
+    signs = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]])
+    i = np.arange(n)
+    fric[i, :, i, 0] = -p.mu
+    fric[i, :, i, 1] = signs[:, 0]
+    fric[i, :, i, 2] = signs[:, 1]
+    rows = [fric.reshape(4 * n, 3 * n)]
+    h = [np.zeros(4 * n)]
+    s = np.zeros((1, n, 3))
+    s[0, :, 0] = -1.0
+    rows.append(s.reshape(1, -1))
+    h.append(np.array([-p.f_n_min]))
+    # f_act (3 N_act,) = Rb f with Rb block-diagonal of the actuated contacts' frames.
+    Rb = np.zeros((qp.act_idx.size, 3, n, 3))
+    Rb[np.arange(qp.act_idx.size), :, qp.act_idx, :] = qp.wRc[qp.act_idx]
+    Rb = Rb.reshape(3 * qp.act_idx.size, 3 * n)
+    if qp.torque_rows.size:
+        T = (qp.J_act.T @ Rb)[qp.torque_rows]
+        rows += [T, -T]
+        h += [qp.tau_max[qp.torque_rows]] * 2
+    if qp.n_null and np.isfinite(p.eps_margin):
+        assert qp.null is not None
+        C = qp.null.basis().T @ Rb
+        rows += [C, -C]
+        h += [np.full(qp.n_null, p.eps_margin)] * 2
+    lb = np.tile([0.0, -np.inf, -np.inf], n)
+    return qpsolvers.Problem(P, np.zeros(3 * n), np.vstack(rows), np.concatenate(h), lb=lb)

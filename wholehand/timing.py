@@ -1,0 +1,36 @@
+"""Latency statistics for benchmarks: warm-up, perf_counter_ns, percentiles."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+
+def percentiles_us(samples_ns: Sequence[int] | np.ndarray) -> dict[str, float]:
+    """p50/p95/p99/mean/max of durations given in ns, reported in microseconds."""
+    us = np.asarray(samples_ns, dtype=float) / 1e3
+    if us.size == 0:
+        return {"p50_us": float("nan"), "p95_us": float("nan"), "p99_us": float("nan")}
+    p50, p95, p99 = np.percentile(us, [50, 95, 99])
+    return {
+        "p50_us": round(float(p50), 2),
+        "p95_us": round(float(p95), 2),
+        "p99_us": round(float(p99), 2),
+        "mean_us": round(float(us.mean()), 2),
+        "max_us": round(float(us.max()), 2),
+        "n": int(us.size),
+    }
+
+
+def time_calls(fn: Callable[[int], object], count: int, warmup: int = 50) -> np.ndarray:
+    """Durations [ns] of ``fn(i)`` for i in range(count), after ``warmup`` untimed calls."""
+    for i in range(warmup):
+        fn(i % max(count, 1))
+    out = np.empty(count, dtype=np.int64)
+    for i in range(count):
+        start = time.perf_counter_ns()
+        fn(i)
+        out[i] = time.perf_counter_ns() - start
+    return out

@@ -13,18 +13,28 @@ from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import check_pose, inverse
+from wholehand.models.surface import farthest_point_sampling
 
 FloatArray = npt.NDArray[np.float64]
+
+
+CLUSTER_SIZE = 24
+"""Average number of samples per culling cluster."""
 
 
 class MeshSDFEstimator(ContactEstimator):
     """Whole-hand contacts from link surface samples against the object SDF (paper Sec. III-B).
 
-    Per cycle: the joint placements from one forward-kinematics pass move the samples into the
-    object frame; links whose bounding sphere is farther than ``d_thresh`` from the object's
-    bounding sphere are skipped; the rest are looked up in the SDF grid by trilinear
-    interpolation; points with signed distance below ``d_thresh`` are candidates, at most ``k``
-    per link (closest first); gradients (normals) are computed for the kept points only.
+    Per cycle: one set of joint placements (from the kinematics' forward pass) moves the
+    samples into the object frame; points with signed distance below ``d_thresh`` are
+    candidates, at most ``k`` per link, closest first; normals come from the SDF gradient at the
+    kept points only.
+
+    Culling (exact, it never drops a candidate): the samples of each link are grouped into
+    clusters of about ``CLUSTER_SIZE`` points with a bounding sphere each. The SDF is
+    1-Lipschitz, so a cluster whose centre lies farther than ``d_thresh + radius + 2 * spacing``
+    from the surface (the last term covers the interpolation error at both ends) holds no
+    candidate; only the points of the remaining clusters are transformed and looked up.
 
     Args:
         hand: the hand model (its surface samples are the candidates).
@@ -49,45 +59,52 @@ class MeshSDFEstimator(ContactEstimator):
         self.hand, self.obj = hand, obj
         self.d_thresh, self.k = float(d_thresh), int(k)
         self.sdf = obj.sdf
+        # Points beyond the grid are never candidates, which needs the grid to reach d_thresh.
+        lo, hi = np.asarray(obj.mesh.bounds)
+        margin = min((lo - self.sdf.bounds[0]).min(), (self.sdf.bounds[1] - hi).min())
+        if self.d_thresh >= margin:
+            raise ConfigError(
+                f"MeshSDFEstimator: d_thresh = {d_thresh} m reaches past the SDF grid of "
+                f"{obj.name!r} (margin {margin:.3f} m); build the object with a larger sdf_padding"
+            )
         samples = hand.samples
         keep = np.ones(len(samples), dtype=bool)
         if links is not None:
-            wanted = [hand.link_index(name) for name in links]
-            keep = np.isin(samples.link, wanted)
-        self._p = np.ascontiguousarray(samples.p_joint[keep])
-        self._joint = samples.joint[keep]
-        self._link = samples.link[keep]
-        # Bounding sphere of each link's samples in its joint frame, for culling.
-        n_links = len(hand.link_names)
-        self._link_joint = hand.link_joint
-        self._centre = np.zeros((n_links, 3))
-        self._radius = np.full(n_links, -np.inf)  # links without candidates are always culled
-        for i in np.unique(self._link):
-            pts = self._p[self._link == i]
-            c = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-            self._centre[i] = c
-            self._radius[i] = np.linalg.norm(pts - c, axis=1).max()
-        verts = np.asarray(obj.mesh.vertices)
-        self._obj_centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
-        self._obj_radius = float(np.linalg.norm(verts - self._obj_centre, axis=1).max())
-        # Rows of the samples per link, so that culled links cost nothing.
-        order = np.argsort(self._link, kind="stable")
-        self._p, self._joint, self._link = self._p[order], self._joint[order], self._link[order]
-        bounds = np.searchsorted(self._link, np.arange(n_links + 1))
-        self._rows = [np.arange(bounds[i], bounds[i + 1]) for i in range(n_links)]
+            keep = np.isin(samples.link, [hand.link_index(name) for name in links])
+        p, joint, link = samples.p_joint[keep], samples.joint[keep], samples.link[keep]
+        cluster = np.empty(len(p), dtype=np.intp)
+        centres, radii, cluster_joint = [], [], []
+        for i in np.unique(link):
+            rows = np.flatnonzero(link == i)
+            pts = p[rows]
+            seeds = pts[farthest_point_sampling(pts, -(-len(rows) // CLUSTER_SIZE))]
+            member = np.argmin(((pts[:, None, :] - seeds[None]) ** 2).sum(axis=2), axis=1)
+            for m in np.unique(member):
+                cluster[rows[member == m]] = len(centres)
+                c = pts[member == m].mean(axis=0)
+                centres.append(c)
+                radii.append(np.linalg.norm(pts[member == m] - c, axis=1).max())
+                cluster_joint.append(joint[rows[0]])
+        order = np.argsort(cluster, kind="stable")
+        self._p = np.ascontiguousarray(p[order])
+        self._joint, self._link, self._cluster = joint[order], link[order], cluster[order]
+        self._centre = np.asarray(centres).reshape(-1, 3)
+        self._reach = np.asarray(radii) + 2.0 * self.sdf.spacing + self.d_thresh
+        self._cluster_joint = np.asarray(cluster_joint, dtype=np.intp)
+
+    @property
+    def n_clusters(self) -> int:
+        """Number of culling clusters."""
+        return int(self._centre.shape[0])
 
     def estimate(self, kinematics: HandKinematics, wMo: FloatArray, stamp: float = 0.0) -> ContactSet:
         wMo = check_pose(wMo, "wMo (object pose)")
-        oMw = inverse(wMo)
-        R, t = kinematics.joint_poses_in(oMw)
-        # Cull links whose bounding sphere cannot come within d_thresh of the object.
-        centres = np.einsum("lab,lb->la", R[self._link_joint], self._centre) + t[self._link_joint]
-        gap = np.linalg.norm(centres - self._obj_centre, axis=1) - self._radius - self._obj_radius
-        near = np.flatnonzero(gap < self.d_thresh)
         hand = self.hand
-        if near.size == 0:
-            return ContactSet.empty(hand.link_actuated, hand.link_fingertip, stamp)
-        rows = np.concatenate([self._rows[i] for i in near])
+        R, t = kinematics.joint_poses_in(inverse(wMo))
+        cj = self._cluster_joint
+        centres = np.einsum("cab,cb->ca", R[cj], self._centre) + t[cj]
+        near = self.sdf.query(centres) < self._reach
+        rows = np.flatnonzero(near[self._cluster])
         if rows.size == 0:
             return ContactSet.empty(hand.link_actuated, hand.link_fingertip, stamp)
         joint = self._joint[rows]
@@ -104,7 +121,7 @@ class MeshSDFEstimator(ContactEstimator):
             p_world=p_kept @ wRo.T + wMo[:3, 3],
             n_world=grad @ wRo.T,
             link=self._link[rows[keep]],
-            distance=np.asarray(d_kept, dtype=float),
+            distance=d_kept,
             link_actuated=hand.link_actuated,
             link_fingertip=hand.link_fingertip,
             stamp=stamp,

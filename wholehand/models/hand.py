@@ -216,7 +216,7 @@ class HandModel:
         cfg, model = self.config, self.model
         moving = [model.names[j] for j in range(1, model.njoints)]
         actuated = list(cfg.actuated_joints) if cfg.actuated_joints is not None else moving
-        for name in [*actuated, *cfg.torque_limits]:
+        for name in [*actuated, *cfg.torque_limits, *cfg.preshape, *cfg.close_torque]:
             if name not in moving:
                 raise ConfigError(
                     f"{cfg.path}: joint {name!r} is not a moving joint of "

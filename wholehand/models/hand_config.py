@@ -21,6 +21,9 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     [mount]                                     # pose of the root link in the world
     xyz = [0, 0, 0]
     rpy = [0, 0, 0]
+    [grasping]                                  # for the grasp generator (power grasps)
+    preshape = { j1 = 0.0 }                     # open pose [rad]; unlisted joints: 0 clipped to limits
+    close_torque = { j1 = 0.15 }                # closing torque [N*m]; unlisted joints hold the pre-shape
 
 Names are checked against the URDF when the hand is loaded (:mod:`wholehand.models.hand`).
 """
@@ -67,6 +70,8 @@ class HandConfig:
     torque_limits: dict[str, float]
     damping: float
     armature: float
+    preshape: dict[str, float] = field(default_factory=dict)
+    close_torque: dict[str, float] = field(default_factory=dict)
     mount_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     extra: dict[str, Any] = field(default_factory=dict)
@@ -125,7 +130,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
 
     known = {
         "name", "urdf", "palm_link", "passive_links", "sample_surface", "thumb",
-        "fingertip_links", "fingers", "joints", "simulation", "mount",
+        "fingertip_links", "fingers", "joints", "simulation", "mount", "grasping",
     }  # fmt: skip
     unknown = sorted(set(raw) - known)
     if unknown:
@@ -165,6 +170,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         "joints": {"actuated", "torque_limit"},
         "simulation": {"damping", "armature"},
         "mount": {"xyz", "rpy"},
+        "grasping": {"preshape", "close_torque"},
     }
     for table, allowed in sub_keys.items():
         value = raw.get(table, {})
@@ -188,6 +194,16 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         for j, v in limits_raw.items()
         if j != "default"
     }
+    grasping = raw.get("grasping", {})
+    preshape, close_torque = {}, {}
+    for key, target in (("preshape", preshape), ("close_torque", close_torque)):
+        table = grasping.get(key, {})
+        if not isinstance(table, dict):
+            raise ConfigError(f"{path}: grasping.{key} must be a table of joint name -> number")
+        for joint, value in table.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f"{path}: grasping.{key}.{joint} must be a number, got {value!r}")
+            target[joint] = float(value)
     sim = raw.get("simulation", {})
     mount = raw.get("mount", {})
     xyz = tuple(float(v) for v in mount.get("xyz", (0.0, 0.0, 0.0)))
@@ -211,6 +227,8 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         torque_limits=limits,
         damping=_number(sim.get("damping", 0.05), "simulation.damping", path),
         armature=_number(sim.get("armature", 0.001), "simulation.armature", path),
+        preshape=preshape,
+        close_torque=close_torque,
         mount_xyz=xyz,  # type: ignore[arg-type]
         mount_rpy=rpy,  # type: ignore[arg-type]
     )

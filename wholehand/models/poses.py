@@ -19,17 +19,26 @@ def pose_from_xyz_rpy(xyz: npt.ArrayLike, rpy: npt.ArrayLike) -> FloatArray:
     return M
 
 
+_I3 = np.eye(3)
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+
+
 def check_pose(M: npt.ArrayLike, name: str = "pose") -> FloatArray:
-    """Validate a (4, 4) homogeneous transform; raise :class:`ConfigError` naming ``name`` if not."""
+    """Validate a (4, 4) homogeneous transform; raise :class:`ConfigError` naming ``name`` if not.
+
+    Cheap enough for the control loop (a few microseconds).
+    """
     M = np.asarray(M, dtype=float)
     if M.shape != (4, 4):
         raise ConfigError(f"{name} must be a (4, 4) homogeneous transform, got shape {M.shape}")
-    if not np.all(np.isfinite(M)):
+    if not np.isfinite(M).all():
         raise ConfigError(f"{name} contains NaN or inf: {M.tolist()}")
     R = M[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0.0:
+    a, b, c, d, e, f, g, h, i = R.ravel().tolist()
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if np.abs(R @ R.T - _I3).max() > 1e-6 or det < 0.0:
         raise ConfigError(f"{name} has a rotation block that is not a proper rotation: {R.tolist()}")
-    if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0]):
+    if np.abs(M[3] - _LAST_ROW).max() > 1e-12:
         raise ConfigError(f"{name} must have last row [0, 0, 0, 1], got {M[3].tolist()}")
     return M
 

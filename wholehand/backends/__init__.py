@@ -1,5 +1,5 @@
 """Backends: simulation or hardware the control loop runs over."""
 
-from wholehand.backends.base import Backend, HandObjectState
+from wholehand.backends.base import Backend, HandObjectState, PerturbableBackend
 
-__all__ = ["Backend", "HandObjectState"]
+__all__ = ["Backend", "HandObjectState", "PerturbableBackend"]

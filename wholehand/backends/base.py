@@ -54,3 +54,28 @@ class Backend(abc.ABC):
     @abc.abstractmethod
     def time(self) -> float:
         """Current time of the backend [s]."""
+
+
+class PerturbableBackend(Backend):
+    """A backend that can push the object with an external wrench (simulation)."""
+
+    @abc.abstractmethod
+    def apply_object_wrench(self, force_world: FloatArray, torque_world: FloatArray) -> None:
+        """Apply an external force [N] and torque [N*m] at the object's centre of mass, world
+        axes, held until changed."""
+
+    @abc.abstractmethod
+    def set_object_spring(
+        self,
+        wMo_target: FloatArray | None,
+        stiffness: tuple[float, float] = (0.0, 0.0),
+        damping: tuple[float, float] = (0.0, 0.0),
+    ) -> None:
+        """Pull the object toward a target pose with a spring-damper evaluated at every
+        simulation step (stable where a wrench held over a control period would not be).
+
+        Args:
+            wMo_target: (4, 4) target object pose; None removes the spring.
+            stiffness: translational [N/m] (on the centre of mass) and rotational [N*m/rad].
+            damping: translational [N*s/m] and rotational [N*m*s/rad].
+        """

@@ -75,9 +75,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_info)
 
     from wholehand.cli import bench as bench_cli
+    from wholehand.cli import grasps as grasps_cli
     from wholehand.cli import run as run_cli
 
     run_cli.add_parser(sub)
+    grasps_cli.add_parser(sub)
     bench_cli.add_parser(sub)
     return parser
 

@@ -1,0 +1,318 @@
+"""The ``mujoco`` backend: a hand and a free object simulated in MuJoCo.
+
+The scene (its contact model, timestep, friction combination and the MuJoCo/Pinocchio index maps)
+is built by :mod:`wholehand.backends.mujoco_scene`; this module wraps it in the
+:class:`~wholehand.backends.base.Backend` interface. Every array crossing this interface is in
+Pinocchio joint order and world-frame 4x4 poses ``aMb``; MuJoCo's own order never leaks out.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import TYPE_CHECKING, Any
+
+import mujoco
+import pinocchio as pin
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.backends.base import HandObjectState, PerturbableBackend
+from wholehand.backends.mujoco_scene import (
+    DEFAULT_TIMESTEP,
+    HandObjectScene,
+    SceneOptions,
+    SimContacts,
+    build_scene,
+    hand_object_contacts,
+    warning_counts,
+)
+from wholehand.errors import ConfigError
+from wholehand.models.poses import check_pose
+
+if TYPE_CHECKING:
+    from wholehand.models.hand import HandModel
+    from wholehand.models.objects import ObjectModel
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+_STEP_EPS = 1e-9
+"""Relative slack so that e.g. a 5 ms duration at 1 ms is 5 steps, not 6 (float rounding)."""
+
+
+def _vector(value: Any, n: int, name: str) -> FloatArray:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (n,):
+        raise ConfigError(f"MujocoBackend: {name} must have shape ({n},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ConfigError(f"MujocoBackend: {name} contains NaN or inf: {arr.tolist()}")
+    return arr
+
+
+def _pose_from(pos: np.ndarray, quat: np.ndarray) -> FloatArray:
+    M = np.eye(4)
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, np.asarray(quat, dtype=float))
+    M[:3, :3] = R.reshape(3, 3)
+    M[:3, 3] = pos
+    return M
+
+
+def _quat_of(M: FloatArray) -> FloatArray:
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(M[:3, :3]).ravel())
+    return quat
+
+
+class MujocoBackend(PerturbableBackend):
+    """MuJoCo simulation of a mounted hand and a free object (torque control, push the object).
+
+    Args:
+        hand: a :class:`~wholehand.models.hand.HandModel` or the name/path of a hand.
+        obj: an :class:`~wholehand.models.objects.ObjectModel` or an object spec accepted by
+            :func:`~wholehand.models.objects.load_object` (e.g. ``"077_rubiks_cube"``).
+        wMo_init: (4, 4) initial pose of the object frame in the world; default: 0.5 m below the
+            hand base, clear of the hand.
+        q_init: (n_q,) initial joint positions, Pinocchio order; default ``hand.neutral()``.
+        gravity: gravity (0, 0, -9.81) m/s^2 when True; off by default as in the paper.
+        timestep: simulation step [s] (default 1 ms).
+        wMb: (4, 4) pose of the hand base in the world; default: the mount pose ``hand.wMb``.
+        **options: further :class:`~wholehand.backends.mujoco_scene.SceneOptions` fields
+            (``cone``, ``impratio``, ``condim``, ``friction``, ``solref``, ``solimp``, ``base``,
+            ``self_collision``, ``collision``, ``coacd``, ``iterations``, ``visual_mesh``).
+
+    Attributes:
+        scene: the compiled scene and its index maps; ``scene.model`` is the ``MjModel``.
+        data: the ``MjData``.
+    """
+
+    def __init__(
+        self,
+        hand: HandModel | str,
+        obj: ObjectModel | str,
+        wMo_init: FloatArray | None = None,
+        q_init: FloatArray | None = None,
+        gravity: bool = False,
+        timestep: float = DEFAULT_TIMESTEP,
+        wMb: FloatArray | None = None,
+        **options: Any,
+    ) -> None:
+        if isinstance(hand, str):
+            from wholehand.models.hand import load_hand
+
+            hand = load_hand(hand)
+        if isinstance(obj, str):
+            from wholehand.models.objects import load_object
+
+            obj = load_object(obj)
+        fields = set(SceneOptions.__dataclass_fields__) - {"gravity", "timestep"}
+        unknown = sorted(set(options) - fields)
+        if unknown:
+            raise ConfigError(
+                f"MujocoBackend: unknown options {unknown}; valid options: {sorted(fields)}"
+            )
+        self.hand = hand
+        self.obj = obj
+        opts = SceneOptions(gravity=bool(gravity), timestep=timestep, **options)
+        self.scene: HandObjectScene = build_scene(hand, obj, wMo_init, opts, wMb)
+        self.model = self.scene.model
+        self.data = mujoco.MjData(self.model)
+        self._warned: set[str] = set()
+        wMo = self.object_pose_in_model() if wMo_init is None else wMo_init
+        self.reset(hand.neutral() if q_init is None else q_init, wMo)
+
+    # --- Backend interface --------------------------------------------------------------------
+    def read_state(self) -> HandObjectState:
+        """Joint positions and velocities (Pinocchio order), base and object poses; stamps are
+        the simulation time."""
+        d, s = self.data, self.scene
+        t = float(d.time)
+        a = s.object_qpos
+        # From qpos, not xpos: after mj_step, xpos still holds the pose before the integration.
+        return HandObjectState(
+            q=d.qpos[s.qpos_index].copy(),
+            dq=d.qvel[s.qvel_index].copy(),
+            wMb=self._base_pose(),
+            wMo=_pose_from(d.qpos[a : a + 3], d.qpos[a + 3 : a + 7]),
+            stamp_q=t,
+            stamp_object=t,
+        )
+
+    def _base_pose(self) -> FloatArray:
+        m, body = self.model, self.scene.base_body
+        mocap = int(m.body_mocapid[body])
+        if mocap >= 0:
+            return _pose_from(self.data.mocap_pos[mocap], self.data.mocap_quat[mocap])
+        return _pose_from(m.body_pos[body], m.body_quat[body])
+
+    def apply_torques(self, tau: FloatArray) -> None:
+        """Command (n_v,) joint torques [N*m] (Pinocchio order), clipped to +-tau_max; entries of
+        joints that are not actuated are ignored. Held until the next command."""
+        tau = _vector(tau, self.hand.nv, "tau")
+        s = self.scene
+        act = s.ctrl_index >= 0
+        clipped = np.clip(tau[act], -s.tau_max[act], s.tau_max[act])
+        self.data.ctrl[s.ctrl_index[act]] = clipped
+
+    def step(self, duration: float) -> None:
+        """Advance the simulation by ``ceil(duration / timestep)`` steps (0 for duration 0)."""
+        if not (math.isfinite(duration) and duration >= 0.0):
+            raise ConfigError(f"MujocoBackend.step: duration must be >= 0 [s], got {duration!r}")
+        n = math.ceil(duration / self.model.opt.timestep - _STEP_EPS)
+        if n > 0 and self._spring is None:
+            mujoco.mj_step(self.model, self.data, nstep=n)
+        else:
+            body = self.scene.object_body
+            for _ in range(n):
+                self.data.xfrc_applied[body] = self._wrench + self._spring_wrench()
+                mujoco.mj_step(self.model, self.data)
+            self.data.xfrc_applied[body] = self._wrench
+        if n > 0:
+            self._check_warnings()
+
+    @property
+    def time(self) -> float:
+        """Simulation time [s]."""
+        return float(self.data.time)
+
+    def apply_object_wrench(self, force_world: FloatArray, torque_world: FloatArray) -> None:
+        """Apply a force [N] and torque [N*m], world axes, at the object's centre of mass; held
+        until changed (MuJoCo ``xfrc_applied``)."""
+        force = _vector(force_world, 3, "force_world")
+        torque = _vector(torque_world, 3, "torque_world")
+        self._wrench = np.r_[force, torque]
+        self.data.xfrc_applied[self.scene.object_body] = self._wrench
+
+    def set_object_spring(
+        self,
+        wMo_target: FloatArray | None,
+        stiffness: tuple[float, float] = (0.0, 0.0),
+        damping: tuple[float, float] = (0.0, 0.0),
+    ) -> None:
+        """Spring-damper toward ``wMo_target`` on the object's centre of mass, evaluated before
+        every MuJoCo step and added to the wrench of :meth:`apply_object_wrench`; None removes it.
+        Stiffness: [N/m], [N*m/rad]; damping: [N*s/m], [N*m*s/rad]."""
+        if wMo_target is None:
+            self._spring = None
+            return
+        target = check_pose(wMo_target, "wMo_target")
+        gains = np.asarray([*stiffness, *damping], dtype=float)
+        if gains.shape != (4,) or not np.all(np.isfinite(gains)) or np.any(gains < 0.0):
+            raise ConfigError(
+                f"MujocoBackend.set_object_spring: stiffness and damping must be two finite "
+                f"values >= 0 each, got {stiffness!r} and {damping!r}"
+            )
+        p_com = target[:3, :3] @ self.obj.com + target[:3, 3]
+        self._spring = (p_com, target[:3, :3].copy(), gains)
+
+    def _spring_wrench(self) -> FloatArray:
+        assert self._spring is not None
+        p_target, R_target, (k_lin, k_rot, d_lin, d_rot) = self._spring
+        d, a = self.data, self.scene.object_qpos
+        R = np.empty(9)
+        mujoco.mju_quat2Mat(R, d.qpos[a + 3 : a + 7])
+        R = R.reshape(3, 3)
+        r_com = R @ self.obj.com
+        v_origin, omega = self.object_velocity()
+        v_com = v_origin + np.cross(omega, r_com)
+        force = k_lin * (p_target - (d.qpos[a : a + 3] + r_com)) - d_lin * v_com
+        torque = k_rot * pin.log3(R_target @ R.T) - d_rot * omega
+        return np.r_[force, torque]
+
+    # --- extras -------------------------------------------------------------------------------
+    @property
+    def timestep(self) -> float:
+        """Simulation step [s]."""
+        return float(self.model.opt.timestep)
+
+    def reset(self, q: FloatArray, wMo: FloatArray, wMb: FloatArray | None = None) -> None:
+        """Restart at time 0 with joint positions ``q`` (n_q,) (Pinocchio order), object pose
+        ``wMo`` (4, 4), zero velocities, torques and external wrench. ``wMb`` moves a mocap base."""
+        q = _vector(q, self.hand.nq, "q")
+        wMo = check_pose(wMo, "wMo")
+        d, s = self.data, self.scene
+        mujoco.mj_resetData(self.model, d)
+        self._wrench = np.zeros(6)
+        self._spring: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        d.qpos[s.qpos_index] = q
+        d.qpos[s.object_qpos : s.object_qpos + 3] = wMo[:3, 3]
+        d.qpos[s.object_qpos + 3 : s.object_qpos + 7] = _quat_of(wMo)
+        if wMb is not None:
+            self.set_base_pose(wMb)
+        mujoco.mj_forward(self.model, d)
+        self._warned.clear()
+
+    def set_kinematic_hand(self, q: FloatArray) -> None:
+        """Set joint positions ``q`` (n_q,) (Pinocchio order) with zero joint velocities, keep the
+        object where it is, and recompute kinematics and contacts (``mj_forward``); for static
+        tests and for placing the hand, not for control."""
+        q = _vector(q, self.hand.nq, "q")
+        s = self.scene
+        self.data.qpos[s.qpos_index] = q
+        self.data.qvel[s.qvel_index] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+
+    def set_base_pose(self, wMb: FloatArray) -> None:
+        """Move a mocap hand base (``base="mocap"``) to ``wMb`` (4, 4); it takes effect at the
+        next step."""
+        if self.scene.options.base != "mocap":
+            raise ConfigError(
+                "MujocoBackend.set_base_pose needs base='mocap'; this hand is welded at hand.wMb"
+            )
+        wMb = check_pose(wMb, "wMb")
+        mocap = int(self.model.body_mocapid[self.scene.base_body])
+        self.data.mocap_pos[mocap] = wMb[:3, 3]
+        self.data.mocap_quat[mocap] = _quat_of(wMb)
+
+    def object_pose_in_model(self) -> FloatArray:
+        """(4, 4) object pose the model was compiled with (its ``qpos0``)."""
+        a = self.scene.object_qpos
+        qpos0 = self.model.qpos0
+        return _pose_from(qpos0[a : a + 3], qpos0[a + 3 : a + 7])
+
+    def object_velocity(self) -> tuple[FloatArray, FloatArray]:
+        """Linear velocity of the object frame origin [m/s] and angular velocity [rad/s], both
+        in world axes."""
+        a = self.scene.object_qvel
+        v = self.data.qvel[a : a + 3].copy()
+        R = self.data.xmat[self.scene.object_body].reshape(3, 3)
+        return v, R @ self.data.qvel[a + 3 : a + 6]
+
+    def applied_torques(self) -> FloatArray:
+        """(n_v,) torques the motors exert [N*m] after clipping, Pinocchio order."""
+        s = self.scene
+        tau = np.zeros(self.hand.nv)
+        act = s.ctrl_index >= 0
+        tau[act] = self.data.actuator_force[s.ctrl_index[act]]
+        return tau
+
+    def ground_truth_contacts(self) -> SimContacts:
+        """Hand-object contacts and forces as MuJoCo computes them at the current state.
+
+        Positions on the hand surface, normals out of the object, forces exerted on the object
+        (world frame, [N]; into the object), link indices into ``hand.link_names``. For baselines
+        and comparisons only: the controller never sees them.
+
+        Runs ``mj_forward`` first (about the cost of one step) so that contacts and forces belong
+        to the current positions, not to those before the last integration step; this does not
+        change the simulated trajectory.
+        """
+        mujoco.mj_forward(self.model, self.data)
+        return hand_object_contacts(self.scene, self.data)
+
+    def warnings(self) -> dict[str, int]:
+        """MuJoCo warning counts since the last reset (all zero in a healthy simulation)."""
+        return warning_counts(self.data)
+
+    def _check_warnings(self) -> None:
+        for name, count in warning_counts(self.data).items():
+            if count and name not in self._warned:
+                self._warned.add(name)
+                log.warning(
+                    "MuJoCo warning %r at t = %.4f s (%d so far) for hand %s with object %s; "
+                    "bad_qacc means the simulation diverged and MuJoCo reset it: lower the "
+                    "timestep or stiffen the contacts",
+                    name, self.time, count, self.hand.name, self.obj.name,
+                )  # fmt: skip

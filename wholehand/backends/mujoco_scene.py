@@ -1,0 +1,681 @@
+"""A MuJoCo scene of one hand and one free object, built with ``mujoco.MjSpec``.
+
+The hand comes from its URDF (``package://`` mesh URIs resolved, visual geometry discarded, fixed
+links kept as bodies so every Pinocchio link has a MuJoCo body of the same name) and is then
+edited in the spec:
+
+- its root link (the Pinocchio base ``b``) is welded to the world at ``hand.wMb`` (``base="fixed"``)
+  or is a mocap body that can be moved kinematically (``base="mocap"``);
+- every joint gets the damping and armature of ``[simulation]`` in hand.toml (the URDF's own
+  ``<dynamics>`` damping and friction are dropped) and keeps its URDF position limits;
+- every actuated joint gets a ``motor`` actuator, ctrl = force = torque [N*m], with ``ctrlrange``
+  and ``forcerange`` +-``hand.tau_max``.
+
+The object is a body named ``"object"`` with a free joint. Its body frame IS the object frame of
+:class:`~wholehand.models.objects.ObjectModel` (the canonical mesh frame): mass, centre of mass and
+inertia are set explicitly from the ObjectModel (never inferred from geoms), so MuJoCo does not
+move the body frame to the centre of mass. Primitives collide as MuJoCo primitives of exact size;
+meshes as the convex parts of a CoACD decomposition (:mod:`wholehand.backends.convex`), because
+MuJoCo would collide a single mesh geom as its convex hull and fill cavities (``collision="hull"``
+keeps that behaviour for comparison).
+
+Contact model (stated once, see :class:`SceneOptions`):
+
+- friction: object geoms have ``priority=1``, so every hand-object contact uses the object's
+  friction coefficient exactly (MuJoCo's default would take the element-wise maximum of the two
+  geoms); hand geoms carry the same coefficient, used only for hand-hand contacts;
+- ``condim=3``: point contacts with sliding friction only, as in the paper's contact model;
+- elliptic friction cones with ``impratio=10`` (stiffer tangential response, less creep when holding
+  an object by friction), Newton solver, ``implicitfast`` integration (joint damping implicit);
+- timestep 1 ms and contact ``solref=(0.005, 1)``: a 5 ms time constant, 5 timesteps, stiffer
+  than MuJoCo's 20 ms default so that fingertips squeezing with ~10 N penetrate by less than 1 mm.
+
+Indexing: MuJoCo's joint order differs from Pinocchio's, so positions, velocities and controls are
+mapped by joint NAME (:attr:`HandObjectScene.qpos_index` etc.), never by position.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.errors import AssetError, ConfigError
+from wholehand.models.hand import _resolve_mesh
+from wholehand.models.poses import check_pose
+
+if TYPE_CHECKING:
+    from wholehand.contacts.base import ContactSet
+    from wholehand.models.hand import HandModel
+    from wholehand.models.objects import ObjectModel
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
+
+DEFAULT_TIMESTEP: float = 1e-3
+"""Simulation timestep [s]. Stable for the Allegro hand at 0.2 N*m with 0.05-1 kg objects."""
+
+GRAVITY_VECTOR: tuple[float, float, float] = (0.0, 0.0, -9.81)
+"""Gravity when enabled [m/s^2]; the paper's simulation studies run without it (Sec. IV-A)."""
+
+OBJECT_BODY = "object"
+"""Name of the object's body."""
+OBJECT_JOINT = "object_free"
+"""Name of the object's free joint."""
+
+HAND_BIT = 1
+"""contype bit of hand geoms."""
+OBJECT_BIT = 2
+"""contype bit of object geoms."""
+
+CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
+BASES = ("fixed", "mocap")
+COLLISIONS = ("decomposition", "hull")
+
+
+@dataclass(frozen=True)
+class SceneOptions:
+    """Physics settings of a hand-object scene (defaults justified in the module docstring)."""
+
+    timestep: float = DEFAULT_TIMESTEP
+    """Integration step [s]."""
+    gravity: bool = False
+    """Gravity (0, 0, -9.81) m/s^2 when True, none when False (the paper's setting)."""
+    cone: Literal["elliptic", "pyramidal"] = "elliptic"
+    """Friction cone of MuJoCo's contact solver."""
+    impratio: float = 10.0
+    """Ratio of frictional to normal constraint impedance (elliptic cones)."""
+    condim: int = 3
+    """Contact dimensionality: 3 = sliding friction (point contact), 4 adds torsion, 6 rolling."""
+    friction: float | None = None
+    """Sliding friction coefficient of hand-object contacts [-]; None: the object's own."""
+    solref: tuple[float, float] = (0.005, 1.0)
+    """Contact (time constant [s], damping ratio)."""
+    solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
+    """Contact impedance (MuJoCo's default)."""
+    base: Literal["fixed", "mocap"] = "fixed"
+    """Hand base welded at ``hand.wMb`` ("fixed") or moved kinematically ("mocap")."""
+    self_collision: bool = True
+    """Collide hand links with each other. Excluded always: parent-child pairs, the base with
+    its children, and pairs already touching in the neutral or zero configuration."""
+    collision: Literal["decomposition", "hull"] = "decomposition"
+    """Mesh objects: convex parts of a CoACD decomposition, or one convex hull."""
+    coacd: dict[str, Any] = field(default_factory=dict)
+    """CoACD parameters overriding :data:`wholehand.backends.convex.DEFAULT_PARAMS`."""
+    iterations: int = 100
+    """Newton solver iterations per step (upper bound)."""
+    visual_mesh: bool = False
+    """Also add the original object mesh as a visual-only geom (group 2), for viewers."""
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.timestep, (int, float)) and 0.0 < self.timestep <= 0.01):
+            raise ConfigError(f"timestep must be in (0, 0.01] s, got {self.timestep!r}")
+        if self.cone not in CONES:
+            raise ConfigError(f"cone must be one of {sorted(CONES)}, got {self.cone!r}")
+        if self.condim not in (1, 3, 4, 6):
+            raise ConfigError(f"condim must be 1, 3, 4 or 6, got {self.condim!r}")
+        if self.base not in BASES:
+            raise ConfigError(f"base must be one of {BASES}, got {self.base!r}")
+        if self.collision not in COLLISIONS:
+            raise ConfigError(f"collision must be one of {COLLISIONS}, got {self.collision!r}")
+        if self.friction is not None and not (math.isfinite(self.friction) and self.friction >= 0):
+            raise ConfigError(f"friction must be a finite number >= 0, got {self.friction!r}")
+        if not self.solref[0] >= 2.0 * self.timestep:
+            raise ConfigError(
+                f"solref time constant {self.solref[0]} s must be at least twice the timestep "
+                f"{self.timestep} s, else contacts are unstable; raise it or lower the timestep"
+            )
+
+
+@dataclass
+class HandObjectScene:
+    """A compiled hand-object scene and the index maps between MuJoCo and Pinocchio.
+
+    Index arrays are in Pinocchio order: entry i of ``qpos_index`` is the MuJoCo ``qpos`` address of
+    Pinocchio configuration coordinate i.
+    """
+
+    spec: mujoco.MjSpec
+    model: mujoco.MjModel
+    options: SceneOptions
+    joint_names: list[str]
+    """(n_q,) hand joint names in Pinocchio order (``hand.joint_names``)."""
+    qpos_index: IntArray
+    """(n_q,) MuJoCo qpos address of each Pinocchio configuration coordinate."""
+    qvel_index: IntArray
+    """(n_v,) MuJoCo qvel (dof) address of each Pinocchio velocity coordinate."""
+    ctrl_index: IntArray
+    """(n_v,) MuJoCo actuator id of each Pinocchio velocity coordinate, -1 where not actuated."""
+    tau_max: FloatArray
+    """(n_v,) torque limits [N*m], Pinocchio order (0 where not actuated)."""
+    base_body: int
+    """MuJoCo body id of the hand base (root link)."""
+    object_body: int
+    """MuJoCo body id of the object."""
+    object_qpos: int
+    """qpos address of the object's free joint: [x y z qw qx qy qz]."""
+    object_qvel: int
+    """qvel address of the object's free joint: [v (world), omega (body frame)]."""
+    geom_link: IntArray
+    """(ngeom,) index into ``hand.link_names`` of each hand geom's link, -1 for other geoms."""
+    geom_is_object: BoolArray
+    """(ngeom,) True for the object's collision geoms."""
+    link_body: IntArray
+    """(L,) MuJoCo body id of each link of ``hand.link_names``."""
+    decomposition_parts: int = 0
+    """Number of convex parts the object collides as (0 for primitives)."""
+
+
+# --- hand ---------------------------------------------------------------------------------------
+def _urdf_for_mujoco(hand: HandModel) -> str:
+    """The hand's URDF as a string MuJoCo can compile: absolute mesh paths, visuals removed (only
+    collision geometry is simulated), and a ``<mujoco><compiler/></mujoco>`` block (balanced
+    inertias, fixed links kept as bodies)."""
+    cfg = hand.config
+    try:
+        root = ET.parse(cfg.urdf_path).getroot()
+    except (ET.ParseError, OSError) as err:
+        raise AssetError(f"{cfg.urdf_path}: cannot read the URDF: {err}") from err
+    for link in root.iter("link"):
+        for visual in list(link.findall("visual")):
+            link.remove(visual)
+    for mesh in root.iter("mesh"):
+        uri = mesh.get("filename", "")
+        path = _resolve_mesh(uri, cfg.urdf_path, cfg.package_dirs)
+        if path is None:
+            raise AssetError(
+                f"{cfg.urdf_path}: collision mesh {uri!r} not found in the package directories "
+                f"{[str(d) for d in cfg.package_dirs]}; install the package that ships it"
+            )
+        mesh.set("filename", str(path.resolve()))
+    for old in root.findall("mujoco"):
+        root.remove(old)
+    block = ET.SubElement(root, "mujoco")
+    ET.SubElement(
+        block,
+        "compiler",
+        balanceinertia="true",
+        fusestatic="false",
+        strippath="false",
+    )
+    return ET.tostring(root, encoding="unicode")
+
+
+def _load_hand_spec(hand: HandModel) -> mujoco.MjSpec:
+    try:
+        spec = mujoco.MjSpec.from_string(_urdf_for_mujoco(hand))
+    except ValueError as err:
+        raise AssetError(
+            f"{hand.config.urdf_path}: MuJoCo cannot parse this URDF: {err}; check the URDF "
+            "(hand.toml names it) and its mesh files"
+        ) from err
+    # The URDF's visuals are already stripped; keep the visual-only object mesh if one is added.
+    spec.compiler.discardvisual = False
+    return spec
+
+
+def _set_pose(element: Any, M: FloatArray) -> None:
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(M[:3, :3]).ravel())
+    element.pos = M[:3, 3].tolist()
+    element.quat = quat.tolist()
+
+
+def _check_hand(hand: HandModel) -> None:
+    tau = np.asarray(hand.tau_max, dtype=float)
+    act = np.asarray(hand.actuated_dofs, dtype=bool)
+    if tau.shape != (hand.nv,) or act.shape != (hand.nv,):
+        raise ConfigError(
+            f"hand {hand.name!r}: tau_max and actuated_dofs must have shape ({hand.nv},), got "
+            f"{tau.shape} and {act.shape}"
+        )
+    bad = [hand.joint_names[i] for i in np.flatnonzero(act & ~(np.isfinite(tau) & (tau > 0)))]
+    if bad:
+        raise ConfigError(
+            f"{hand.config.path}: actuated joints {bad} have no positive torque limit; set "
+            "[joints] torque_limit = { default = ..., <joint> = ... } [N*m] in hand.toml"
+        )
+    if not act.any():
+        raise ConfigError(f"{hand.config.path}: hand {hand.name!r} has no actuated joint")
+
+
+def _edit_hand(
+    spec: mujoco.MjSpec, hand: HandModel, wMb: FloatArray, opts: SceneOptions, mu: float
+) -> None:
+    roots = list(spec.worldbody.bodies)
+    if len(roots) != 1:
+        raise AssetError(
+            f"{hand.config.urdf_path}: expected one root link, MuJoCo found "
+            f"{[b.name for b in roots]}"
+        )
+    base = roots[0]
+    _set_pose(base, wMb)
+    if opts.base == "mocap":
+        base.mocap = True
+    for joint in spec.joints:
+        joint.damping = [hand.config.damping, 0.0, 0.0]  # linear viscous damping only
+        joint.armature = hand.config.armature
+        joint.frictionloss = 0.0
+    for body in spec.bodies:  # URDF geoms are nameless: name them after their link
+        for k, geom in enumerate(body.geoms):
+            geom.name = geom.name or f"{body.name}/collision_{k}"
+    hand_affinity = OBJECT_BIT | (HAND_BIT if opts.self_collision else 0)
+    for geom in spec.geoms:
+        geom.contype = HAND_BIT
+        geom.conaffinity = hand_affinity
+        geom.condim = opts.condim
+        geom.friction = [mu, 0.005, 0.0001]
+        geom.solref = list(opts.solref)
+        geom.solimp = list(opts.solimp)
+        geom.priority = 0
+        geom.margin = 0.0
+        geom.gap = 0.0
+    for dof in np.flatnonzero(hand.actuated_dofs):
+        name = hand.joint_names[int(dof)]
+        tau = float(hand.tau_max[int(dof)])
+        act = spec.add_actuator(
+            name=f"motor_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT
+        )
+        act.set_to_motor()
+        act.ctrllimited = True
+        act.ctrlrange = [-tau, tau]
+        act.forcelimited = True
+        act.forcerange = [-tau, tau]
+
+
+# --- object -------------------------------------------------------------------------------------
+def _principal_inertia(obj: ObjectModel) -> tuple[FloatArray, FloatArray]:
+    """Principal moments (3,) [kg*m^2] and the (4,) quaternion of the principal axes."""
+    inertia = np.asarray(obj.inertia, dtype=float)
+    if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
+        raise ConfigError(f"object {obj.name!r}: inertia must be a finite (3, 3) matrix")
+    moments, axes = np.linalg.eigh(0.5 * (inertia + inertia.T))
+    if moments.min() <= 0:
+        raise ConfigError(
+            f"object {obj.name!r}: inertia about the centre of mass is not positive definite "
+            f"(principal moments {moments.tolist()}); fix the object's mass properties"
+        )
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] *= -1.0
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(axes).ravel())
+    return moments, quat
+
+
+def _add_object_geoms(
+    spec: mujoco.MjSpec, body: Any, obj: ObjectModel, opts: SceneOptions, mu: float
+) -> int:
+    """Add the collision geoms of the object; return the number of convex parts (0: primitive)."""
+    common = {
+        "contype": OBJECT_BIT,
+        "conaffinity": HAND_BIT,
+        "condim": opts.condim,
+        "friction": [mu, 0.005, 0.0001],
+        "solref": list(opts.solref),
+        "solimp": list(opts.solimp),
+        "priority": 1,
+        "rgba": [0.85, 0.55, 0.2, 1.0],
+    }
+    dims = obj.dimensions
+    G = mujoco.mjtGeom
+    primitives = {  # MuJoCo sizes: radius, half-lengths
+        "box": (G.mjGEOM_BOX, lambda: (0.5 * np.asarray(dims["size"], dtype=float)).tolist()),
+        "sphere": (G.mjGEOM_SPHERE, lambda: [float(dims["radius"]), 0.0, 0.0]),
+        "cylinder": (
+            G.mjGEOM_CYLINDER,
+            lambda: [float(dims["radius"]), 0.5 * float(dims["height"]), 0.0],
+        ),
+        "capsule": (
+            G.mjGEOM_CAPSULE,
+            lambda: [float(dims["radius"]), 0.5 * float(dims["length"]), 0.0],
+        ),
+    }
+    if obj.kind in primitives:
+        geom_type, size = primitives[obj.kind]
+        try:
+            body.add_geom(name="object_geom", type=geom_type, size=size(), **common)
+        except KeyError as err:
+            raise ConfigError(
+                f"object {obj.name!r} of kind {obj.kind!r} lacks dimension {err} "
+                f"(has {sorted(dims)})"
+            ) from err
+        return 0
+    if obj.kind != "mesh":
+        raise ConfigError(
+            f"object {obj.name!r} has kind {obj.kind!r}; expected mesh, box, sphere, cylinder or "
+            "capsule"
+        )
+    if opts.collision == "hull":
+        hull = obj.mesh.convex_hull
+        parts = [(np.asarray(hull.vertices), np.asarray(hull.faces))]
+    else:
+        from wholehand.backends.convex import convex_decomposition
+
+        parts = convex_decomposition(obj.mesh, name=obj.name, **opts.coacd).parts()
+    for i, (vertices, faces) in enumerate(parts):
+        mesh = spec.add_mesh(name=f"object_part_{i}")
+        mesh.uservert = np.asarray(vertices, dtype=np.float32).ravel().tolist()
+        mesh.userface = np.asarray(faces, dtype=np.int32).ravel().tolist()
+        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+        body.add_geom(name=f"object_part_{i}", type=G.mjGEOM_MESH, meshname=mesh.name, **common)
+    return len(parts)
+
+
+def _add_visual_mesh(spec: mujoco.MjSpec, body: Any, obj: ObjectModel) -> None:
+    mesh = spec.add_mesh(name="object_visual")
+    mesh.uservert = np.asarray(obj.mesh.vertices, dtype=np.float32).ravel().tolist()
+    mesh.userface = np.asarray(obj.mesh.faces, dtype=np.int32).ravel().tolist()
+    mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+    body.add_geom(
+        name="object_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="object_visual",
+        contype=0, conaffinity=0, group=2, density=0, rgba=[0.85, 0.55, 0.2, 0.5],
+    )  # fmt: skip
+
+
+def _add_object(
+    spec: mujoco.MjSpec, obj: ObjectModel, wMo: FloatArray, opts: SceneOptions, mu: float
+) -> int:
+    mass = float(obj.mass)
+    if not (math.isfinite(mass) and mass > 0):
+        raise ConfigError(f"object {obj.name!r}: mass must be a positive number [kg], got {mass!r}")
+    com = np.asarray(obj.com, dtype=float)
+    if com.shape != (3,) or not np.all(np.isfinite(com)):
+        raise ConfigError(f"object {obj.name!r}: com must be a finite (3,) point, got {com!r}")
+    moments, iquat = _principal_inertia(obj)
+    body = spec.worldbody.add_body(name=OBJECT_BODY)
+    _set_pose(body, wMo)
+    body.add_freejoint(name=OBJECT_JOINT)
+    body.explicitinertial = True
+    body.mass = mass
+    body.ipos = com.tolist()
+    body.iquat = iquat.tolist()
+    body.inertia = moments.tolist()
+    parts = _add_object_geoms(spec, body, obj, opts, mu)
+    if opts.visual_mesh:
+        _add_visual_mesh(spec, body, obj)
+    return parts
+
+
+# --- index maps ---------------------------------------------------------------------------------
+def _name2id(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
+    return int(mujoco.mj_name2id(model, kind, name))
+
+
+def _index_maps(model: mujoco.MjModel, hand: HandModel) -> dict[str, Any]:
+    pin_model = hand.model
+    qpos_index = np.zeros(hand.nq, dtype=np.intp)
+    qvel_index = np.zeros(hand.nv, dtype=np.intp)
+    ctrl_index = np.full(hand.nv, -1, dtype=np.intp)
+    for name in hand.joint_names:
+        jid = _name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid < 0:
+            raise AssetError(f"joint {name!r} of the Pinocchio model has no MuJoCo joint")
+        pj = pin_model.joints[pin_model.getJointId(name)]
+        qpos_index[pj.idx_q] = model.jnt_qposadr[jid]
+        qvel_index[pj.idx_v] = model.jnt_dofadr[jid]
+        aid = _name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, f"motor_{name}")
+        if aid >= 0:
+            ctrl_index[pj.idx_v] = aid
+    link_body = np.array(
+        [_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in hand.link_names], dtype=np.intp
+    )
+    missing = [n for n, b in zip(hand.link_names, link_body, strict=True) if b < 0]
+    if missing:
+        raise AssetError(f"links {missing} of hand {hand.name!r} have no MuJoCo body")
+    body_link = {int(b): i for i, b in enumerate(link_body)}
+    object_body = _name2id(model, mujoco.mjtObj.mjOBJ_BODY, OBJECT_BODY)
+    geom_link = np.full(model.ngeom, -1, dtype=np.intp)
+    for g in range(model.ngeom):
+        body = int(model.geom_bodyid[g])
+        if body == object_body:
+            continue
+        while body > 0 and body not in body_link:  # geoms of links without sampled geometry
+            body = int(model.body_parentid[body])
+        geom_link[g] = body_link.get(body, -1)
+    geom_is_object = (model.geom_bodyid == object_body) & (model.geom_contype != 0)
+    jid = _name2id(model, mujoco.mjtObj.mjOBJ_JOINT, OBJECT_JOINT)
+    return {
+        "qpos_index": qpos_index,
+        "qvel_index": qvel_index,
+        "ctrl_index": ctrl_index,
+        "link_body": link_body,
+        "geom_link": geom_link,
+        "geom_is_object": geom_is_object,
+        "object_body": object_body,
+        "object_qpos": int(model.jnt_qposadr[jid]),
+        "object_qvel": int(model.jnt_dofadr[jid]),
+        "base_body": next(
+            b for b in range(1, model.nbody) if model.body_parentid[b] == 0 and b != object_body
+        ),
+    }
+
+
+def _exclude_touching_pairs(
+    spec: mujoco.MjSpec, hand: HandModel, qpos_index: IntArray, object_body: int
+) -> int:
+    """Exclude hand body pairs that touch in the neutral or zero configuration (they overlap by
+    construction, not by motion) and the base with its children (which MuJoCo's parent filter
+    misses for a base welded to the world). Returns the number of pairs excluded."""
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    name = functools.partial(mujoco.mj_id2name, model, mujoco.mjtObj.mjOBJ_BODY)
+    pairs: set[tuple[str, str]] = set()
+    for b in range(1, model.nbody):
+        parent = int(model.body_parentid[b])
+        if parent > 0 and model.body_parentid[parent] == 0 and parent != object_body:
+            pairs.add((min(name(b), name(parent)), max(name(b), name(parent))))
+    for q in (hand.neutral(), np.clip(np.zeros(hand.nq), hand.q_lower, hand.q_upper)):
+        data.qpos[qpos_index] = q
+        mujoco.mj_forward(model, data)
+        for c in range(data.ncon):
+            b1, b2 = (int(model.geom_bodyid[g]) for g in data.contact.geom[c])
+            if object_body not in (b1, b2):
+                n1, n2 = name(b1), name(b2)
+                pairs.add((min(n1, n2), max(n1, n2)))
+    for n1, n2 in sorted(pairs):
+        spec.add_exclude(bodyname1=n1, bodyname2=n2)
+    return len(pairs)
+
+
+def _compile(spec: mujoco.MjSpec, what: str) -> mujoco.MjModel:
+    try:
+        return spec.compile()
+    except ValueError as err:
+        raise AssetError(
+            f"MuJoCo cannot compile the scene of {what}: {err}; check the hand URDF, the object "
+            "mesh and the scene options"
+        ) from err
+
+
+def build_scene(
+    hand: HandModel,
+    obj: ObjectModel,
+    wMo: FloatArray | None = None,
+    options: SceneOptions | None = None,
+    wMb: FloatArray | None = None,
+) -> HandObjectScene:
+    """Build and compile the MuJoCo scene of ``hand`` and ``obj``.
+
+    Args:
+        hand: the hand model (URDF, limits, mount pose ``hand.wMb``).
+        obj: the object model; its frame becomes the frame of body ``"object"``.
+        wMo: (4, 4) initial pose of the object frame in the world; default: 0.5 m below the hand
+            base, clear of the hand.
+        options: physics settings (:class:`SceneOptions`).
+        wMb: (4, 4) pose of the hand base in the world; default: the mount pose ``hand.wMb``.
+    """
+    opts = options or SceneOptions()
+    _check_hand(hand)
+    wMb = check_pose(hand.wMb if wMb is None else wMb, "wMb")
+    wMo = default_object_pose(wMb) if wMo is None else check_pose(wMo, "wMo")
+    mu = float(obj.friction) if opts.friction is None else float(opts.friction)
+    if not (math.isfinite(mu) and mu >= 0):
+        raise ConfigError(f"object {obj.name!r}: friction must be a number >= 0, got {mu!r}")
+
+    spec = _load_hand_spec(hand)
+    spec.modelname = f"{hand.name}_{obj.name}".replace(":", "_")
+    _edit_hand(spec, hand, wMb, opts, mu)
+    parts = _add_object(spec, obj, wMo, opts, mu)
+
+    o = spec.option
+    o.timestep = float(opts.timestep)
+    o.gravity = list(GRAVITY_VECTOR) if opts.gravity else [0.0, 0.0, 0.0]
+    o.cone = CONES[opts.cone]
+    o.impratio = float(opts.impratio)
+    o.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    o.solver = mujoco.mjtSolver.mjSOL_NEWTON
+    o.iterations = int(opts.iterations)
+    o.tolerance = 1e-8
+
+    what = f"hand {hand.name!r} ({hand.config.urdf_path}) with object {obj.name!r}"
+    model = _compile(spec, what)
+    maps = _index_maps(model, hand)
+    if opts.self_collision:
+        n = _exclude_touching_pairs(spec, hand, maps["qpos_index"], maps["object_body"])
+        if n:
+            model = _compile(spec, what)
+            maps = _index_maps(model, hand)
+    tau_max = np.where(hand.actuated_dofs, hand.tau_max, 0.0).astype(float)
+    return HandObjectScene(
+        spec=spec,
+        model=model,
+        options=opts,
+        joint_names=list(hand.joint_names),
+        tau_max=tau_max,
+        decomposition_parts=parts,
+        **maps,
+    )
+
+
+def default_object_pose(wMb: FloatArray) -> FloatArray:
+    """(4, 4) object pose used when none is given: 0.5 m below the hand base, world axes."""
+    wMo = np.eye(4)
+    wMo[:3, 3] = np.asarray(wMb)[:3, 3] + np.array([0.0, 0.0, -0.5])
+    return wMo
+
+
+# --- contacts -----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SimContacts:
+    """Hand-object contacts reported by MuJoCo (ground truth), as arrays in the world frame.
+
+    Hand-hand contacts are excluded. Row i of every array is contact i.
+    """
+
+    p_world: FloatArray
+    """(N, 3) contact points on the hand surface, world frame [m] (MuJoCo's contact midpoint
+    moved by half the signed distance along the normal)."""
+    n_world: FloatArray
+    """(N, 3) unit contact normals pointing out of the object (towards the hand), world frame."""
+    f_world: FloatArray
+    """(N, 3) contact force exerted by the hand on the object, world frame [N]; its normal
+    component is <= 0: the force points into the object."""
+    link: IntArray
+    """(N,) index of the touching hand link into ``HandModel.link_names``."""
+    distance: FloatArray
+    """(N,) signed distance between the surfaces, negative in penetration [m]."""
+    geom_object: IntArray
+    """(N,) MuJoCo geom id of the object part in contact."""
+    stamp: float = 0.0
+    """Simulation time [s]."""
+
+    def __len__(self) -> int:
+        return int(self.p_world.shape[0])
+
+    @property
+    def f_normal(self) -> FloatArray:
+        """(N,) normal force magnitudes on the object [N] (>= 0)."""
+        return -np.einsum("ij,ij->i", self.f_world, self.n_world)
+
+    def to_contact_set(self, hand: HandModel) -> ContactSet:
+        """The contacts as a :class:`wholehand.contacts.base.ContactSet` (forces dropped)."""
+        from wholehand.contacts.base import ContactSet
+
+        return ContactSet(
+            p_world=self.p_world.copy(),
+            n_world=self.n_world.copy(),
+            link=self.link.copy(),
+            distance=self.distance.copy(),
+            link_actuated=np.asarray(hand.link_actuated, dtype=bool),
+            link_fingertip=np.asarray(hand.link_fingertip, dtype=bool),
+            stamp=self.stamp,
+        )
+
+
+def hand_object_contacts(scene: HandObjectScene, data: mujoco.MjData) -> SimContacts:
+    """The hand-object contacts of ``data`` with their forces (call after a step or mj_forward).
+
+    MuJoCo's contact frame has its first axis (the normal) pointing from ``geom1`` to ``geom2``,
+    and :func:`mujoco.mj_contactForce` gives, in that frame, the force ``geom1`` exerts on
+    ``geom2``, with a positive (repulsive) normal component. So when the object is ``geom1`` the
+    normal already points out of the object and the force on the object is the opposite of that
+    force; when the object is ``geom2`` the normal is flipped and the force is taken as it is.
+    Either way the force on the object has a negative component along the outward normal.
+    """
+    model = scene.model
+    ncon = int(data.ncon)
+    empty = SimContacts(
+        p_world=np.zeros((0, 3)), n_world=np.zeros((0, 3)), f_world=np.zeros((0, 3)),
+        link=np.zeros(0, dtype=np.intp), distance=np.zeros(0),
+        geom_object=np.zeros(0, dtype=np.intp), stamp=float(data.time),
+    )  # fmt: skip
+    if ncon == 0:
+        return empty
+    contact = data.contact
+    geoms = np.asarray(contact.geom, dtype=np.intp).reshape(ncon, 2)
+    is_obj = scene.geom_is_object[geoms]
+    keep = (is_obj[:, 0] ^ is_obj[:, 1]) & (np.asarray(contact.exclude).reshape(ncon) == 0)
+    idx = np.flatnonzero(keep)
+    if idx.size == 0:
+        return empty
+    frames = np.asarray(contact.frame, dtype=float).reshape(ncon, 3, 3)[idx]
+    # +1 where the object is geom2: force on it as given, normal (geom1 -> geom2) flipped.
+    obj_is_geom2 = np.where(is_obj[idx, 1], 1.0, -1.0)
+    n_world = -obj_is_geom2[:, None] * frames[:, 0, :]
+    local = np.zeros((idx.size, 6))
+    for k, c in enumerate(idx):
+        mujoco.mj_contactForce(model, data, int(c), local[k])
+    # frame rows are the contact axes (normal, tangent 1, tangent 2): world = frame^T @ local.
+    f_world = obj_is_geom2[:, None] * np.einsum("kij,ki->kj", frames, local[:, :3])
+    hand_geom = np.where(is_obj[idx, 0], geoms[idx, 1], geoms[idx, 0])
+    obj_geom = np.where(is_obj[idx, 0], geoms[idx, 0], geoms[idx, 1])
+    dist = np.asarray(contact.dist, dtype=float).reshape(ncon)[idx]
+    pos = np.asarray(contact.pos, dtype=float).reshape(ncon, 3)[idx]
+    link = scene.geom_link[hand_geom]
+    valid = link >= 0
+    return SimContacts(
+        p_world=(pos + 0.5 * dist[:, None] * n_world)[valid],
+        n_world=n_world[valid],
+        f_world=f_world[valid],
+        link=link[valid],
+        distance=dist[valid],
+        geom_object=obj_geom[valid],
+        stamp=float(data.time),
+    )
+
+
+WARNINGS = {
+    "inertia": mujoco.mjtWarning.mjWARN_INERTIA,
+    "contact_full": mujoco.mjtWarning.mjWARN_CONTACTFULL,
+    "constraint_full": mujoco.mjtWarning.mjWARN_CNSTRFULL,
+    "bad_qpos": mujoco.mjtWarning.mjWARN_BADQPOS,
+    "bad_qvel": mujoco.mjtWarning.mjWARN_BADQVEL,
+    "bad_qacc": mujoco.mjtWarning.mjWARN_BADQACC,
+    "bad_ctrl": mujoco.mjtWarning.mjWARN_BADCTRL,
+}
+"""MuJoCo's run-time warnings by short name."""
+
+
+def warning_counts(data: mujoco.MjData) -> dict[str, int]:
+    """How often each MuJoCo run-time warning fired since the last reset."""
+    return {name: int(data.warning[int(w)].number) for name, w in WARNINGS.items()}

@@ -1,0 +1,49 @@
+"""``wholehand grasps ...``: generate and list stored grasps."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+PAPER_OBJECTS = (
+    "006_mustard_bottle", "052_extra_large_clamp", "065-f_cups", "073-f_lego_duplo", "077_rubiks_cube",
+)  # fmt: skip
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    grasps = sub.add_parser("grasps", help="generate or list stored grasps")
+    gsub = grasps.add_subparsers(dest="grasps", required=True)
+    p = gsub.add_parser("generate", help="generate power grasps in MuJoCo (seeded)")
+    p.add_argument("--hand", default="allegro_right")
+    p.add_argument("--object", action="append", help="object name (repeatable); default: the paper's five")
+    p.add_argument("--count", type=int, default=10)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-candidates", type=int, default=400)
+    p.add_argument("--out", default=None, help="folder for <object>.json; default: the shipped grasps")
+    p.set_defaults(func=_cmd_generate)
+    p = gsub.add_parser("list", help="list the shipped grasp files")
+    p.set_defaults(func=_cmd_list)
+
+
+def _cmd_generate(args: argparse.Namespace) -> int:
+    from wholehand.grasps.generate import generate_grasps
+    from wholehand.grasps.store import grasps_dir, save_grasps
+    from wholehand.models.hand import load_hand
+    from wholehand.models.objects import load_object
+
+    hand = load_hand(args.hand)
+    folder = Path(args.out) if args.out else grasps_dir() / hand.name
+    for name in args.object or PAPER_OBJECTS:
+        obj = load_object(name)
+        grasps, info = generate_grasps(hand, obj, args.count, args.seed, args.max_candidates, progress=True)
+        path = save_grasps(folder / f"{obj.name}.json", hand.name, obj.name, grasps, info)
+        print(f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates -> {path}")
+    return 0
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    from wholehand.grasps.store import grasps_dir, load_grasps
+
+    for path in sorted(grasps_dir().glob("*/*.json")):
+        print(f"{path.parent.name}/{path.stem}: {len(load_grasps(path))} grasps")
+    return 0

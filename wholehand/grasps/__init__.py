@@ -1,0 +1,1 @@
+"""Grasps: the stored-grasp file format and the MuJoCo grasp generator."""

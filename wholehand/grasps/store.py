@@ -1,0 +1,138 @@
+"""The grasp file format (``objects/grasps/<hand>/<object>.json``).
+
+A grasp is a hand base pose in the object frame plus joint angles by joint name, so that grasps
+from any synthesiser (Dexonomy, DexGraspNet, ...) can be converted: express the hand root pose
+in the object's mesh frame as a 4x4 matrix ``oMb`` and write one entry per joint::
+
+    {
+      "format": "wholehand-grasps/1",
+      "hand": "allegro_right",
+      "object": "077_rubiks_cube",
+      "generator": {"command": "...", "seed": 0, ...},
+      "grasps": [
+        {"id": 0, "type": "power", "oMb": [[...], [...], [...], [0, 0, 0, 1]],
+         "q": {"joint_0.0": 0.05, ...}, "contacts": 7, "note": "..."}
+      ]
+    }
+
+Units: metres and radians. ``contacts`` (optional) is the ground-truth contact count after
+settling, as the generator measured it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.errors import ConfigError
+from wholehand.models.hand import HandModel
+from wholehand.models.poses import check_pose, inverse
+
+FloatArray = npt.NDArray[np.float64]
+FORMAT = "wholehand-grasps/1"
+
+
+@dataclass(frozen=True)
+class Grasp:
+    """One stored grasp."""
+
+    id: int
+    oMb: FloatArray
+    """(4, 4) pose of the hand base in the object frame."""
+    q: dict[str, float]
+    """Joint angles [rad] by joint name."""
+    type: str = "power"
+    contacts: int | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def q_array(self, hand: HandModel) -> FloatArray:
+        """(n_q,) joint angles in the hand model's order; a missing joint raises ConfigError."""
+        missing = [name for name in hand.joint_names if name not in self.q]
+        if missing:
+            raise ConfigError(f"grasp {self.id} has no angle for joints {missing} of {hand.name!r}")
+        q = np.zeros(hand.nq)
+        for name in hand.joint_names:
+            jid = hand.model.getJointId(name)
+            q[hand.model.joints[jid].idx_q] = self.q[name]
+        return q
+
+    def object_pose(self, wMb: FloatArray) -> FloatArray:
+        """(4, 4) object pose in the world for a hand base mounted at ``wMb``."""
+        return wMb @ inverse(self.oMb)
+
+
+def grasps_dir() -> Path:
+    """The folder of shipped grasp files."""
+    import wholehand_objects
+
+    return Path(wholehand_objects.__file__).parent / "grasps"
+
+
+def grasp_file(hand: str, obj: str) -> Path:
+    return grasps_dir() / hand / f"{obj}.json"
+
+
+def load_grasps(path_or_hand: str | Path, obj: str | None = None) -> list[Grasp]:
+    """Grasps from a file path, or the shipped ones for ``(hand name, object name)``."""
+    path = Path(path_or_hand) if obj is None else grasp_file(str(path_or_hand), obj)
+    if not path.is_file():
+        shipped = sorted(p.relative_to(grasps_dir()).as_posix() for p in grasps_dir().glob("*/*.json"))
+        raise ConfigError(
+            f"no grasp file {path}; shipped grasp files: {shipped}. Generate some with "
+            "`wholehand grasps generate --hand HAND --object OBJECT`"
+        )
+    try:
+        raw = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"{path}: not valid JSON: {err}") from err
+    if raw.get("format") != FORMAT:
+        raise ConfigError(f"{path}: format is {raw.get('format')!r}, expected {FORMAT!r}")
+    grasps = []
+    for i, entry in enumerate(raw.get("grasps", [])):
+        try:
+            oMb = check_pose(entry["oMb"], f"{path} grasp {i} oMb")
+            q = {str(k): float(v) for k, v in entry["q"].items()}
+        except KeyError as err:
+            raise ConfigError(f"{path}: grasp {i} lacks the key {err}") from err
+        grasps.append(
+            Grasp(
+                id=int(entry.get("id", i)),
+                oMb=oMb,
+                q=q,
+                type=str(entry.get("type", "power")),
+                contacts=entry.get("contacts"),
+                extra={k: v for k, v in entry.items() if k not in {"id", "oMb", "q", "type", "contacts"}},
+            )
+        )
+    if not grasps:
+        raise ConfigError(f"{path}: holds no grasps")
+    return grasps
+
+
+def save_grasps(path: Path, hand: str, obj: str, grasps: list[Grasp], generator: dict[str, Any]) -> Path:
+    """Write grasps in the documented format."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format": FORMAT,
+        "hand": hand,
+        "object": obj,
+        "generator": generator,
+        "grasps": [
+            {
+                "id": g.id,
+                "type": g.type,
+                "oMb": np.round(g.oMb, 9).tolist(),
+                "q": {k: round(v, 9) for k, v in g.q.items()},
+                "contacts": g.contacts,
+                **g.extra,
+            }
+            for g in grasps
+        ],
+    }
+    path.write_text(json.dumps(payload, indent=1) + "\n")
+    return path

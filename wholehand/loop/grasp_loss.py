@@ -1,0 +1,59 @@
+"""The paper's grasp-loss criterion (Sec. III-D).
+
+The grasp is lost when the convex hull of the fingertips and the palm no longer intersects the
+object's bounding box. Fingertips are represented by the centroid of each fingertip link's
+surface samples, the palm by the eight corners of its samples' bounding box (both rigid in their
+link frames); the object's bounding box is its mesh's axis-aligned box in the object frame.
+"""
+
+from __future__ import annotations
+
+import coal
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.models.hand import HandModel
+from wholehand.models.kinematics import HandKinematics
+from wholehand.models.objects import ObjectModel
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class GraspLossCheck:
+    """Decides, from the hand kinematics and the object pose, whether the object is still held."""
+
+    def __init__(self, hand: HandModel, obj: ObjectModel) -> None:
+        samples = hand.samples
+        points, joints = [], []
+        for i in np.flatnonzero(hand.link_fingertip):
+            rows = samples.link == i
+            points.append(samples.p_joint[rows].mean(axis=0))
+            joints.append(int(hand.link_joint[i]))
+        palm = hand.link_index(hand.palm_link)
+        rows = samples.link == palm
+        lo, hi = samples.p_joint[rows].min(axis=0), samples.p_joint[rows].max(axis=0)
+        for corner in np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T:
+            points.append(corner)
+            joints.append(int(hand.link_joint[palm]))
+        self._p_joint = np.asarray(points)
+        self._joint = np.asarray(joints, dtype=np.intp)
+        lo, hi = obj.mesh.bounds
+        self._box = coal.Box(*(hi - lo))
+        self._oMbox = np.eye(4)
+        self._oMbox[:3, 3] = 0.5 * (lo + hi)
+        self._request = coal.CollisionRequest()
+
+    def hull_points(self, kinematics: HandKinematics) -> FloatArray:
+        """(M, 3) world points whose convex hull stands for the grasping hand [m]."""
+        return kinematics.transform_points(self._p_joint, self._joint)
+
+    def held(self, kinematics: HandKinematics, wMo: FloatArray) -> bool:
+        """True while the hull of fingertips and palm intersects the object's bounding box."""
+        vertices = coal.StdVec_Vec3s()
+        for p in self.hull_points(kinematics):
+            vertices.append(p)
+        hull = coal.Convex.convexHull(vertices, False, "")
+        wMbox = wMo @ self._oMbox
+        tf_box = coal.Transform3s(wMbox[:3, :3].copy(), wMbox[:3, 3].copy())
+        result = coal.CollisionResult()
+        return bool(coal.collide(hull, coal.Transform3s(), self._box, tf_box, self._request, result))

@@ -1,0 +1,79 @@
+"""One perturbation trial of a stored grasp: build the scene, the controller, run the protocol."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from wholehand import registry
+from wholehand.grasps.store import load_grasps
+from wholehand.loop.controller import ForceRegulationController
+from wholehand.loop.protocol import PerturbationProtocol
+from wholehand.loop.record import RunRecord
+from wholehand.loop.scheduler import CONTROL_RATE, run_protocol
+from wholehand.models.hand import HandModel, load_hand
+from wholehand.models.objects import ObjectModel, load_object
+
+
+@dataclass(frozen=True)
+class TrialSpec:
+    """Everything that defines one trial; equal specs give equal records."""
+
+    hand: str = "allegro_right"
+    object: str = "077_rubiks_cube"
+    grasp: int = 0
+    estimator: str = "mesh_sdf"
+    allocator: str = "qp"
+    theta_deg: float = 60.0
+    seed: int = 0
+    control_rate: float = CONTROL_RATE
+    gravity: bool = False
+    backend: str = "mujoco"
+    estimator_params: dict[str, Any] = field(default_factory=dict)
+    allocator_params: dict[str, Any] = field(default_factory=dict)
+
+
+def run_trial(
+    spec: TrialSpec,
+    hand: HandModel | None = None,
+    obj: ObjectModel | None = None,
+    stop_on_loss: bool = True,
+) -> RunRecord:
+    """Run the perturbation protocol on one stored grasp; the record's meta holds the spec."""
+    started = time.perf_counter()
+    hand = hand or load_hand(spec.hand)
+    obj = obj or load_object(spec.object)
+    grasps = load_grasps(spec.hand, spec.object)
+    grasp = grasps[spec.grasp % len(grasps)]
+    backend = registry.load(
+        "backends",
+        spec.backend,
+        hand=hand,
+        obj=obj,
+        q_init=grasp.q_array(hand),
+        wMo_init=grasp.object_pose(hand.wMb),
+        gravity=spec.gravity,
+    )
+    estimator = registry.load(
+        "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params
+    )
+    allocator_params = {**_allocator_defaults(hand), **spec.allocator_params}
+    allocator = registry.load("allocators", spec.allocator, **allocator_params)
+    controller = ForceRegulationController(hand, obj, estimator, allocator)
+    protocol = PerturbationProtocol(theta_deg=spec.theta_deg, seed=spec.seed)
+    record = run_protocol(backend, controller, protocol, spec.control_rate, stop_on_loss)
+    record.meta.update(
+        {
+            "spec": spec.__dict__,
+            "grasp_id": grasp.id,
+            "wall_time_s": time.perf_counter() - started,
+            "sim_time_s": float(backend.time),
+        }
+    )
+    return record
+
+
+def _allocator_defaults(hand: HandModel) -> dict[str, Any]:
+    """Hand-specific allocator parameters: per-joint torque limits and actuated dofs."""
+    return {"tau_max": hand.tau_max.copy(), "actuated_dofs": hand.actuated_dofs.copy()}

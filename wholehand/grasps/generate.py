@@ -47,10 +47,9 @@ SETTLE = 0.3
 """Settling time after the object is released [s]."""
 MAX_SETTLE_MOTION = 0.01
 """Largest object displacement accepted during settling [m]."""
-HOLD_STIFFNESS = (500.0, 5.0)
-"""Spring holding the object during closing: translational [N/m], rotational [N*m/rad]."""
-HOLD_DAMPING = (20.0, 0.05)
-"""Damper holding the object during closing: [N*s/m], [N*m*s/rad]."""
+HOLD_FREQUENCY = 20.0
+"""Natural frequency of the critically damped spring that holds the object in place during
+closing [Hz]; its gains scale with the object's mass and inertia."""
 PD_GAINS = (2.0, 0.05)
 """PD gains holding the non-closing joints at the pre-shape: [N*m/rad], [N*m*s/rad]."""
 
@@ -111,24 +110,19 @@ class GraspGenerator:
     def _grasped(self, fingers: set[str]) -> bool:
         return self.thumb in fingers and len(fingers - {self.thumb}) >= 2
 
-    def _run(self, duration: float, hold: FloatArray | None, until: Callable[[], bool] | None = None) -> bool:
+    def _hold(self, wMo: FloatArray) -> None:
+        """Hold the object at ``wMo`` with a stiff, critically damped spring."""
+        omega = 2.0 * np.pi * HOLD_FREQUENCY
+        m, i = self.obj.mass, float(np.linalg.eigvalsh(self.obj.inertia).min())
+        self.backend.set_object_spring(wMo, (m * omega**2, i * omega**2), (2 * m * omega, 2 * i * omega))
+
+    def _run(self, duration: float, until: Callable[[], bool] | None = None) -> bool:
         b, dt = self.backend, 1.0 / CONTROL_RATE
-        com = np.r_[self.obj.com, 1.0]
         for i in range(int(round(duration * CONTROL_RATE))):
             s = b.read_state()
             tau = PD_GAINS[0] * (self.q_pre - s.q) - PD_GAINS[1] * s.dq
             tau[self.closing] = self.tau_close[self.closing]
             b.apply_torques(tau)
-            if hold is not None:
-                v, w = b.object_velocity()
-                p, p0 = (s.wMo @ com)[:3], (hold @ com)[:3]
-                from pinocchio import log3
-
-                force = HOLD_STIFFNESS[0] * (p0 - p) - HOLD_DAMPING[0] * v
-                torque = HOLD_STIFFNESS[1] * log3(hold[:3, :3] @ s.wMo[:3, :3].T) - HOLD_DAMPING[1] * w
-                b.apply_object_wrench(force, torque)
-            else:
-                b.apply_object_wrench(np.zeros(3), np.zeros(3))
             b.step(dt)
             if until is not None and i % 5 == 4 and until():
                 return True
@@ -142,11 +136,13 @@ class GraspGenerator:
         b.reset(self.q_pre, wMo)
         if np.any(b.ground_truth_contacts().distance < -0.001):
             return None  # the pre-shape penetrates the object
-        if not self._run(CLOSE_TIMEOUT, wMo, lambda: self._grasped(self._fingers_touching())):
+        self._hold(wMo)
+        if not self._run(CLOSE_TIMEOUT, lambda: self._grasped(self._fingers_touching())):
             return None
-        self._run(CLOSE_EXTRA, wMo)
+        self._run(CLOSE_EXTRA)
         before = b.read_state().wMo
-        self._run(SETTLE, None)
+        b.set_object_spring(None)
+        self._run(SETTLE)
         state = b.read_state()
         self.kin.update(state.q, state.wMb)
         moved = float(np.linalg.norm(state.wMo[:3, 3] - before[:3, 3]))

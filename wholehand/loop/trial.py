@@ -32,6 +32,8 @@ class TrialSpec:
     backend: str = "mujoco"
     estimator_params: dict[str, Any] = field(default_factory=dict)
     allocator_params: dict[str, Any] = field(default_factory=dict)
+    protocol_params: dict[str, Any] = field(default_factory=dict)
+    """Overrides of :class:`PerturbationProtocol` fields (e.g. shorter stages for tests)."""
 
 
 def run_trial(
@@ -61,11 +63,11 @@ def run_trial(
     allocator_params = {**_allocator_defaults(hand), **spec.allocator_params}
     allocator = registry.load("allocators", spec.allocator, **allocator_params)
     controller = ForceRegulationController(hand, obj, estimator, allocator)
-    protocol = PerturbationProtocol(theta_deg=spec.theta_deg, seed=spec.seed)
+    protocol = PerturbationProtocol(theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params)
     record = run_protocol(backend, controller, protocol, spec.control_rate, stop_on_loss)
     record.meta.update(
         {
-            "spec": spec.__dict__,
+            "spec": {k: getattr(v, "__name__", v) for k, v in spec.__dict__.items()},
             "grasp_id": grasp.id,
             "wall_time_s": time.perf_counter() - started,
             "sim_time_s": float(backend.time),

@@ -34,6 +34,21 @@ def _cmd_allocate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_cycle(args: argparse.Namespace) -> int:
+    from wholehand.loop.bench import run_cycle_benchmark
+
+    result = run_cycle_benchmark(
+        hand=args.hand,
+        obj=args.object,
+        ks=tuple(int(k) for k in args.k.split(",")),
+        grasps=tuple(int(g) for g in args.grasps.split(",")),
+        estimator=args.estimator,
+        allocator=args.allocator,
+    )
+    print(json.dumps(result, indent=2))
+    return 0
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="latency benchmarks (JSON with p50/p95/p99)")
     bsub = bench.add_subparsers(dest="bench", required=True)
@@ -54,3 +69,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="out/bench", help="folder for allocate.png")
     p.set_defaults(func=_cmd_allocate)
+
+    p = bsub.add_parser("cycle", help="full control-step latency during held grasps, per K")
+    p.add_argument("--hand", default="allegro_right")
+    p.add_argument("--object", default="077_rubiks_cube")
+    p.add_argument("--k", default="1,3,5,7", help="comma-separated contacts per link")
+    p.add_argument("--grasps", default="0,1", help="comma-separated grasp indices")
+    p.add_argument("--estimator", default="mesh_sdf")
+    p.add_argument("--allocator", default="qp")
+    p.set_defaults(func=_cmd_cycle)

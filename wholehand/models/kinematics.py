@@ -112,8 +112,13 @@ class HandKinematics:
             self._jacobians_fresh = True
         J = self.data.J  # (6, n_v) spatial Jacobian in the base frame (Pinocchio WORLD)
         wRb = self.wMb[:3, :3]
-        p_base = (p_world - self.wMb[:3, 3]) @ wRb
+        p = (p_world - self.wMb[:3, 3]) @ wRb  # points in the base frame
+        px, py, pz = p[:, 0:1], p[:, 1:2], p[:, 2:3]
+        wx, wy, wz = J[3], J[4], J[5]
         # v_p = v_0 + omega x p in the base frame, restricted to the joints that move the point.
-        v = J[:3][None, :, :] + np.cross(J[3:].T[None, :, :], p_base[:, None, :]).transpose(0, 2, 1)
-        v = v * self._support[joint][:, None, :]
+        v = np.empty((p.shape[0], 3, J.shape[1]))
+        v[:, 0] = J[0] + wy * pz - wz * py
+        v[:, 1] = J[1] + wz * px - wx * pz
+        v[:, 2] = J[2] + wx * py - wy * px
+        v *= self._support[joint][:, None, :]
         return np.einsum("ab,nbk->nak", wRb, v)

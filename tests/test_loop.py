@@ -10,6 +10,7 @@ from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
 from wholehand.grasps.store import load_grasps
 from wholehand.loop.controller import ForceRegulationController
 from wholehand.loop.protocol import PerturbationProtocol
+from wholehand.loop.record import RunRecord
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.objects import load_object
 
@@ -88,9 +89,13 @@ def test_qp_holds_the_load_test_and_a_limp_hand_loses_it(allegro, cube):
     assert not limp.held_throughout
 
 
-def test_same_seed_same_record(allegro, cube):
+def test_same_seed_same_record(allegro, cube, tmp_path):
     spec = TrialSpec(object=OBJECT, grasp=1, theta_deg=45.0, seed=3, protocol_params=SHORT)
-    first = run_trial(spec, hand=allegro, obj=cube).arrays()
+    record = run_trial(spec, hand=allegro, obj=cube)
+    loaded = RunRecord.load(record.save(tmp_path / "run.npz"))
+    assert loaded.stages == record.stages and loaded.meta["spec"]["seed"] == 3
+    assert loaded.stage_summary() == record.stage_summary()
+    first = record.arrays()
     second = run_trial(spec, hand=allegro, obj=cube).arrays()
     for key in ("t", "stage", "n_contacts", "residual_wrench", "tau", "status", "held", "p_object"):
         np.testing.assert_array_equal(first[key], second[key], err_msg=key)

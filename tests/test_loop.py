@@ -95,6 +95,12 @@ def test_same_seed_same_record(allegro, cube, tmp_path):
     loaded = RunRecord.load(record.save(tmp_path / "run.npz"))
     assert loaded.stages == record.stages and loaded.meta["spec"]["seed"] == 3
     assert loaded.stage_summary() == record.stage_summary()
+    a, b = record.arrays(), loaded.arrays()
+    for key in (*RunRecord.FIELDS, *RunRecord.CONTACT_FIELDS, "contact_offset"):
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert a["contact_offset"][-1] == a["n_contacts"].sum() == len(a["contact_link"])
+    middle = len(a["t"]) // 2
+    np.testing.assert_array_equal(loaded.contacts_at(middle)["contact_f"], record.contacts_at(middle)["contact_f"])
     first = record.arrays()
     second = run_trial(spec, hand=allegro, obj=cube).arrays()
     for key in ("t", "stage", "n_contacts", "residual_wrench", "tau", "status", "held", "p_object"):

@@ -26,7 +26,12 @@ class RunRecord:
     ``residual_wrench`` (C, 6) [N, N*m]; ``tau`` (C, n_v) [N*m]; ``qp_time``, ``estimate_time``,
     ``cycle_time`` (C,) [s]; ``status`` (C,) codes of :data:`STATUS_CODES`; ``held`` (C,) bool;
     ``p_object`` (C, 3) object origin in the world [m]; ``r_object`` (C, 3) object orientation as a
-    rotation vector [rad].
+    rotation vector [rad]; ``q`` (C, n_q) joint positions.
+
+    The estimated contacts of every cycle are stored ragged: ``contact_p``, ``contact_n`` (M, 3)
+    positions [m] and object normals, ``contact_f`` (M, 3) commanded forces on the object [N],
+    all world frame, ``contact_link`` (M,); cycle i owns rows
+    ``contact_offset[i]:contact_offset[i + 1]``.
     """
 
     meta: dict[str, Any] = field(default_factory=dict)
@@ -35,16 +40,29 @@ class RunRecord:
 
     FIELDS = (
         "t", "stage", "n_contacts", "residual_wrench", "tau", "qp_time", "estimate_time",
-        "cycle_time", "status", "held", "p_object", "r_object",
+        "cycle_time", "status", "held", "p_object", "r_object", "q",
     )  # fmt: skip
+    CONTACT_FIELDS = ("contact_p", "contact_n", "contact_f", "contact_link")
+    _CONTACT_SHAPES = {"contact_p": (0, 3), "contact_n": (0, 3), "contact_f": (0, 3), "contact_link": (0,)}
 
     def append(self, **values: Any) -> None:
-        for key in self.FIELDS:
+        """Add one cycle: every name of FIELDS and CONTACT_FIELDS as a keyword."""
+        for key in self.FIELDS + self.CONTACT_FIELDS:
             self.rows.setdefault(key, []).append(values[key])
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The per-cycle arrays."""
-        return {key: np.asarray(self.rows.get(key, [])) for key in self.FIELDS}
+        """The per-cycle arrays and the ragged contact arrays with their offsets."""
+        out = {key: np.asarray(self.rows.get(key, [])) for key in self.FIELDS}
+        for key in self.CONTACT_FIELDS:
+            parts = self.rows.get(key, [])
+            out[key] = np.concatenate(parts) if parts else np.zeros(self._CONTACT_SHAPES[key])
+        counts = [len(c) for c in self.rows.get("contact_link", [])]
+        out["contact_offset"] = np.r_[0, np.cumsum(counts)].astype(np.int64)
+        return out
+
+    def contacts_at(self, cycle: int) -> dict[str, np.ndarray]:
+        """The contacts of one cycle: ``contact_p``, ``contact_n``, ``contact_f``, ``contact_link``."""
+        return {key: np.asarray(self.rows[key][cycle]) for key in self.CONTACT_FIELDS}
 
     def save(self, path: str | Path) -> Path:
         """Write the record as a compressed .npz (metadata as JSON inside)."""
@@ -68,6 +86,10 @@ class RunRecord:
             record = cls(meta=json.loads(str(data["meta"])), stages=[str(s) for s in data["stages"]])
             for key in cls.FIELDS:
                 record.rows[key] = list(data[key])
+            offsets = data["contact_offset"]
+            for key in cls.CONTACT_FIELDS:
+                flat = data[key]
+                record.rows[key] = [flat[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
         return record
 
     @property

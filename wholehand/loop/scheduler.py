@@ -70,6 +70,11 @@ def run_protocol(
                     held=held,
                     p_object=state.wMo[:3, 3].copy(),
                     r_object=pin.log3(state.wMo[:3, :3]),
+                    q=state.q.copy(),
+                    contact_p=cycle.contacts.p_world,
+                    contact_n=cycle.contacts.n_world,
+                    contact_f=allocation.f_world,
+                    contact_link=cycle.contacts.link,
                 )
                 if not held and stop_on_loss:
                     return record

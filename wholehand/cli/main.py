@@ -77,10 +77,12 @@ def build_parser() -> argparse.ArgumentParser:
     from wholehand.cli import bench as bench_cli
     from wholehand.cli import grasps as grasps_cli
     from wholehand.cli import run as run_cli
+    from wholehand.cli import view as view_cli
 
     run_cli.add_parser(sub)
     grasps_cli.add_parser(sub)
     bench_cli.add_parser(sub)
+    view_cli.add_parser(sub)
     return parser
 
 

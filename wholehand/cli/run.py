@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from wholehand.loop.record import RunRecord
 
@@ -30,6 +32,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gravity", action="store_true", help="turn gravity on (off in the paper)")
     p.add_argument("--save", default=None, help="write the run record (.npz) here")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument(
+        "--view", action="store_true", help="show the run live in meshcat (prints the URL)"
+    )
+    p.add_argument("--view-every", type=int, default=8, help="--view: draw every n-th cycle")
+    p.add_argument("--record-html", default=None, help="write a standalone HTML animation here")
+    p.add_argument("--plot", default=None, help="write the per-run PNG here")
     p.set_defaults(func=_cmd_run)
 
 
@@ -49,15 +57,46 @@ def _cmd_run(args: argparse.Namespace) -> int:
         gravity=args.gravity,
         estimator_params=est_params,
     )
-    record = run_trial(spec)
+    on_cycle = _live_view(spec, args.view_every) if args.view else None
+    record = run_trial(spec, on_cycle=on_cycle)
     if args.save:
         print(f"run record: {record.save(Path(args.save))}")
+    if args.record_html:
+        from wholehand.viz.replay import write_html
+
+        print(f"html: {write_html(record, args.record_html)}")
+    if args.plot:
+        from wholehand.viz.plots import plot_run
+
+        print(f"plot: {plot_run(record, args.plot)}")
     summary = summarise(record)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
         print_summary(summary)
     return 0
+
+
+def _live_view(spec: object, every: int) -> Callable[[int, Any, Any], None]:
+    """A per-cycle callback drawing every ``every``-th cycle in a live meshcat viewer."""
+    from wholehand.models.hand import load_hand
+    from wholehand.models.objects import load_object
+    from wholehand.viz.scene import SceneViewer
+
+    hand, obj = load_hand(spec.hand), load_object(spec.object)  # type: ignore[attr-defined]
+    viewer = SceneViewer.live(hand, obj)
+    started: list[bool] = []
+
+    def draw(i: int, state: Any, cycle: Any) -> None:
+        if i % max(1, every):
+            return
+        if not started:
+            viewer.set_camera(state.wMo[:3, 3])
+            started.append(True)
+        f_world = cycle.allocation.f_world
+        viewer.update(state.q, state.wMo, cycle.contacts.p_world, f_world, state.wMb)
+
+    return draw
 
 
 def summarise(record: RunRecord) -> dict[str, object]:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pinocchio as pin
 
-from wholehand.backends.base import PerturbableBackend
+from wholehand.backends.base import HandObjectState, PerturbableBackend
 from wholehand.errors import ConfigError
-from wholehand.loop.controller import ForceRegulationController
+from wholehand.loop.controller import CycleResult, ForceRegulationController
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.protocol import PerturbationProtocol
 from wholehand.loop.record import STATUS_CODES, RunRecord
@@ -22,11 +24,14 @@ def run_protocol(
     protocol: PerturbationProtocol,
     control_rate: float = CONTROL_RATE,
     stop_on_loss: bool = True,
+    on_cycle: Callable[[int, HandObjectState, CycleResult], None] | None = None,
 ) -> RunRecord:
     """Run the perturbation protocol from the backend's current state; one record row per cycle.
 
     Each cycle reads the state, checks the grasp-loss criterion, runs the controller, applies
     its torques and the stage's external wrench, and advances the backend by 1/control_rate.
+    ``on_cycle(cycle_index, state, cycle_result)``, if given, is called after each row is
+    recorded (e.g. to update a live viewer).
     """
     if not control_rate > 0.0:
         raise ConfigError(f"run_protocol: control_rate must be > 0 [Hz], got {control_rate!r}")
@@ -76,6 +81,8 @@ def run_protocol(
                     contact_f=allocation.f_world,
                     contact_link=cycle.contacts.link,
                 )
+                if on_cycle is not None:
+                    on_cycle(len(record.rows["t"]) - 1, state, cycle)
                 if not held and stop_on_loss:
                     return record
                 backend.step(dt)

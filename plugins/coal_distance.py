@@ -79,7 +79,9 @@ class CoalDistanceEstimator(ContactEstimator):
         self._request = coal.DistanceRequest()
         self._request.enable_signed_distance = True
 
-    def estimate(self, kinematics: HandKinematics, wMo: FloatArray, stamp: float = 0.0) -> ContactSet:
+    def estimate(
+        self, kinematics: HandKinematics, wMo: FloatArray, stamp: float = 0.0
+    ) -> ContactSet:
         wMo = check_pose(wMo, "wMo (object pose)")
         wMb = kinematics.wMb
         tf_object = coal.Transform3s(wMo[:3, :3].copy(), wMo[:3, 3].copy())
@@ -97,7 +99,7 @@ class CoalDistanceEstimator(ContactEstimator):
         hand = self.hand
         if not rows:
             return ContactSet.empty(hand.link_actuated, hand.link_fingertip, stamp)
-        p, n, link, d = zip(*rows)
+        p, n, link, d = zip(*rows, strict=True)
         n_arr = np.asarray(n, dtype=float)
         n_arr /= np.linalg.norm(n_arr, axis=1, keepdims=True)
         return ContactSet(

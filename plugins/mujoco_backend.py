@@ -13,9 +13,9 @@ import math
 from typing import TYPE_CHECKING, Any
 
 import mujoco
-import pinocchio as pin
 import numpy as np
 import numpy.typing as npt
+import pinocchio as pin
 
 from wholehand.backends.base import HandObjectState, PerturbableBackend
 from wholehand.backends.mujoco_scene import (

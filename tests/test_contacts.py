@@ -143,7 +143,10 @@ def test_threshold_and_top_k_match_brute_force(allegro, sphere, d_thresh, k):
     wMo = sphere_pose(gap=0.001)
     contacts = estimator("mesh_sdf", allegro, sphere, d_thresh=d_thresh, k=k).estimate(kin, wMo)
     expected = brute_force(allegro, sphere, kin, wMo, d_thresh, k)
-    got = {int(link): np.sort(contacts.distance[contacts.link == link]) for link in np.unique(contacts.link)}
+    got = {
+        int(link): np.sort(contacts.distance[contacts.link == link])
+        for link in np.unique(contacts.link)
+    }
     assert got.keys() == expected.keys()
     for link in got:
         np.testing.assert_allclose(got[link], expected[link], atol=1e-6)
@@ -165,7 +168,9 @@ def test_link_filter_restricts_contacts(allegro, sphere):
 def test_far_object_gives_an_empty_set(allegro, sphere):
     kin = HandKinematics(allegro)
     for name in ("mesh_sdf", "coal_distance"):
-        contacts = estimator(name, allegro, sphere).estimate(kin, pose_from_xyz_rpy([1, 1, 1], [0, 0, 0]))
+        contacts = estimator(name, allegro, sphere).estimate(
+            kin, pose_from_xyz_rpy([1, 1, 1], [0, 0, 0])
+        )
         assert len(contacts) == 0
         assert contacts.link_actuated.shape == (len(allegro.link_names),)
 
@@ -220,7 +225,7 @@ def test_top_k_per_link_selection():
     link = np.array([2, 0, 2, 2, 0, 1])
     dist = np.array([0.3, 0.2, 0.1, 0.2, 0.1, 0.5])
     picked = top_k_per_link(link, dist, 2)
-    assert sorted(zip(link[picked].tolist(), dist[picked].tolist())) == [
+    assert sorted(zip(link[picked].tolist(), dist[picked].tolist(), strict=True)) == [
         (0, 0.1), (0, 0.2), (1, 0.5), (2, 0.1), (2, 0.2),
     ]  # fmt: skip
     assert top_k_per_link(link[:0], dist[:0], 2).size == 0

@@ -47,7 +47,9 @@ def test_samples_lie_on_the_link_surface(allegro):
     assert np.all(np.min(half - np.abs(pts), axis=1) < 1e-9)
     tip = allegro.link_index("link_3.0_tip")
     tip_pts = allegro.samples.p_joint[allegro.samples.link == tip]
-    (sphere,) = [g for g in allegro.collision_model.geometryObjects if g.name.startswith("link_3.0_tip")]
+    (sphere,) = [
+        g for g in allegro.collision_model.geometryObjects if g.name.startswith("link_3.0_tip")
+    ]
     centre = sphere.placement.translation
     np.testing.assert_allclose(np.linalg.norm(tip_pts - centre, axis=1), 0.012, atol=2e-4)
 
@@ -84,10 +86,12 @@ def test_second_load_uses_the_cache(fresh_cache, monkeypatch):
 URDF = """<?xml version="1.0"?>
 <robot name="tiny">
   <link name="base"><collision><geometry>{base_geom}</geometry></collision>
-    <inertial><mass value="0.1"/><inertia ixx="1e-4" iyy="1e-4" izz="1e-4" ixy="0" ixz="0" iyz="0"/></inertial>
+    <inertial><mass value="0.1"/>
+      <inertia ixx="1e-4" iyy="1e-4" izz="1e-4" ixy="0" ixz="0" iyz="0"/></inertial>
   </link>
   <link name="finger"><collision><geometry><box size="0.01 0.01 0.04"/></geometry></collision>
-    <inertial><mass value="0.01"/><inertia ixx="1e-6" iyy="1e-6" izz="1e-6" ixy="0" ixz="0" iyz="0"/></inertial>
+    <inertial><mass value="0.01"/>
+      <inertia ixx="1e-6" iyy="1e-6" izz="1e-6" ixy="0" ixz="0" iyz="0"/></inertial>
   </link>
   <joint name="j1" type="{joint_type}"><parent link="base"/><child link="finger"/>
     <axis xyz="0 1 0"/><limit lower="0" upper="1.5" effort="1" velocity="1"/></joint>
@@ -179,8 +183,10 @@ def test_unknown_key_and_bad_values(tmp_path):
 
 def test_negative_torque_limit(tmp_path):
     folder = write_hand(tmp_path)
-    text = (folder / "hand.toml").read_text().replace(
-        'actuated = ["j1"]', 'actuated = ["j1"]\ntorque_limit = { default = -0.2 }'
+    text = (
+        (folder / "hand.toml")
+        .read_text()
+        .replace('actuated = ["j1"]', 'actuated = ["j1"]\ntorque_limit = { default = -0.2 }')
     )
     (folder / "hand.toml").write_text(text)
     with pytest.raises(ConfigError, match="torque_limit.default must be > 0"):
@@ -196,8 +202,10 @@ def test_invalid_toml(tmp_path):
 
 def test_distribution_that_is_not_installed(tmp_path):
     folder = write_hand(tmp_path)
-    text = (folder / "hand.toml").read_text().replace(
-        'urdf = "tiny.urdf"', 'urdf = { distribution = "no-such-dist", path = "x.urdf" }'
+    text = (
+        (folder / "hand.toml")
+        .read_text()
+        .replace('urdf = "tiny.urdf"', 'urdf = { distribution = "no-such-dist", path = "x.urdf" }')
     )
     (folder / "hand.toml").write_text(text)
     with pytest.raises(AssetError, match="no-such-dist.*pip install"):

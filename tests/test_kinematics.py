@@ -29,7 +29,9 @@ def test_transformed_samples_match_pinocchio_frames(state, allegro):
     jid = int(allegro.link_joint[i])
     data = allegro.model.createData()
     pin.forwardKinematics(allegro.model, data, q)
-    expected = [(wMb @ data.oMi[jid].homogeneous @ np.r_[p, 1.0])[:3] for p in allegro.samples.p_joint[rows]]
+    expected = [
+        (wMb @ data.oMi[jid].homogeneous @ np.r_[p, 1.0])[:3] for p in allegro.samples.p_joint[rows]
+    ]
     np.testing.assert_allclose(p_world, expected, atol=1e-12)
 
 

@@ -85,7 +85,9 @@ def test_qp_holds_the_load_test_and_a_limp_hand_loses_it(allegro, cube):
     spec = TrialSpec(object=OBJECT, grasp=0, theta_deg=0.0)
     held = run_trial(spec, hand=allegro, obj=cube)
     assert held.held_throughout and len(held.arrays()["t"]) == 6.5 * 200
-    limp = run_trial(TrialSpec(**{**spec.__dict__, "allocator": ZeroTorqueAllocator}), allegro, cube)
+    limp = run_trial(
+        TrialSpec(**{**spec.__dict__, "allocator": ZeroTorqueAllocator}), allegro, cube
+    )
     assert not limp.held_throughout
 
 
@@ -100,7 +102,9 @@ def test_same_seed_same_record(allegro, cube, tmp_path):
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     assert a["contact_offset"][-1] == a["n_contacts"].sum() == len(a["contact_link"])
     middle = len(a["t"]) // 2
-    np.testing.assert_array_equal(loaded.contacts_at(middle)["contact_f"], record.contacts_at(middle)["contact_f"])
+    np.testing.assert_array_equal(
+        loaded.contacts_at(middle)["contact_f"], record.contacts_at(middle)["contact_f"]
+    )
     first = record.arrays()
     second = run_trial(spec, hand=allegro, obj=cube).arrays()
     for key in ("t", "stage", "n_contacts", "residual_wrench", "tau", "status", "held", "p_object"):

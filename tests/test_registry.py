@@ -117,8 +117,9 @@ def test_third_party_estimator_loads_by_name_without_touching_core(tmp_path, mon
     estimator = registry.load("contact_estimators", "acme_nothing", hand=allegro, scale=2.0)
     assert estimator.scale == 2.0
 
-    from wholehand.models.kinematics import HandKinematics
     import numpy as np
+
+    from wholehand.models.kinematics import HandKinematics
 
     contacts = estimator.estimate(HandKinematics(allegro), np.eye(4), stamp=1.5)
     assert len(contacts) == 0 and contacts.stamp == 1.5

@@ -42,7 +42,8 @@ class Allocation:
     tau: FloatArray
     """(n_v,) joint torques commanded to the hand's joints [N*m]."""
     residual_wrench: FloatArray
-    """(6,) net contact wrench on the object [force N, torque N*m] about its centre of mass, world axes."""
+    """(6,) net contact wrench on the object [force N, torque N*m] about its centre of mass,
+    world axes."""
     status: AllocationStatus
     """Why the torque is what it is."""
     solve_time: float = 0.0
@@ -77,5 +78,5 @@ class Allocator(abc.ABC):
             p_com_world: (3,) object centre of mass in the world [m].
         """
 
-    def reset(self) -> None:
+    def reset(self) -> None:  # noqa: B027 - an optional hook, stateless allocators keep it
         """Forget state carried between cycles (warm start, last feasible torque)."""

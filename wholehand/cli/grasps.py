@@ -6,8 +6,12 @@ import argparse
 from pathlib import Path
 
 PAPER_OBJECTS = (
-    "006_mustard_bottle", "052_extra_large_clamp", "065-f_cups", "073-f_lego_duplo", "077_rubiks_cube",
-)  # fmt: skip
+    "006_mustard_bottle",
+    "052_extra_large_clamp",
+    "065-f_cups",
+    "073-f_lego_duplo",
+    "077_rubiks_cube",
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -15,11 +19,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     gsub = grasps.add_subparsers(dest="grasps", required=True)
     p = gsub.add_parser("generate", help="generate power grasps in MuJoCo (seeded)")
     p.add_argument("--hand", default="allegro_right")
-    p.add_argument("--object", action="append", help="object name (repeatable); default: the paper's five")
+    p.add_argument(
+        "--object", action="append", help="object name (repeatable); default: the paper's five"
+    )
     p.add_argument("--count", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-candidates", type=int, default=400)
-    p.add_argument("--out", default=None, help="folder for <object>.json; default: the shipped grasps")
+    p.add_argument(
+        "--out", default=None, help="folder for <object>.json; default: the shipped grasps"
+    )
     p.set_defaults(func=_cmd_generate)
     p = gsub.add_parser("list", help="list the shipped grasp files")
     p.set_defaults(func=_cmd_list)
@@ -35,9 +43,13 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     folder = Path(args.out) if args.out else grasps_dir() / hand.name
     for name in args.object or PAPER_OBJECTS:
         obj = load_object(name)
-        grasps, info = generate_grasps(hand, obj, args.count, args.seed, args.max_candidates, progress=True)
+        grasps, info = generate_grasps(
+            hand, obj, args.count, args.seed, args.max_candidates, progress=True
+        )
         path = save_grasps(folder / f"{obj.name}.json", hand.name, obj.name, grasps, info)
-        print(f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates -> {path}")
+        print(
+            f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates -> {path}"
+        )
     return 0
 
 

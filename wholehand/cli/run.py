@@ -28,7 +28,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seeds the pull's rotation axis")
     p.add_argument("--rate", type=float, default=200.0, help="control rate in sim time [Hz]")
     p.add_argument("--k", type=int, default=None, help="contacts per link (default 5)")
-    p.add_argument("--d-thresh", type=float, default=None, help="contact threshold [m] (default 0.01)")
+    p.add_argument(
+        "--d-thresh", type=float, default=None, help="contact threshold [m] (default 0.01)"
+    )
     p.add_argument("--gravity", action="store_true", help="turn gravity on (off in the paper)")
     p.add_argument("--save", default=None, help="write the run record (.npz) here")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -44,7 +46,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from wholehand.loop.trial import TrialSpec, run_trial
 
-    est_params = {k: v for k, v in {"k": args.k, "d_thresh": args.d_thresh}.items() if v is not None}
+    est_params = {
+        k: v for k, v in {"k": args.k, "d_thresh": args.d_thresh}.items() if v is not None
+    }
     spec = TrialSpec(
         hand=args.hand,
         object=args.object,
@@ -106,7 +110,8 @@ def summarise(record: RunRecord) -> dict[str, object]:
     wall = float(meta.get("wall_time_s", float("nan")))
     return {
         "spec": meta.get("spec"),
-        "held": record.held_throughout and len(record.stage_summary()) == len(record.stages)
+        "held": record.held_throughout
+        and len(record.stage_summary()) == len(record.stages)
         and all(s["held"] for s in record.stage_summary()),
         "stages": record.stage_summary(),
         "timing": {
@@ -123,9 +128,13 @@ def print_summary(summary: dict[str, object]) -> None:
     spec = summary["spec"]
     print(
         f"{spec['hand']} holding {spec['object']} (grasp {spec['grasp']}), "
-        f"{spec['estimator']} + {spec['allocator']}, theta = {spec['theta_deg']:g} deg, seed {spec['seed']}"
+        f"{spec['estimator']} + {spec['allocator']}, theta = {spec['theta_deg']:g} deg, "
+        f"seed {spec['seed']}"
     )
-    header = f"{'stage':<10} {'held':<5} {'contacts':>8} {'|f_res| N':>10} {'|t_res| Nmm':>11} {'disp mm':>8} {'rot deg':>8}"
+    header = (
+        f"{'stage':<10} {'held':<5} {'contacts':>8} {'|f_res| N':>10} {'|t_res| Nmm':>11} "
+        f"{'disp mm':>8} {'rot deg':>8}"
+    )
     print(header)
     print("-" * len(header))
     for s in summary["stages"]:
@@ -143,6 +152,8 @@ def print_summary(summary: dict[str, object]) -> None:
         f"QP time        p50 {t['qp_p50_us']:8.0f} us   p99 {t['qp_p99_us']:8.0f} us\n"
         f"estimate time  p50 {t['estimate_p50_us']:8.0f} us   p99 {t['estimate_p99_us']:8.0f} us\n"
         f"cycle time     p50 {t['cycle_p50_us']:8.0f} us   p99 {t['cycle_p99_us']:8.0f} us"
-        f"   -> {t['achievable_rate_hz']:.0f} Hz achievable (run at {t['control_rate_hz']:g} Hz sim time)\n"
-        f"{t['cycles']} cycles, {t['sim_time_s']:.2f} s simulated in {t['wall_time_s']:.1f} s wall time"
+        f"   -> {t['achievable_rate_hz']:.0f} Hz achievable "
+        f"(run at {t['control_rate_hz']:g} Hz sim time)\n"
+        f"{t['cycles']} cycles, {t['sim_time_s']:.2f} s simulated "
+        f"in {t['wall_time_s']:.1f} s wall time"
     )

@@ -29,7 +29,7 @@ class ContactSet:
     p_world: FloatArray
     """(N, 3) contact points on the hand surface, world frame [m]."""
     n_world: FloatArray
-    """(N, 3) unit object-surface normals at the contacts, pointing out of the object, world frame."""
+    """(N, 3) unit object-surface normals at the contacts, out of the object, world frame."""
     link: IntArray
     """(N,) index of the hand link carrying each contact, into ``HandModel.link_names``."""
     distance: FloatArray
@@ -113,7 +113,9 @@ class ContactEstimator(abc.ABC):
     """
 
     @abc.abstractmethod
-    def estimate(self, kinematics: HandKinematics, wMo: FloatArray, stamp: float = 0.0) -> ContactSet:
+    def estimate(
+        self, kinematics: HandKinematics, wMo: FloatArray, stamp: float = 0.0
+    ) -> ContactSet:
         """Contacts between the hand and the object.
 
         Args:
@@ -121,4 +123,3 @@ class ContactEstimator(abc.ABC):
             wMo: (4, 4) pose of the object frame in the world.
             stamp: Time of the state [s], copied into the result.
         """
-

@@ -32,7 +32,8 @@ def grasp_like_states(
     kin = HandKinematics(hand)
     palm = hand.link_index(hand.palm_link)
     palm_pts = kin.transform_points(
-        hand.samples.p_joint[hand.samples.link == palm], hand.samples.joint[hand.samples.link == palm]
+        hand.samples.p_joint[hand.samples.link == palm],
+        hand.samples.joint[hand.samples.link == palm],
     )
     face_x = palm_pts[:, 0].max()
     centre_yz = 0.5 * (palm_pts.min(axis=0) + palm_pts.max(axis=0))[1:]
@@ -43,7 +44,7 @@ def grasp_like_states(
         rpy = rng.uniform(-1.0, 1.0, 3) * np.deg2rad(15.0)
         R = pose_from_xyz_rpy([0, 0, 0], rpy)[:3, :3]
         # Lowest x of the rotated object's bounding-box corners touches the palm face plus a gap.
-        corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T @ R.T
+        corners = np.array(np.meshgrid(*zip(lo, hi, strict=True))).reshape(3, -1).T @ R.T
         x = face_x - corners[:, 0].min() + rng.uniform(0.0, 0.005)
         wMo[i] = pose_from_xyz_rpy([x, *centre_yz], rpy)
     return q, wMo
@@ -88,7 +89,9 @@ def run_contact_benchmark(
     ref_ns, errors = [], []
     for i in range(min(reference_cycles, n_states)):
         kin.update(qs[i])
-        p_obj = kin.transform_points(hand_model.samples.p_joint, hand_model.samples.joint, inverse(poses[i]))
+        p_obj = kin.transform_points(
+            hand_model.samples.p_joint, hand_model.samples.joint, inverse(poses[i])
+        )
         start = time.perf_counter_ns()
         exact = -trimesh.proximity.signed_distance(mesh, p_obj)  # trimesh: positive inside
         ref_ns.append(time.perf_counter_ns() - start)
@@ -116,5 +119,8 @@ def run_contact_benchmark(
         },
         "cycles": cycles,
         "seed": seed,
-        "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
+        "machine": {
+            "python": platform.python_version(),
+            "cpu": platform.processor() or platform.machine(),
+        },
     }

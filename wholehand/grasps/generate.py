@@ -98,7 +98,11 @@ class GraspGenerator:
         wMo = np.eye(4)
         wMo[:3, :3] = R
         x = self._palm_face - verts[:, 0].min() + rng.uniform(*GAP)
-        y = self._palm_centre[1] - 0.5 * (verts[:, 1].min() + verts[:, 1].max()) + rng.uniform(-0.01, 0.01)
+        y = (
+            self._palm_centre[1]
+            - 0.5 * (verts[:, 1].min() + verts[:, 1].max())
+            + rng.uniform(-0.01, 0.01)
+        )
         z = rng.uniform(-0.04, 0.0) - 0.5 * (verts[:, 2].min() + verts[:, 2].max())
         wMo[:3, 3] = [x, y, z]
         return self.hand.wMb @ wMo
@@ -114,7 +118,9 @@ class GraspGenerator:
         """Hold the object at ``wMo`` with a stiff, critically damped spring."""
         omega = 2.0 * np.pi * HOLD_FREQUENCY
         m, i = self.obj.mass, float(np.linalg.eigvalsh(self.obj.inertia).min())
-        self.backend.set_object_spring(wMo, (m * omega**2, i * omega**2), (2 * m * omega, 2 * i * omega))
+        self.backend.set_object_spring(
+            wMo, (m * omega**2, i * omega**2), (2 * m * omega, 2 * i * omega)
+        )
 
     def _run(self, duration: float, until: Callable[[], bool] | None = None) -> bool:
         b, dt = self.backend, 1.0 / CONTROL_RATE
@@ -147,17 +153,28 @@ class GraspGenerator:
         self.kin.update(state.q, state.wMb)
         moved = float(np.linalg.norm(state.wMo[:3, 3] - before[:3, 3]))
         fingers = self._fingers_touching()
-        if moved > MAX_SETTLE_MOTION or not self._grasped(fingers) or not self.loss.held(self.kin, state.wMo):
+        if (
+            moved > MAX_SETTLE_MOTION
+            or not self._grasped(fingers)
+            or not self.loss.held(self.kin, state.wMo)
+        ):
             return None
         hand = self.hand
-        q = {name: float(state.q[hand.model.joints[hand.model.getJointId(name)].idx_q]) for name in hand.joint_names}
+        q = {
+            name: float(state.q[hand.model.joints[hand.model.getJointId(name)].idx_q])
+            for name in hand.joint_names
+        }
         return Grasp(
             id=-1,
             oMb=inverse(state.wMo) @ state.wMb,
             q=q,
             type="power",
             contacts=len(b.ground_truth_contacts()),
-            extra={"candidate": index, "fingers": sorted(fingers), "settle_motion_m": round(moved, 6)},
+            extra={
+                "candidate": index,
+                "fingers": sorted(fingers),
+                "settle_motion_m": round(moved, 6),
+            },
         )
 
     def generate(
@@ -171,7 +188,9 @@ class GraspGenerator:
         for index in range(max_candidates):
             grasp = self.try_candidate(index, seed)
             if grasp is not None:
-                grasps.append(Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra))
+                grasps.append(
+                    Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
+                )
                 bar.update(1)
                 if len(grasps) == count:
                     break

@@ -81,7 +81,9 @@ def load_grasps(path_or_hand: str | Path, obj: str | None = None) -> list[Grasp]
     """Grasps from a file path, or the shipped ones for ``(hand name, object name)``."""
     path = Path(path_or_hand) if obj is None else grasp_file(str(path_or_hand), obj)
     if not path.is_file():
-        shipped = sorted(p.relative_to(grasps_dir()).as_posix() for p in grasps_dir().glob("*/*.json"))
+        shipped = sorted(
+            p.relative_to(grasps_dir()).as_posix() for p in grasps_dir().glob("*/*.json")
+        )
         raise ConfigError(
             f"no grasp file {path}; shipped grasp files: {shipped}. Generate some with "
             "`wholehand grasps generate --hand HAND --object OBJECT`"
@@ -106,7 +108,11 @@ def load_grasps(path_or_hand: str | Path, obj: str | None = None) -> list[Grasp]
                 q=q,
                 type=str(entry.get("type", "power")),
                 contacts=entry.get("contacts"),
-                extra={k: v for k, v in entry.items() if k not in {"id", "oMb", "q", "type", "contacts"}},
+                extra={
+                    k: v
+                    for k, v in entry.items()
+                    if k not in {"id", "oMb", "q", "type", "contacts"}
+                },
             )
         )
     if not grasps:
@@ -114,7 +120,9 @@ def load_grasps(path_or_hand: str | Path, obj: str | None = None) -> list[Grasp]
     return grasps
 
 
-def save_grasps(path: Path, hand: str, obj: str, grasps: list[Grasp], generator: dict[str, Any]) -> Path:
+def save_grasps(
+    path: Path, hand: str, obj: str, grasps: list[Grasp], generator: dict[str, Any]
+) -> Path:
     """Write grasps in the documented format."""
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {

@@ -32,7 +32,7 @@ class GraspLossCheck:
         palm = hand.link_index(hand.palm_link)
         rows = samples.link == palm
         lo, hi = samples.p_joint[rows].min(axis=0), samples.p_joint[rows].max(axis=0)
-        for corner in np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T:
+        for corner in np.array(np.meshgrid(*zip(lo, hi, strict=True))).reshape(3, -1).T:
             points.append(corner)
             joints.append(int(hand.link_joint[palm]))
         self._p_joint = np.asarray(points)
@@ -56,4 +56,6 @@ class GraspLossCheck:
         wMbox = wMo @ self._oMbox
         tf_box = coal.Transform3s(wMbox[:3, :3].copy(), wMbox[:3, 3].copy())
         result = coal.CollisionResult()
-        return bool(coal.collide(hull, coal.Transform3s(), self._box, tf_box, self._request, result))
+        return bool(
+            coal.collide(hull, coal.Transform3s(), self._box, tf_box, self._request, result)
+        )

@@ -43,7 +43,12 @@ class RunRecord:
         "cycle_time", "status", "held", "p_object", "r_object", "q",
     )  # fmt: skip
     CONTACT_FIELDS = ("contact_p", "contact_n", "contact_f", "contact_link")
-    _CONTACT_SHAPES = {"contact_p": (0, 3), "contact_n": (0, 3), "contact_f": (0, 3), "contact_link": (0,)}
+    _CONTACT_SHAPES = {
+        "contact_p": (0, 3),
+        "contact_n": (0, 3),
+        "contact_f": (0, 3),
+        "contact_link": (0,),
+    }
 
     def append(self, **values: Any) -> None:
         """Add one cycle: every name of FIELDS and CONTACT_FIELDS as a keyword."""
@@ -61,7 +66,7 @@ class RunRecord:
         return out
 
     def contacts_at(self, cycle: int) -> dict[str, np.ndarray]:
-        """The contacts of one cycle: ``contact_p``, ``contact_n``, ``contact_f``, ``contact_link``."""
+        """The contacts of one cycle, keyed as :attr:`CONTACT_FIELDS`."""
         return {key: np.asarray(self.rows[key][cycle]) for key in self.CONTACT_FIELDS}
 
     def save(self, path: str | Path) -> Path:
@@ -83,13 +88,16 @@ class RunRecord:
         import json
 
         with np.load(path, allow_pickle=False) as data:
-            record = cls(meta=json.loads(str(data["meta"])), stages=[str(s) for s in data["stages"]])
+            record = cls(
+                meta=json.loads(str(data["meta"])), stages=[str(s) for s in data["stages"]]
+            )
             for key in cls.FIELDS:
                 record.rows[key] = list(data[key])
             offsets = data["contact_offset"]
             for key in cls.CONTACT_FIELDS:
                 flat = data[key]
-                record.rows[key] = [flat[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
+                bounds = zip(offsets[:-1], offsets[1:], strict=True)
+                record.rows[key] = [flat[a:b] for a, b in bounds]
         return record
 
     @property
@@ -116,8 +124,12 @@ class RunRecord:
                     "stage": name,
                     "held": bool(a["held"][rows].all()),
                     "contacts_mean": float(a["n_contacts"][rows].mean()),
-                    "residual_force_N": float(np.linalg.norm(a["residual_wrench"][rows, :3], axis=1).mean()),
-                    "residual_torque_Nm": float(np.linalg.norm(a["residual_wrench"][rows, 3:], axis=1).mean()),
+                    "residual_force_N": float(
+                        np.linalg.norm(a["residual_wrench"][rows, :3], axis=1).mean()
+                    ),
+                    "residual_torque_Nm": float(
+                        np.linalg.norm(a["residual_wrench"][rows, 3:], axis=1).mean()
+                    ),
                     "displacement_mm": float(1e3 * np.linalg.norm(a["p_object"][last] - p0)),
                     "rotation_deg": float(np.rad2deg(np.linalg.norm(rotation))),
                 }
@@ -135,5 +147,7 @@ class RunRecord:
             "estimate_p99_us": us(a["estimate_time"], 99),
             "cycle_p50_us": us(a["cycle_time"], 50),
             "cycle_p99_us": us(a["cycle_time"], 99),
-            "achievable_rate_hz": float(1.0 / a["cycle_time"].mean()) if a["cycle_time"].size else float("nan"),
+            "achievable_rate_hz": float(1.0 / a["cycle_time"].mean())
+            if a["cycle_time"].size
+            else float("nan"),
         }

@@ -1,4 +1,4 @@
-"""The scheduler: chains estimator -> allocator -> backend at a control rate over a finer sim step."""
+"""The scheduler: estimator -> allocator -> backend at a control rate over a finer sim step."""
 
 from __future__ import annotations
 

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from wholehand import registry
+from wholehand.allocation.baselines import FixedAllocationBaseline
+from wholehand.backends.base import HandObjectState
+from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
-from wholehand.loop.controller import ForceRegulationController
+from wholehand.loop.controller import CycleResult, ForceRegulationController
 from wholehand.loop.protocol import PerturbationProtocol
 from wholehand.loop.record import RunRecord
 from wholehand.loop.scheduler import CONTROL_RATE, run_protocol
@@ -41,8 +45,12 @@ def run_trial(
     hand: HandModel | None = None,
     obj: ObjectModel | None = None,
     stop_on_loss: bool = True,
+    on_cycle: Callable[[int, HandObjectState, CycleResult], None] | None = None,
 ) -> RunRecord:
-    """Run the perturbation protocol on one stored grasp; the record's meta holds the spec."""
+    """Run the perturbation protocol on one stored grasp; the record's meta holds the spec.
+
+    ``on_cycle`` is passed to :func:`~wholehand.loop.scheduler.run_protocol`.
+    """
     started = time.perf_counter()
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)
@@ -63,17 +71,44 @@ def run_trial(
     allocator_params = {**_allocator_defaults(hand), **spec.allocator_params}
     allocator = registry.load("allocators", spec.allocator, **allocator_params)
     controller = ForceRegulationController(hand, obj, estimator, allocator)
-    protocol = PerturbationProtocol(theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params)
-    record = run_protocol(backend, controller, protocol, spec.control_rate, stop_on_loss)
+    n_contacts_gt = _ground_truth_init(backend, controller)
+    protocol = PerturbationProtocol(
+        theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params
+    )
+    record = run_protocol(
+        backend, controller, protocol, spec.control_rate, stop_on_loss, on_cycle=on_cycle
+    )
     record.meta.update(
         {
             "spec": {k: getattr(v, "__name__", v) for k, v in spec.__dict__.items()},
             "grasp_id": grasp.id,
+            "n_contacts_gt_init": n_contacts_gt,
             "wall_time_s": time.perf_counter() - started,
             "sim_time_s": float(backend.time),
         }
     )
     return record
+
+
+def _ground_truth_init(backend: object, controller: ForceRegulationController) -> int | None:
+    """Ground-truth contact count at the initial state (None when the backend has none), and
+    the one-off allocation of a non-adaptive baseline on those contacts (paper Sec. IV-A-1)."""
+    ground_truth = getattr(backend, "ground_truth_contacts", None)
+    allocator = controller.allocator
+    if ground_truth is None:
+        if isinstance(allocator, FixedAllocationBaseline):
+            raise ConfigError(
+                f"allocator {type(allocator).__name__} needs ground-truth contacts at "
+                f"initialisation; backend {type(backend).__name__} has no ground_truth_contacts()"
+            )
+        return None
+    contacts = ground_truth().to_contact_set(controller.hand)
+    if isinstance(allocator, FixedAllocationBaseline):
+        state = backend.read_state()  # type: ignore[attr-defined]
+        controller.kinematics.update(state.q, state.wMb)
+        p_com = state.wMo[:3, :3] @ controller.obj.com + state.wMo[:3, 3]
+        allocator.initialise(contacts, controller.kinematics, p_com)
+    return len(contacts)
 
 
 def _allocator_defaults(hand: HandModel) -> dict[str, Any]:

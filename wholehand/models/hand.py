@@ -163,15 +163,21 @@ class HandModel:
         _check_meshes(cfg, surface)
         try:
             return pin.buildGeomFromUrdf(
-                self.model, str(cfg.urdf_path), kind, package_dirs=[str(d) for d in cfg.package_dirs]
+                self.model,
+                str(cfg.urdf_path),
+                kind,
+                package_dirs=[str(d) for d in cfg.package_dirs],
             )
         except Exception as err:
-            raise AssetError(f"{cfg.urdf_path}: cannot build the {surface} geometry: {err}") from err
+            raise AssetError(
+                f"{cfg.urdf_path}: cannot build the {surface} geometry: {err}"
+            ) from err
 
     def _frame_id(self, link: str, what: str) -> int:
         if not self.model.existFrame(link, pin.FrameType.BODY):
             raise ConfigError(
-                f"{self.config.path}: {what} {link!r} is not a link of {self.config.urdf_path.name}; "
+                f"{self.config.path}: {what} {link!r} is not a link of "
+                f"{self.config.urdf_path.name}; "
                 f"valid links: {self.all_link_names}"
             )
         return self.model.getFrameId(link, pin.FrameType.BODY)
@@ -183,9 +189,7 @@ class HandModel:
 
     def _build_link_table(self) -> None:
         cfg = self.config
-        sampled = (
-            self.collision_model if cfg.sample_surface == "collision" else self.visual_model
-        )
+        sampled = self.collision_model if cfg.sample_surface == "collision" else self.visual_model
         by_frame: dict[int, list[pin.GeometryObject]] = {}
         for obj in sampled.geometryObjects:
             by_frame.setdefault(obj.parentFrame, []).append(obj)
@@ -193,7 +197,9 @@ class HandModel:
         frames = sorted(by_frame)
         self.link_names = [self.model.frames[f].name for f in frames]
         self.link_frame = np.array(frames, dtype=np.intp)
-        self.link_joint = np.array([self.model.frames[f].parentJoint for f in frames], dtype=np.intp)
+        self.link_joint = np.array(
+            [self.model.frames[f].parentJoint for f in frames], dtype=np.intp
+        )
 
         self.palm_link = cfg.palm_link
         named = [(cfg.palm_link, "palm_link")]
@@ -237,7 +243,10 @@ class HandModel:
                 any(self.actuated_dofs[model.joints[j].idx_v] for j in support)
             )
         self.link_actuated = np.array(
-            [m and n not in cfg.passive_links for m, n in zip(moved_by_actuated, self.link_names)]
+            [
+                m and n not in cfg.passive_links
+                for m, n in zip(moved_by_actuated, self.link_names, strict=True)
+            ]
         )
         self.q_lower = np.asarray(model.lowerPositionLimit, dtype=float).copy()
         self.q_upper = np.asarray(model.upperPositionLimit, dtype=float).copy()
@@ -261,7 +270,10 @@ class HandModel:
         cache.save_arrays("link_samples", key, samples.__dict__)
         log.info(
             "sampled %d candidate points on %d links of %s in %.2f s",
-            len(samples), len(self.link_names), self.config.name, time.perf_counter() - started,
+            len(samples),
+            len(self.link_names),
+            self.config.name,
+            time.perf_counter() - started,
         )
         return samples
 
@@ -335,7 +347,7 @@ class HandModel:
             "fingertip_links": int(self.link_fingertip.sum()),
             "sample_surface": self.config.sample_surface,
             "candidate_points": len(self.samples),
-            "points_per_link": dict(zip(self.link_names, counts.tolist())),
+            "points_per_link": dict(zip(self.link_names, counts.tolist(), strict=True)),
             "samples_from_cache": self.samples_from_cache,
         }
 

@@ -4,7 +4,7 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
 
     name = "my_hand"
     urdf = "my_hand.urdf"                      # relative to the hand.toml folder, or
-    urdf = { distribution = "pkg", path = "share/.../hand.urdf" }   # a file inside an installed distribution
+    urdf = { distribution = "pkg", path = "share/.../hand.urdf" }   # inside an installed package
     palm_link = "palm"
     passive_links = ["palm"]                    # default: [palm_link]
     sample_surface = "collision"                # or "visual"
@@ -22,8 +22,8 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     xyz = [0, 0, 0]
     rpy = [0, 0, 0]
     [grasping]                                  # for the grasp generator (power grasps)
-    preshape = { j1 = 0.0 }                     # open pose [rad]; unlisted joints: 0 clipped to limits
-    close_torque = { j1 = 0.15 }                # closing torque [N*m]; unlisted joints hold the pre-shape
+    preshape = { j1 = 0.0 }                     # open pose [rad]; others 0, clipped to limits
+    close_torque = { j1 = 0.15 }                # closing torque [N*m]; others hold the pre-shape
 
 Names are checked against the URDF when the hand is loaded (:mod:`wholehand.models.hand`).
 """

@@ -37,7 +37,9 @@ def check_pose(M: npt.ArrayLike, name: str = "pose") -> FloatArray:
     a, b, c, d, e, f, g, h, i = R.ravel().tolist()
     det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
     if np.abs(R @ R.T - _I3).max() > 1e-6 or det < 0.0:
-        raise ConfigError(f"{name} has a rotation block that is not a proper rotation: {R.tolist()}")
+        raise ConfigError(
+            f"{name} has a rotation block that is not a proper rotation: {R.tolist()}"
+        )
     if np.abs(M[3] - _LAST_ROW).max() > 1e-12:
         raise ConfigError(f"{name} must have last row [0, 0, 0, 1], got {M[3].tolist()}")
     return M

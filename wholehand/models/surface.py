@@ -44,7 +44,9 @@ def geometry_to_trimesh(obj: pin.GeometryObject) -> trimesh.Trimesh:
         try:
             mesh = trimesh.load(mesh_path, force="mesh", process=True)
         except Exception as err:
-            raise AssetError(f"cannot read mesh {mesh_path} of geometry {obj.name!r}: {err}") from err
+            raise AssetError(
+                f"cannot read mesh {mesh_path} of geometry {obj.name!r}: {err}"
+            ) from err
         mesh.apply_scale(np.asarray(obj.meshScale, dtype=float))
         return mesh
     raise AssetError(

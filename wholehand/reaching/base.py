@@ -1,4 +1,4 @@
-"""The reacher interface: joint velocity commands that bring the hand to a grasp (paper Sec. III-D)."""
+"""The reacher interface: joint velocities that bring the hand to a grasp (paper Sec. III-D)."""
 
 from __future__ import annotations
 

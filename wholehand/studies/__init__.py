@@ -1,0 +1,32 @@
+"""The paper's simulation studies as commands: seeded trial lists, a process pool, CSV/JSON/PNG.
+
+``wholehand study NAME`` runs one; :func:`run_study` is the library entry point.
+"""
+
+from __future__ import annotations
+
+from wholehand.errors import ConfigError
+from wholehand.studies.base import SIZES, Study, TrialJob
+from wholehand.studies.consistency import ConsistencyStudy
+from wholehand.studies.contacts import ContactsStudy
+from wholehand.studies.k_sweep import KSweepStudy
+from wholehand.studies.perturbation import PerturbationStudy
+from wholehand.studies.runner import TIMING_COLUMNS, StudyResult, run_study
+
+STUDIES: dict[str, type[Study]] = {
+    cls.name: cls for cls in (PerturbationStudy, KSweepStudy, ConsistencyStudy, ContactsStudy)
+}
+"""Study name -> class, in the paper's priority order."""
+
+
+def get_study(name: str) -> Study:
+    """The study called ``name``; an unknown name raises :class:`ConfigError` listing them."""
+    if name not in STUDIES:
+        raise ConfigError(f"study {name!r} is unknown; available: {sorted(STUDIES)}")
+    return STUDIES[name]()
+
+
+__all__ = [
+    "SIZES", "STUDIES", "TIMING_COLUMNS", "Study", "StudyResult", "TrialJob", "get_study",
+    "run_study",
+]  # fmt: skip

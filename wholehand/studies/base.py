@@ -1,0 +1,116 @@
+"""What a study is: a named, seeded expansion into trial jobs, a summary and a plot."""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wholehand.errors import ConfigError
+from wholehand.loop.trial import TrialSpec
+
+SIZES = ("tiny", "quick", "full")
+"""Study sizes: ``full`` is the paper's design; ``quick`` a < 2 min subset on 2 cores;
+``tiny`` a seconds-long smoke configuration for tests."""
+
+PAPER_OBJECTS = (
+    "006_mustard_bottle",
+    "052_extra_large_clamp",
+    "065-f_cups",
+    "073-f_lego_duplo",
+    "077_rubiks_cube",
+)
+"""The paper's five representative YCB objects (Sec. IV-A), each with 10 shipped power grasps."""
+
+METHODS = ("qp", "fingertip_only", "feedforward", "impedance")
+"""Methods of the perturbation and contact-count studies: ours, the fingertip-only ablation and
+the two non-adaptive baselines."""
+
+QUICK_PROTOCOL: dict[str, float] = {"settle_time": 0.3, "load_duration": 0.15, "rotation_time": 0.5}
+"""Shortened protocol of ``quick`` studies [s] (the paper's: 0.5 s settle, 1 s per load
+direction, 1.5 s pull)."""
+TINY_PROTOCOL: dict[str, float] = {"settle_time": 0.1, "load_duration": 0.05, "rotation_time": 0.2}
+"""Protocol of ``tiny`` smoke studies [s]."""
+
+
+def protocol_for(size: str) -> dict[str, float]:
+    """``protocol_params`` overrides of a study size (empty: the paper's protocol)."""
+    return {"tiny": dict(TINY_PROTOCOL), "quick": dict(QUICK_PROTOCOL), "full": {}}[size]
+
+
+def derive_seed(seed: int, *keys: int) -> int:
+    """A 31-bit seed derived from the study seed and integer keys (object, grasp, repeat).
+
+    Methods share seeds for the same keys, so they face the same random pull axes (paired).
+    """
+    return int(np.random.SeedSequence([int(seed), *map(int, keys)]).generate_state(1)[0] >> 1)
+
+
+@dataclass(frozen=True)
+class TrialJob:
+    """One unit of work of a study: a trial spec plus the labels the study groups by."""
+
+    index: int
+    """Position in the study; rows are written in this order."""
+    spec: TrialSpec
+    labels: dict[str, Any] = field(default_factory=dict)
+    """Study-specific columns, e.g. ``{"method": "qp"}`` or ``{"k": 5}``."""
+    kind: str = "trial"
+    """What to run: ``"trial"`` (:func:`wholehand.loop.trial.run_trial`) or a measurement
+    registered in :data:`wholehand.studies.runner.JOB_KINDS`."""
+
+
+class Study(abc.ABC):
+    """A named experiment of the paper: jobs per size and seed, a summary, a plot."""
+
+    name: str = ""
+    description: str = ""
+
+    @abc.abstractmethod
+    def jobs(self, size: str, seed: int) -> list[TrialJob]:
+        """The study's trials for a size (see :data:`SIZES`), seeded by ``seed``."""
+
+    @abc.abstractmethod
+    def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
+        """Aggregate results (JSON-serialisable) from the per-trial rows."""
+
+    @abc.abstractmethod
+    def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
+        """Write the study's figure (PNG) to ``path``."""
+
+    @staticmethod
+    def check_size(size: str) -> str:
+        if size not in SIZES:
+            raise ConfigError(f"study size {size!r} is unknown; use one of {list(SIZES)}")
+        return size
+
+
+def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
+    """Success rate over grasps: the mean of grasp-level rates, +- 1 standard error across them.
+
+    A grasp is one (hand, object, grasp) triple; its rate is the fraction of its trials held.
+    """
+    per_grasp: dict[tuple[str, str, int], list[bool]] = {}
+    for r in rows:
+        per_grasp.setdefault((r["hand"], r["object"], int(r["grasp"])), []).append(bool(r["held"]))
+    rates = np.array([np.mean(v) for v in per_grasp.values()], dtype=float)
+    n = int(rates.size)
+    return {
+        "success": float(rates.mean()) if n else float("nan"),
+        "se": float(rates.std(ddof=1) / np.sqrt(n)) if n > 1 else 0.0,
+        "n_grasps": n,
+        "n_trials": len(rows),
+    }
+
+
+def group_rows(
+    rows: list[dict[str, Any]], *keys: str
+) -> dict[tuple[Any, ...], list[dict[str, Any]]]:
+    """Rows grouped by the values of ``keys``, groups in first-seen order."""
+    out: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in rows:
+        out.setdefault(tuple(r[k] for k in keys), []).append(r)
+    return out

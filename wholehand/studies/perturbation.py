@@ -1,0 +1,102 @@
+"""Perturbation study (paper Sec. IV-A-1, Fig. 4): success versus rotational-pull angle.
+
+Per grasp and method: at theta = 0 the initial six-direction load test only (one trial); at
+theta > 0 the whole protocol (settle, load test, pull by theta about a random axis, load test)
+with one random axis per repeat. Methods share the axes (paired seeds). Success is the mean of
+grasp-level success rates, +- 1 standard error across them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from wholehand.loop.trial import TrialSpec
+from wholehand.studies.base import (
+    METHODS,
+    PAPER_OBJECTS,
+    Study,
+    TrialJob,
+    derive_seed,
+    group_rows,
+    protocol_for,
+    success_stats,
+)
+
+
+@dataclass(frozen=True)
+class PerturbationConfig:
+    """Design of one size of the perturbation study."""
+
+    objects: tuple[str, ...]
+    grasps: tuple[int, ...]
+    thetas: tuple[float, ...]
+    repeats: int
+    """Random axes per grasp at each theta > 0 (theta = 0 runs once)."""
+    methods: tuple[str, ...] = METHODS
+
+
+CONFIGS = {
+    "full": PerturbationConfig(PAPER_OBJECTS, tuple(range(10)), (0.0, 30.0, 60.0, 90.0), 10),
+    "quick": PerturbationConfig(
+        ("077_rubiks_cube", "065-f_cups"), (0, 1), (0.0, 30.0, 60.0, 90.0), 1
+    ),
+    "tiny": PerturbationConfig(("077_rubiks_cube",), (0,), (0.0, 60.0), 1, ("qp", "feedforward")),
+}
+
+
+class PerturbationStudy(Study):
+    name = "perturbation"
+    description = "success vs rotational-pull angle per method (paper Fig. 4)"
+
+    def jobs(self, size: str, seed: int) -> list[TrialJob]:
+        cfg = CONFIGS[self.check_size(size)]
+        protocol = protocol_for(size)
+        jobs: list[TrialJob] = []
+        for oi, obj in enumerate(cfg.objects):
+            for grasp in cfg.grasps:
+                for theta in cfg.thetas:
+                    for repeat in range(1 if theta == 0.0 else cfg.repeats):
+                        trial_seed = derive_seed(seed, oi, grasp, repeat)
+                        for method in cfg.methods:
+                            spec = TrialSpec(
+                                object=obj, grasp=grasp, allocator=method, theta_deg=theta,
+                                seed=trial_seed, protocol_params=protocol,
+                            )  # fmt: skip
+                            labels = {"method": method, "repeat": repeat}
+                            jobs.append(TrialJob(len(jobs), spec, labels))
+        return jobs
+
+    def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
+        groups = []
+        for (method, theta), group in group_rows(rows, "method", "theta_deg").items():
+            groups.append({"method": method, "theta_deg": theta, **success_stats(group)})
+        failures: dict[str, dict[str, int]] = {}
+        for r in rows:
+            if not r["held"]:
+                where = failures.setdefault(r["method"], {})
+                stage = str(r.get("failure_stage", "")).split(" ")[0]
+                where[stage] = where.get(stage, 0) + 1
+        return {"groups": groups, "failure_stages": failures}
+
+    def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
+        import matplotlib.pyplot as plt
+        import numpy as np
+
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        by_method = group_rows(summary["groups"], "method")
+        for (method,), groups in by_method.items():
+            theta = np.array([g["theta_deg"] for g in groups])
+            rate = 100 * np.array([g["success"] for g in groups])
+            se = 100 * np.array([g["se"] for g in groups])
+            ax.plot(theta, rate, marker="o", label=method)
+            ax.fill_between(theta, rate - se, rate + se, alpha=0.2)
+        ax.set_xlabel("rotation of the pull [deg]")
+        ax.set_ylabel("success [%]")
+        ax.set_ylim(-5, 105)
+        ax.set_title(f"perturbation ({summary['size']}, {summary['n_trials']} trials)")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(path, dpi=120)
+        plt.close(fig)

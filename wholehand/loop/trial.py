@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
 from wholehand import registry
 from wholehand.allocation.baselines import FixedAllocationBaseline
 from wholehand.backends.base import HandObjectState
+from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
 from wholehand.loop.controller import CycleResult, ForceRegulationController
@@ -18,6 +24,11 @@ from wholehand.loop.record import RunRecord
 from wholehand.loop.scheduler import CONTROL_RATE, run_protocol
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.objects import ObjectModel, load_object
+
+FloatArray = npt.NDArray[np.float64]
+
+POSE_ERROR_KEYS = ("rot_deg", "trans_mm", "seed")
+"""Keys of :attr:`TrialSpec.pose_error`."""
 
 
 @dataclass(frozen=True)
@@ -28,7 +39,7 @@ class TrialSpec:
     object: str = "077_rubiks_cube"
     grasp: int = 0
     estimator: str = "mesh_sdf"
-    allocator: str = "qp"
+    allocator: str | type = "qp"
     theta_deg: float = 60.0
     seed: int = 0
     control_rate: float = CONTROL_RATE
@@ -38,6 +49,41 @@ class TrialSpec:
     allocator_params: dict[str, Any] = field(default_factory=dict)
     protocol_params: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`PerturbationProtocol` fields (e.g. shorter stages for tests)."""
+    pose_error: dict[str, Any] = field(default_factory=dict)
+    """Constant error of the object pose given to the controller (paper Sec. IV-B-2):
+    ``{"rot_deg": R, "trans_mm": T, "seed": S}``, see :func:`pose_error_offset`. Empty: none."""
+
+
+def pose_error_offset(pose_error: dict[str, Any]) -> FloatArray | None:
+    """(4, 4) object-frame offset ``T`` of a constant pose error, ``wMo_given = wMo_true @ T``.
+
+    ``T`` rotates by ``rot_deg`` [deg] about a random unit axis and translates by ``trans_mm``
+    [mm] along a random unit direction, both in the object frame and drawn from ``seed``
+    (default 0), so the same seed gives the same directions at every magnitude. Returns None
+    for an empty dict or zero magnitudes (the controller then sees the true pose, unchanged).
+
+    Raises:
+        ConfigError: unknown keys or negative / non-finite magnitudes.
+    """
+    unknown = set(pose_error) - set(POSE_ERROR_KEYS)
+    if unknown:
+        raise ConfigError(
+            f"pose_error has unknown keys {sorted(unknown)}; use {list(POSE_ERROR_KEYS)}"
+        )
+    rot = float(pose_error.get("rot_deg", 0.0))
+    trans = float(pose_error.get("trans_mm", 0.0))
+    if not (np.isfinite(rot) and np.isfinite(trans) and rot >= 0.0 and trans >= 0.0):
+        raise ConfigError(
+            f"pose_error: rot_deg and trans_mm must be finite and >= 0, got {rot!r}, {trans!r}"
+        )
+    if rot == 0.0 and trans == 0.0:
+        return None
+    rng = np.random.default_rng(int(pose_error.get("seed", 0)))
+    axis, direction = rng.standard_normal((2, 3))
+    offset = np.eye(4)
+    offset[:3, :3] = pin.exp3(np.deg2rad(rot) * axis / np.linalg.norm(axis))
+    offset[:3, 3] = 1e-3 * trans * direction / np.linalg.norm(direction)
+    return offset
 
 
 def run_trial(
@@ -71,13 +117,15 @@ def run_trial(
     allocator_params = {**_allocator_defaults(hand), **spec.allocator_params}
     allocator = registry.load("allocators", spec.allocator, **allocator_params)
     controller = ForceRegulationController(hand, obj, estimator, allocator)
-    n_contacts_gt = _ground_truth_init(backend, controller)
+    pose_offset = pose_error_offset(spec.pose_error)
+    n_contacts_gt = _ground_truth_init(backend, controller, pose_offset)
     protocol = PerturbationProtocol(
         theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params
     )
     record = run_protocol(
-        backend, controller, protocol, spec.control_rate, stop_on_loss, on_cycle=on_cycle
-    )
+        backend, controller, protocol, spec.control_rate, stop_on_loss, on_cycle=on_cycle,
+        pose_offset=pose_offset,
+    )  # fmt: skip
     record.meta.update(
         {
             "spec": {k: getattr(v, "__name__", v) for k, v in spec.__dict__.items()},
@@ -90,9 +138,19 @@ def run_trial(
     return record
 
 
-def _ground_truth_init(backend: object, controller: ForceRegulationController) -> int | None:
+def _ground_truth_init(
+    backend: object,
+    controller: ForceRegulationController,
+    pose_offset: FloatArray | None = None,
+) -> int | None:
     """Ground-truth contact count at the initial state (None when the backend has none), and
-    the one-off allocation of a non-adaptive baseline on those contacts (paper Sec. IV-A-1)."""
+    the one-off allocation of a non-adaptive baseline on those contacts (paper Sec. IV-A-1).
+
+    With a pose error (``pose_offset``, see :func:`pose_error_offset`) the baseline's contacts
+    are expressed in the true object frame and mapped back to the world with the perturbed pose
+    ``wMo_true @ pose_offset`` (paper Sec. IV-B-2), as is the centre of mass; the returned count
+    is unaffected.
+    """
     ground_truth = getattr(backend, "ground_truth_contacts", None)
     allocator = controller.allocator
     if ground_truth is None:
@@ -106,9 +164,21 @@ def _ground_truth_init(backend: object, controller: ForceRegulationController) -
     if isinstance(allocator, FixedAllocationBaseline):
         state = backend.read_state()  # type: ignore[attr-defined]
         controller.kinematics.update(state.q, state.wMb)
-        p_com = state.wMo[:3, :3] @ controller.obj.com + state.wMo[:3, 3]
+        wMo = state.wMo
+        if pose_offset is not None:
+            wMo = state.wMo @ pose_offset
+            contacts = transform_contacts(contacts, wMo @ np.linalg.inv(state.wMo))
+        p_com = wMo[:3, :3] @ controller.obj.com + wMo[:3, 3]
         allocator.initialise(contacts, controller.kinematics, p_com)
     return len(contacts)
+
+
+def transform_contacts(contacts: ContactSet, M: FloatArray) -> ContactSet:
+    """The contact set moved rigidly by the world transform ``M`` (4, 4): points and normals."""
+    R, t = M[:3, :3], M[:3, 3]
+    return dataclasses.replace(
+        contacts, p_world=contacts.p_world @ R.T + t, n_world=contacts.n_world @ R.T
+    )
 
 
 def _allocator_defaults(hand: HandModel) -> dict[str, Any]:

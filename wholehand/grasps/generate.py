@@ -87,7 +87,9 @@ class GraspGenerator:
         palm = hand.link_index(hand.palm_link)
         rows = hand.samples.link == palm
         self.kin.update(self.q_pre)
-        pts = self.kin.transform_points(hand.samples.p_joint[rows], hand.samples.joint[rows])
+        # In the hand base frame: candidate poses are built there, then mounted with hand.wMb.
+        bMw = inverse(hand.wMb)
+        pts = self.kin.transform_points(hand.samples.p_joint[rows], hand.samples.joint[rows], bMw)
         # Palm side: +x of the palm box for hands built like the Allegro (fingers flex toward +x).
         return float(pts[:, 0].max()), 0.5 * (pts.min(axis=0) + pts.max(axis=0))
 

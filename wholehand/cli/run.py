@@ -61,7 +61,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         gravity=args.gravity,
         estimator_params=est_params,
     )
-    on_cycle = _live_view(spec, args.view_every) if args.view else None
+    on_cycle = live_view_callback(spec, args.view_every) if args.view else None
     record = run_trial(spec, on_cycle=on_cycle)
     if args.save:
         print(f"run record: {record.save(Path(args.save))}")
@@ -81,7 +81,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _live_view(spec: object, every: int) -> Callable[[int, Any, Any], None]:
+def live_view_callback(spec: object, every: int) -> Callable[[int, Any, Any], None]:
     """A per-cycle callback drawing every ``every``-th cycle in a live meshcat viewer."""
     from wholehand.models.hand import load_hand
     from wholehand.models.objects import load_object

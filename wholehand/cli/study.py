@@ -24,6 +24,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--executor", choices=("process", "serial"), default="process")
     p.add_argument("--seed", type=int, default=0, help="study seed (random pull axes)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.add_argument(
+        "--view",
+        type=int,
+        default=None,
+        metavar="INDEX",
+        help="instead of the study, run its trial INDEX alone, live in meshcat (prints the URL)",
+    )
+    p.add_argument("--view-every", type=int, default=8, help="--view: draw every n-th cycle")
     p.set_defaults(func=_cmd_study)
 
 
@@ -34,6 +42,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     if args.quick and args.size not in (None, "quick"):
         raise ConfigError(f"--quick contradicts --size {args.size}; pass one of them")
     size = "quick" if args.quick else (args.size or "full")
+    if args.view is not None:
+        return _view_one(args, size)
     result = run_study(
         get_study(args.name),
         size=size,
@@ -46,4 +56,23 @@ def _cmd_study(args: argparse.Namespace) -> int:
     summary = {k: v for k, v in result.summary.items() if k != "description"}
     print(json.dumps(summary, indent=2))
     print(f"wrote {result.csv_path}, {result.summary_path}, {result.plot_path}")
+    return 0
+
+
+def _view_one(args: argparse.Namespace, size: str) -> int:
+    """Run one trial of the study in this process with the live viewer."""
+    from wholehand.cli.run import live_view_callback, print_summary, summarise
+    from wholehand.errors import ConfigError
+    from wholehand.loop.trial import run_trial
+    from wholehand.studies import get_study
+
+    jobs = [j for j in get_study(args.name).jobs(size, args.seed) if j.kind == "trial"]
+    if not 0 <= args.view < len(jobs):
+        raise ConfigError(
+            f"--view {args.view}: study {args.name} ({size}) has trials 0..{len(jobs) - 1}"
+        )
+    job = jobs[args.view]
+    print(f"trial {job.index}: {job.labels}")
+    record = run_trial(job.spec, on_cycle=live_view_callback(job.spec, args.view_every))
+    print_summary(summarise(record))
     return 0

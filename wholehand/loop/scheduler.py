@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand.backends.base import HandObjectState, PerturbableBackend
@@ -25,13 +26,16 @@ def run_protocol(
     control_rate: float = CONTROL_RATE,
     stop_on_loss: bool = True,
     on_cycle: Callable[[int, HandObjectState, CycleResult], None] | None = None,
+    pose_offset: npt.NDArray[np.float64] | None = None,
 ) -> RunRecord:
     """Run the perturbation protocol from the backend's current state; one record row per cycle.
 
     Each cycle reads the state, checks the grasp-loss criterion, runs the controller, applies
     its torques and the stage's external wrench, and advances the backend by 1/control_rate.
     ``on_cycle(cycle_index, state, cycle_result)``, if given, is called after each row is
-    recorded (e.g. to update a live viewer).
+    recorded (e.g. to update a live viewer). ``pose_offset`` (4, 4), if given, is a constant
+    object-frame error: the controller gets ``state.wMo @ pose_offset`` every cycle, while the
+    simulation, the grasp-loss check and the record keep the true pose.
     """
     if not control_rate > 0.0:
         raise ConfigError(f"run_protocol: control_rate must be > 0 [Hz], got {control_rate!r}")
@@ -57,7 +61,8 @@ def run_protocol(
             force = protocol.load_force(stage, obj.mass)
             for _ in range(int(round(stage.duration * control_rate))):
                 state = backend.read_state()
-                cycle = controller.step(state)
+                wMo = None if pose_offset is None else state.wMo @ pose_offset
+                cycle = controller.step(state, wMo)
                 held = loss.held(controller.kinematics, state.wMo)
                 allocation = cycle.allocation
                 backend.apply_torques(allocation.tau)

@@ -11,10 +11,12 @@ from wholehand.studies.consistency import ConsistencyStudy
 from wholehand.studies.contacts import ContactsStudy
 from wholehand.studies.k_sweep import KSweepStudy
 from wholehand.studies.perturbation import PerturbationStudy
+from wholehand.studies.pose_error import PoseErrorStudy
 from wholehand.studies.runner import TIMING_COLUMNS, StudyResult, run_study
 
 STUDIES: dict[str, type[Study]] = {
-    cls.name: cls for cls in (PerturbationStudy, KSweepStudy, ConsistencyStudy, ContactsStudy)
+    cls.name: cls
+    for cls in (PerturbationStudy, PoseErrorStudy, KSweepStudy, ConsistencyStudy, ContactsStudy)
 }
 """Study name -> class, in the paper's priority order."""
 

@@ -10,12 +10,7 @@ import pytest
 from wholehand.errors import ConfigError
 from wholehand.grasps.generate import generate_grasps
 from wholehand.grasps.store import FORMAT, Grasp, load_grasps, save_grasps
-from wholehand.models.objects import load_object
-
-PAPER_OBJECTS = [
-    "006_mustard_bottle", "052_extra_large_clamp", "065-f_cups", "073-f_lego_duplo",
-    "077_rubiks_cube",
-]  # fmt: skip
+from wholehand.models.objects import PAPER_OBJECTS, load_object
 
 
 @pytest.mark.parametrize("name", PAPER_OBJECTS)

@@ -14,7 +14,7 @@ import pytest
 import trimesh
 from wholehand_plugins.mujoco_backend import MujocoBackend
 
-from wholehand.backends.convex import PAPER_OBJECTS, convex_decomposition
+from wholehand.backends.convex import convex_decomposition
 from wholehand.backends.mujoco_scene import (
     HAND_BIT,
     OBJECT_BIT,
@@ -22,7 +22,7 @@ from wholehand.backends.mujoco_scene import (
     build_scene,
 )
 from wholehand.errors import AssetError, ConfigError, WholehandError
-from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.objects import PAPER_OBJECTS, ObjectModel, load_object
 from wholehand.models.poses import pose_from_xyz_rpy
 
 

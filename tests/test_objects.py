@@ -15,6 +15,7 @@ from wholehand.errors import AssetError, ConfigError
 from wholehand.models import objects
 from wholehand.models.objects import (
     DEFAULT_DENSITY,
+    PAPER_OBJECTS,
     ObjectModel,
     available_objects,
     load_object,
@@ -24,14 +25,6 @@ from wholehand.models.objects import (
     ycb_registry,
 )
 from wholehand.models.sdf import MeshDistance, SignedDistanceGrid
-
-PAPER_OBJECTS = [
-    "006_mustard_bottle",
-    "052_extra_large_clamp",
-    "065-f_cups",
-    "073-f_lego_duplo",
-    "077_rubiks_cube",
-]
 
 
 def write_mesh(mesh: trimesh.Trimesh, path: Path) -> Path:

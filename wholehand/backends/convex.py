@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import cache
+from wholehand.models.objects import PAPER_OBJECTS
 
 if TYPE_CHECKING:
     import trimesh
@@ -41,14 +42,6 @@ IntArray = npt.NDArray[np.int64]
 CACHE_KIND = "convex_decomposition"
 """Sub-folder of the wholehand cache holding decompositions."""
 
-PAPER_OBJECTS = (
-    "006_mustard_bottle",
-    "052_extra_large_clamp",
-    "065-f_cups",
-    "073-f_lego_duplo",
-    "077_rubiks_cube",
-)
-"""The five representative YCB objects of the paper's perturbation study (Sec. IV-A)."""
 
 DEFAULT_PARAMS: dict[str, Any] = {
     "threshold": 0.05,

@@ -5,14 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-PAPER_OBJECTS = (
-    "006_mustard_bottle",
-    "052_extra_large_clamp",
-    "065-f_cups",
-    "073-f_lego_duplo",
-    "077_rubiks_cube",
-)
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     grasps = sub.add_parser("grasps", help="generate or list stored grasps")
@@ -37,7 +29,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     from wholehand.grasps.generate import generate_grasps
     from wholehand.grasps.store import grasps_dir, save_grasps
     from wholehand.models.hand import load_hand
-    from wholehand.models.objects import load_object
+    from wholehand.models.objects import PAPER_OBJECTS, load_object
 
     hand = load_hand(args.hand)
     folder = Path(args.out) if args.out else grasps_dir() / hand.name

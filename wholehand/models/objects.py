@@ -758,6 +758,16 @@ def ycb_registry() -> dict[str, dict[str, Any]]:
     return objects
 
 
+PAPER_OBJECTS = (
+    "006_mustard_bottle",
+    "052_extra_large_clamp",
+    "065-f_cups",
+    "073-f_lego_duplo",
+    "077_rubiks_cube",
+)
+"""The paper's five representative YCB objects (Sec. IV-A), each with 10 shipped power grasps."""
+
+
 def available_objects() -> list[str]:
     """Names of the YCB objects loadable by :func:`load_object`, sorted.
 

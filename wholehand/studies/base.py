@@ -16,14 +16,6 @@ SIZES = ("tiny", "quick", "full")
 """Study sizes: ``full`` is the paper's design; ``quick`` a < 2 min subset on 2 cores;
 ``tiny`` a seconds-long smoke configuration for tests."""
 
-PAPER_OBJECTS = (
-    "006_mustard_bottle",
-    "052_extra_large_clamp",
-    "065-f_cups",
-    "073-f_lego_duplo",
-    "077_rubiks_cube",
-)
-"""The paper's five representative YCB objects (Sec. IV-A), each with 10 shipped power grasps."""
 
 METHODS = ("qp", "fingertip_only", "feedforward", "impedance")
 """Methods of the perturbation and contact-count studies: ours, the fingertip-only ablation and

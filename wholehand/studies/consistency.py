@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from wholehand.loop.trial import TrialSpec
+from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
-    PAPER_OBJECTS,
     Study,
     TrialJob,
     group_rows,

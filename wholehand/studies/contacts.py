@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from wholehand.loop.trial import TrialSpec
-from wholehand.studies.base import METHODS, PAPER_OBJECTS, Study, TrialJob, group_rows, protocol_for
+from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.studies.base import METHODS, Study, TrialJob, group_rows, protocol_for
 
 OPEN_BIN = 10
 """Contact counts at or above this share one bin (the paper's ">= 10")."""

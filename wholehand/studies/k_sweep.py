@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from wholehand.loop.trial import TrialSpec
+from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
-    PAPER_OBJECTS,
     Study,
     TrialJob,
     derive_seed,

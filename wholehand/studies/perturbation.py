@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 from wholehand.loop.trial import TrialSpec
+from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
     METHODS,
-    PAPER_OBJECTS,
     Study,
     TrialJob,
     derive_seed,

@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from wholehand.loop.trial import TrialSpec
+from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
-    PAPER_OBJECTS,
     Study,
     TrialJob,
     derive_seed,

@@ -138,3 +138,16 @@ def test_tiny_study_is_deterministic_across_executors(tmp_path):
     }  # fmt: skip
     assert serial.plot_path.stat().st_size > 1000
     assert serial.plot_path.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_success_stats_leave_out_errored_and_diverged_trials():
+    row = {"hand": "h", "object": "o", "held": True, "error": ""}
+    rows = [
+        {**row, "grasp": 0},
+        {**row, "grasp": 0, "held": False},
+        {**row, "grasp": 1},
+        {**row, "grasp": 1, "held": False, "error": "simulation diverged (MuJoCo bad_qacc x1)"},
+    ]
+    stats = success_stats(rows)
+    assert stats["success"] == pytest.approx(0.75)  # grasp 0: 1/2, grasp 1: 1/1
+    assert stats["n_trials"] == 3 and stats["n_excluded"] == 1

@@ -133,6 +133,8 @@ def run_trial(
             "n_contacts_gt_init": n_contacts_gt,
             "wall_time_s": time.perf_counter() - started,
             "sim_time_s": float(backend.time),
+            # MuJoCo's run-time warnings; bad_qacc means it diverged and reset the state.
+            "sim_warnings": backend.warnings() if hasattr(backend, "warnings") else {},
         }
     )
     return record

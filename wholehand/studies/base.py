@@ -84,9 +84,12 @@ def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     """Success rate over grasps: the mean of grasp-level rates, +- 1 standard error across them.
 
     A grasp is one (hand, object, grasp) triple; its rate is the fraction of its trials held.
+    Rows with an ``error`` (the trial raised, or its simulation diverged) say nothing about the
+    controller: they are left out and counted in ``n_excluded``.
     """
+    valid = [r for r in rows if not r.get("error")]  # failed or diverged runs are excluded
     per_grasp: dict[tuple[str, str, int], list[bool]] = {}
-    for r in rows:
+    for r in valid:
         per_grasp.setdefault((r["hand"], r["object"], int(r["grasp"])), []).append(bool(r["held"]))
     rates = np.array([np.mean(v) for v in per_grasp.values()], dtype=float)
     n = int(rates.size)
@@ -94,7 +97,8 @@ def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
         "success": float(rates.mean()) if n else float("nan"),
         "se": float(rates.std(ddof=1) / np.sqrt(n)) if n > 1 else 0.0,
         "n_grasps": n,
-        "n_trials": len(rows),
+        "n_trials": len(valid),
+        "n_excluded": len(rows) - len(valid),
     }
 
 

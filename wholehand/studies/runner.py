@@ -98,12 +98,18 @@ def record_row(record: RunRecord) -> dict[str, Any]:
         "final_displacement_mm": round(float(1e3 * np.linalg.norm(a["p_object"][-1] - p0)), 6)
         if n
         else float("nan"),
-        "error": "",
+        "error": _simulation_error(record),
         "wall_time_s": float(record.meta.get("wall_time_s", float("nan"))),
         "qp_p50_us": float(np.percentile(a["qp_time"], 50) * 1e6) if n else float("nan"),
         "cycle_mean_us": float(cycle.mean() * 1e6) if n else float("nan"),
         "control_rate_hz": float(1.0 / cycle.mean()) if n and cycle.mean() > 0 else float("nan"),
     }
+
+
+def _simulation_error(record: RunRecord) -> str:
+    """Why a trial says nothing about the controller ("" if it does): the simulation diverged."""
+    diverged = record.meta.get("sim_warnings", {}).get("bad_qacc", 0)
+    return f"simulation diverged (MuJoCo bad_qacc x{diverged})" if diverged else ""
 
 
 def _trial(job: TrialJob) -> dict[str, Any]:

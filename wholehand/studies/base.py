@@ -102,6 +102,20 @@ def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     }
 
 
+def save_success_figure(fig: Any, ax: Any, path: Path, title: str | None = None) -> None:
+    """Finish a success-rate plot (axis label and range, title, legend) and write it as PNG."""
+    import matplotlib.pyplot as plt
+
+    ax.set_ylabel("success [%]")
+    ax.set_ylim(-5, 105)
+    if title:
+        ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def group_rows(
     rows: list[dict[str, Any]], *keys: str
 ) -> dict[tuple[Any, ...], list[dict[str, Any]]]:

@@ -13,7 +13,14 @@ from typing import Any
 
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.objects import PAPER_OBJECTS
-from wholehand.studies.base import METHODS, Study, TrialJob, group_rows, protocol_for
+from wholehand.studies.base import (
+    METHODS,
+    Study,
+    TrialJob,
+    group_rows,
+    protocol_for,
+    save_success_figure,
+)
 
 OPEN_BIN = 10
 """Contact counts at or above this share one bin (the paper's ">= 10")."""
@@ -104,9 +111,4 @@ class ContactsStudy(Study):
             np.arange(len(order)), [f"{b}\nn={counts.get(b, 0)}" for b in order], fontsize=8
         )
         ax.set_xlabel("ground-truth contacts at initialisation")
-        ax.set_ylabel("success [%]")
-        ax.set_ylim(0, 105)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+        save_success_figure(fig, ax, path)

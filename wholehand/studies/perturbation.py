@@ -21,6 +21,7 @@ from wholehand.studies.base import (
     derive_seed,
     group_rows,
     protocol_for,
+    save_success_figure,
     success_stats,
 )
 
@@ -93,10 +94,5 @@ class PerturbationStudy(Study):
             ax.plot(theta, rate, marker="o", label=method)
             ax.fill_between(theta, rate - se, rate + se, alpha=0.2)
         ax.set_xlabel("rotation of the pull [deg]")
-        ax.set_ylabel("success [%]")
-        ax.set_ylim(-5, 105)
-        ax.set_title(f"perturbation ({summary['size']}, {summary['n_trials']} trials)")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+        title = f"perturbation ({summary['size']}, {summary['n_trials']} trials)"
+        save_success_figure(fig, ax, path, title)

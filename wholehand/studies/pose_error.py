@@ -25,6 +25,7 @@ from wholehand.studies.base import (
     derive_seed,
     group_rows,
     protocol_for,
+    save_success_figure,
     success_stats,
 )
 
@@ -127,10 +128,5 @@ class PoseErrorStudy(Study):
             )
         ax.set_xticks(list(ticks), list(ticks.values()), fontsize=8)
         ax.set_xlabel("object pose error (rotation, translation)")
-        ax.set_ylabel("success [%]")
-        ax.set_ylim(-5, 105)
-        ax.set_title(f"pose error ({summary['size']}, {summary['n_trials']} trials)")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+        title = f"pose error ({summary['size']}, {summary['n_trials']} trials)"
+        save_success_figure(fig, ax, path, title)

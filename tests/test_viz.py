@@ -276,3 +276,37 @@ def test_html_animation_renders_in_chromium(tmp_path, hand, obj, record):
         assert close.sum() > 5, f"force-arrow colour {rgb} not in the screenshot"
         found += close.sum()
     assert found > 40
+
+
+def test_live_page_renders_in_chromium(tmp_path, hand, obj, record):
+    viewer = SceneViewer.live(hand, obj)
+    try:
+        i = int(np.argmax(record.arrays()["n_contacts"]))
+        a, c = record.arrays(), record.contacts_at(i)
+        wMo = np.eye(4)
+        wMo[:3, :3], wMo[:3, 3] = pin.exp3(a["r_object"][i]), a["p_object"][i]
+        viewer.set_camera(wMo[:3, 3])
+        viewer.update(a["q"][i], wMo, c["contact_p"], c["contact_f"], hand.wMb)
+        exe = _chromium()
+        if exe is None:
+            pytest.skip("Chromium is not installed (apt-get install -y chromium; see .ci/chromium)")
+        out = tmp_path / "live.png"
+        cmd = [
+            exe, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={out}",
+            f"--window-size={WINDOW[0]},{WINDOW[1]}", "--virtual-time-budget=8000", viewer.url,
+        ]  # fmt: skip
+        try:
+            subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+        except (OSError, subprocess.TimeoutExpired) as err:
+            pytest.skip(f"Chromium cannot start: {err}")
+        if not out.is_file():
+            pytest.skip("Chromium wrote no screenshot of the live page")
+        from PIL import Image
+
+        img = np.asarray(Image.open(out).convert("RGB")).astype(int)
+        scene = np.ones(img.shape[:2], dtype=bool)
+        scene[:30, :] = False
+        grey = (img.max(axis=2) - img.min(axis=2) < 20) & (img.max(axis=2) < 120)
+        assert (grey & scene).sum() > 300, "no hand pixels on the live page"
+    finally:
+        viewer.vis.window.server_proc.kill()

@@ -99,7 +99,7 @@ def test_bad_names_raise():
     with pytest.raises(ConfigError, match="size"):
         get_study("perturbation").jobs("huge", seed=0)
     with pytest.raises(ConfigError, match="executor"):
-        execute([], dict, executor="ray")
+        execute([], dict, executor="dask")
     with pytest.raises(ConfigError, match="workers"):
         execute([], dict, workers=0)
 
@@ -138,6 +138,17 @@ def test_tiny_study_is_deterministic_across_executors(tmp_path):
     }  # fmt: skip
     assert serial.plot_path.stat().st_size > 1000
     assert serial.plot_path.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_ray_executor_gives_the_serial_rows(tmp_path):
+    """The tiny study on a local Ray instance (2 CPUs) writes the same rows as the serial run."""
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'wholehand[ray]')")
+    study = get_study("perturbation")
+    serial = run_study(study, "tiny", tmp_path / "serial", executor="serial", progress=False)
+    on_ray = run_study(study, "tiny", tmp_path / "ray", executor="ray", workers=2, progress=False)
+    strip = lambda rows: [{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in rows]  # noqa: E731
+    assert strip(_read(on_ray.csv_path)) == strip(_read(serial.csv_path))
+    assert json.loads(on_ray.summary_path.read_text())["executor"] == "ray"
 
 
 def test_success_stats_leave_out_errored_and_diverged_trials():

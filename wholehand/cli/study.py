@@ -21,7 +21,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", choices=SIZES, default=None, help="tiny, quick or full (default full)")
     p.add_argument("--out", default=None, help="output folder (default out/study-<name>)")
     p.add_argument("--workers", type=int, default=None, help="pool size (default: CPU count)")
-    p.add_argument("--executor", choices=("process", "serial"), default="process")
+    p.add_argument(
+        "--executor",
+        choices=("process", "serial", "ray"),
+        default="process",
+        help="process pool (default), serial, or Ray (pip install 'wholehand[ray]')",
+    )
+    p.add_argument(
+        "--address",
+        default=None,
+        help="--executor ray: cluster address (e.g. auto, ray://head:10001); default: local Ray",
+    )
     p.add_argument("--seed", type=int, default=0, help="study seed (random pull axes)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument(
@@ -50,6 +60,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
         out=args.out,
         workers=args.workers,
         executor=args.executor,
+        address=args.address,
         seed=args.seed,
         progress=not args.no_progress,
     )

@@ -207,6 +207,7 @@ def run_study(
     executor: str = "process",
     seed: int = 0,
     progress: bool = True,
+    address: str | None = None,
 ) -> StudyResult:
     """Run every job of ``study`` and write ``trials.csv``, ``summary.json`` and ``<name>.png``.
 
@@ -215,8 +216,9 @@ def run_study(
         size: ``"tiny"``, ``"quick"`` or ``"full"``.
         out: output folder (created); default ``out/study-<name>``.
         workers: process-pool size; default one per core.
-        executor: ``"process"`` or ``"serial"``.
+        executor: ``"process"``, ``"serial"`` or ``"ray"``.
         seed: study seed (random pull axes etc.).
+        address: Ray cluster address for ``executor="ray"`` (None: a local instance).
         progress: show a progress bar.
     """
     size = study.check_size(size)
@@ -225,8 +227,15 @@ def run_study(
     jobs = study.jobs(size, seed)
     started = time.perf_counter()
     _warm_caches(jobs)
-    rows = execute(jobs, run_job, executor=executor, workers=workers, progress=progress,
-                   desc=f"study {study.name}")  # fmt: skip
+    rows = execute(
+        jobs,
+        run_job,
+        executor=executor,
+        workers=workers,
+        progress=progress,
+        desc=f"study {study.name}",
+        address=address,
+    )
     wall = time.perf_counter() - started
     summary = {
         "study": study.name,

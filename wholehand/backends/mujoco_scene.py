@@ -48,7 +48,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.errors import AssetError, ConfigError
-from wholehand.models.hand import _resolve_mesh
+from wholehand.models.hand import resolve_mesh_uri
 from wholehand.models.poses import check_pose
 
 if TYPE_CHECKING:
@@ -191,7 +191,7 @@ def _urdf_for_mujoco(hand: HandModel) -> str:
             link.remove(visual)
     for mesh in root.iter("mesh"):
         uri = mesh.get("filename", "")
-        path = _resolve_mesh(uri, cfg.urdf_path, cfg.package_dirs)
+        path = resolve_mesh_uri(uri, cfg.urdf_path, cfg.package_dirs)
         if path is None:
             raise AssetError(
                 f"{cfg.urdf_path}: collision mesh {uri!r} not found in the package directories "

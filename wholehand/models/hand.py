@@ -65,7 +65,8 @@ def _mesh_uris(urdf_path: Path, surface: str) -> list[str]:
     ]
 
 
-def _resolve_mesh(uri: str, urdf_path: Path, package_dirs: tuple[Path, ...]) -> Path | None:
+def resolve_mesh_uri(uri: str, urdf_path: Path, package_dirs: tuple[Path, ...]) -> Path | None:
+    """The file a URDF mesh URI names (``package://``, ``file://`` or relative), None if absent."""
     if uri.startswith("package://"):
         rel = uri[len("package://") :]
         for d in package_dirs:
@@ -82,7 +83,7 @@ def _resolve_mesh(uri: str, urdf_path: Path, package_dirs: tuple[Path, ...]) -> 
 def _check_meshes(cfg: HandConfig, surface: str) -> list[Path]:
     found = []
     for uri in _mesh_uris(cfg.urdf_path, surface):
-        path = _resolve_mesh(uri, cfg.urdf_path, cfg.package_dirs)
+        path = resolve_mesh_uri(uri, cfg.urdf_path, cfg.package_dirs)
         if path is None:
             dirs = "\n  ".join(str(d) for d in cfg.package_dirs)
             raise AssetError(

@@ -67,7 +67,9 @@ class ContactsStudy(Study):
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         bins = []
-        keyed = [{**r, "bin": contact_bin(r.get("n_contacts_gt_init"))} for r in rows]
+        # Errored or diverged trials say nothing about the controller (as in success_stats).
+        valid = [r for r in rows if not r.get("error")]
+        keyed = [{**r, "bin": contact_bin(r.get("n_contacts_gt_init"))} for r in valid]
         order = sorted(
             {r["bin"] for r in keyed},
             key=lambda b: (
@@ -88,7 +90,12 @@ class ContactsStudy(Study):
             method: sum(1 for r in group if str(r.get("failure_stage", "")) == "settle")
             for (method,), group in group_rows(rows, "method").items()
         }
-        return {"bins": bins, "bin_order": order, "settle_failures": settle_failures}
+        return {
+            "bins": bins,
+            "bin_order": order,
+            "settle_failures": settle_failures,
+            "n_excluded": len(rows) - len(valid),
+        }
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
         import matplotlib.pyplot as plt

@@ -40,6 +40,7 @@ def test_run_prints_stages_and_timings(capsys):
         (["run", "--estimator", "no_such"], "no plug-in named 'no_such'"),
         (["run", "--object", "077_rubiks_cub"], "077_rubiks_cube"),
         (["info", "--hand", "no_hand"], "no hand named 'no_hand'"),
+        (["run", "--grasp", "10"], "grasp 10 does not exist"),
     ],
 )
 def test_bad_input_exits_with_a_clear_message(capsys, argv, message):

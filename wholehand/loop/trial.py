@@ -101,7 +101,12 @@ def run_trial(
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)
     grasps = load_grasps(spec.hand, spec.object)
-    grasp = grasps[spec.grasp % len(grasps)]
+    if not 0 <= spec.grasp < len(grasps):
+        raise ConfigError(
+            f"grasp {spec.grasp} does not exist: {spec.object!r} has {len(grasps)} stored grasps "
+            f"for {spec.hand!r} (0..{len(grasps) - 1})"
+        )
+    grasp = grasps[spec.grasp]
     backend = registry.load(
         "backends",
         spec.backend,

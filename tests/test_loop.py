@@ -7,6 +7,7 @@ import pytest
 
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
+from wholehand.backends.base import HandObjectState
 from wholehand.grasps.store import load_grasps
 from wholehand.loop.controller import ForceRegulationController
 from wholehand.loop.protocol import PerturbationProtocol
@@ -126,3 +127,30 @@ def test_protocol_stages_and_wrenches():
     assert angle == pytest.approx(60.0)
     np.testing.assert_allclose(target[:3, :3] @ com + target[:3, 3], com, atol=1e-12)
     assert [s.name for s in PerturbationProtocol(theta_deg=0.0).stages()][-1] == "load -z"
+
+
+def test_bad_observations_keep_the_last_torque(allegro, cube):
+    backend, cycle = settled(allegro, cube, "qp", seconds=0.2)
+    controller_torque = cycle.allocation.tau
+    assert cycle.allocation.ok and np.abs(controller_torque).max() > 0.0
+    estimator = registry.load("contact_estimators", "mesh_sdf", hand=allegro, obj=cube)
+    alloc = registry.load("allocators", "qp", tau_max=allegro.tau_max)
+    controller = ForceRegulationController(allegro, cube, estimator, alloc)
+    good = backend.read_state()
+    first = controller.step(good)
+    assert first.allocation.ok
+    bad_pose = good.wMo.copy()
+    bad_pose[0, 3] = np.nan
+    bad_q = good.q.copy()
+    bad_q[3] = np.inf
+    for bad in (
+        HandObjectState(good.q, good.dq, good.wMb, bad_pose, good.stamp_q, good.stamp_object),
+        HandObjectState(bad_q, good.dq, good.wMb, good.wMo, good.stamp_q, good.stamp_object),
+        HandObjectState(good.q, good.dq, 2.0 * good.wMb, good.wMo, good.stamp_q, good.stamp_object),
+    ):
+        result = controller.step(bad)
+        assert result.allocation.status is AllocationStatus.BAD_STATE
+        np.testing.assert_array_equal(result.allocation.tau, first.allocation.tau)
+        assert len(result.contacts) == 0
+    assert controller.bad_states == 3 and "wMb" in controller.last_fault
+    assert controller.step(good).allocation.ok  # and it recovers

@@ -29,6 +29,8 @@ class AllocationStatus(str, enum.Enum):
     """The solver failed or returned garbage; the last feasible torque is kept."""
     HOLD = "hold"
     """A non-adaptive allocator applies its stored command."""
+    BAD_STATE = "bad_state"
+    """The observation was unusable (NaN, inf, not a pose); the last torque is kept."""
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ import numpy.typing as npt
 import trimesh
 
 from wholehand import registry
+from wholehand.grasps.generate import palm_face_in_base
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel, load_object
@@ -24,19 +25,13 @@ def grasp_like_states(
 ) -> tuple[FloatArray, FloatArray]:
     """Seeded (q, wMo) pairs with the object resting against the palm and the fingers half closed.
 
-    The object is placed on the palm side of the palm link (its +x face for the Allegro hand)
+    The object is placed on the palm side of the palm link (see
+    :func:`~wholehand.grasps.generate.palm_face_in_base`)
     at a random gap of 0-5 mm, tilted by up to 15 deg; joints are drawn between 30% and 70% of
     their range. Returns q (count, n_q) and wMo (count, 4, 4).
     """
     rng = np.random.default_rng(seed)
-    kin = HandKinematics(hand)
-    palm = hand.link_index(hand.palm_link)
-    palm_pts = kin.transform_points(
-        hand.samples.p_joint[hand.samples.link == palm],
-        hand.samples.joint[hand.samples.link == palm],
-    )
-    face_x = palm_pts[:, 0].max()
-    centre_yz = 0.5 * (palm_pts.min(axis=0) + palm_pts.max(axis=0))[1:]
+    face_x, centre = palm_face_in_base(hand)
     lo, hi = obj.mesh.bounds
     q = hand.q_lower + rng.uniform(0.3, 0.7, (count, hand.nq)) * (hand.q_upper - hand.q_lower)
     wMo = np.empty((count, 4, 4))
@@ -46,7 +41,7 @@ def grasp_like_states(
         # Lowest x of the rotated object's bounding-box corners touches the palm face plus a gap.
         corners = np.array(np.meshgrid(*zip(lo, hi, strict=True))).reshape(3, -1).T @ R.T
         x = face_x - corners[:, 0].min() + rng.uniform(0.0, 0.005)
-        wMo[i] = pose_from_xyz_rpy([x, *centre_yz], rpy)
+        wMo[i] = hand.wMb @ pose_from_xyz_rpy([x, *centre[1:]], rpy)
     return q, wMo
 
 

@@ -54,6 +54,19 @@ PD_GAINS = (2.0, 0.05)
 """PD gains holding the non-closing joints at the pre-shape: [N*m/rad], [N*m*s/rad]."""
 
 
+def palm_face_in_base(hand: HandModel) -> tuple[float, FloatArray]:
+    """Where an object can rest against the palm, in the hand base frame.
+
+    Returns the largest x of the palm link's surface samples [m] (its palm-side face, for hands
+    built like the Allegro, whose fingers flex toward +x) and the (3,) centre of their bounding
+    box [m]. The palm is the root link, so the joint configuration does not matter.
+    """
+    rows = hand.samples.link == hand.link_index(hand.palm_link)
+    p_joint, joint = hand.samples.p_joint[rows], hand.samples.joint[rows]
+    pts = HandKinematics(hand).transform_points(p_joint, joint, inverse(hand.wMb))
+    return float(pts[:, 0].max()), 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+
+
 class GraspGenerator:
     """Seeded power-grasp generation for one hand and one object in MuJoCo."""
 
@@ -80,18 +93,8 @@ class GraspGenerator:
         self.loss = GraspLossCheck(hand, obj)
         thumb = cfg.thumb
         self.thumb = thumb
-        self._palm_face, self._palm_centre = self._palm_geometry()
-
-    def _palm_geometry(self) -> tuple[float, FloatArray]:
-        hand = self.hand
-        palm = hand.link_index(hand.palm_link)
-        rows = hand.samples.link == palm
-        self.kin.update(self.q_pre)
-        # In the hand base frame: candidate poses are built there, then mounted with hand.wMb.
-        bMw = inverse(hand.wMb)
-        pts = self.kin.transform_points(hand.samples.p_joint[rows], hand.samples.joint[rows], bMw)
-        # Palm side: +x of the palm box for hands built like the Allegro (fingers flex toward +x).
-        return float(pts[:, 0].max()), 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+        # Candidate poses are built in the hand base frame, then mounted with hand.wMb.
+        self._palm_face, self._palm_centre = palm_face_in_base(hand)
 
     def candidate_pose(self, rng: np.random.Generator) -> FloatArray:
         """(4, 4) a seeded object pose against the palm."""

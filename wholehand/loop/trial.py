@@ -17,7 +17,7 @@ from wholehand.allocation.baselines import FixedAllocationBaseline
 from wholehand.backends.base import HandObjectState
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
-from wholehand.grasps.store import load_grasps
+from wholehand.grasps.store import Grasp, load_grasps
 from wholehand.loop.controller import CycleResult, ForceRegulationController
 from wholehand.loop.protocol import PerturbationProtocol
 from wholehand.loop.record import RunRecord
@@ -86,18 +86,23 @@ def pose_error_offset(pose_error: dict[str, Any]) -> FloatArray | None:
     return offset
 
 
-def run_trial(
-    spec: TrialSpec,
-    hand: HandModel | None = None,
-    obj: ObjectModel | None = None,
-    stop_on_loss: bool = True,
-    on_cycle: Callable[[int, HandObjectState, CycleResult], None] | None = None,
-) -> RunRecord:
-    """Run the perturbation protocol on one stored grasp; the record's meta holds the spec.
+@dataclass(frozen=True)
+class TrialSetup:
+    """A trial ready to run: the backend at the grasp, the controller, and what was measured."""
 
-    ``on_cycle`` is passed to :func:`~wholehand.loop.scheduler.run_protocol`.
-    """
-    started = time.perf_counter()
+    backend: Any
+    controller: ForceRegulationController
+    grasp: Grasp
+    pose_offset: FloatArray | None
+    """(4, 4) constant pose error given to the controller, or None."""
+    n_contacts_gt_init: int | None
+    """MuJoCo contacts at the initial state (None when the backend has no ground truth)."""
+
+
+def set_up_trial(
+    spec: TrialSpec, hand: HandModel | None = None, obj: ObjectModel | None = None
+) -> TrialSetup:
+    """Backend at the stored grasp, the spec's plug-ins in a controller, baselines initialised."""
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)
     grasps = load_grasps(spec.hand, spec.object)
@@ -124,18 +129,35 @@ def run_trial(
     controller = ForceRegulationController(hand, obj, estimator, allocator)
     pose_offset = pose_error_offset(spec.pose_error)
     n_contacts_gt = _ground_truth_init(backend, controller, pose_offset)
+    return TrialSetup(backend, controller, grasp, pose_offset, n_contacts_gt)
+
+
+def run_trial(
+    spec: TrialSpec,
+    hand: HandModel | None = None,
+    obj: ObjectModel | None = None,
+    stop_on_loss: bool = True,
+    on_cycle: Callable[[int, HandObjectState, CycleResult], None] | None = None,
+) -> RunRecord:
+    """Run the perturbation protocol on one stored grasp; the record's meta holds the spec.
+
+    ``on_cycle`` is passed to :func:`~wholehand.loop.scheduler.run_protocol`.
+    """
+    started = time.perf_counter()
+    trial = set_up_trial(spec, hand, obj)
+    backend = trial.backend
     protocol = PerturbationProtocol(
         theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params
     )
     record = run_protocol(
-        backend, controller, protocol, spec.control_rate, stop_on_loss, on_cycle=on_cycle,
-        pose_offset=pose_offset,
+        backend, trial.controller, protocol, spec.control_rate, stop_on_loss, on_cycle=on_cycle,
+        pose_offset=trial.pose_offset,
     )  # fmt: skip
     record.meta.update(
         {
             "spec": {k: getattr(v, "__name__", v) for k, v in spec.__dict__.items()},
-            "grasp_id": grasp.id,
-            "n_contacts_gt_init": n_contacts_gt,
+            "grasp_id": trial.grasp.id,
+            "n_contacts_gt_init": trial.n_contacts_gt_init,
             "wall_time_s": time.perf_counter() - started,
             "sim_time_s": float(backend.time),
             # MuJoCo's run-time warnings; bad_qacc means it diverged and reset the state.

@@ -54,30 +54,19 @@ CONFIGS = {
 def net_force_row(job: TrialJob) -> dict[str, Any]:
     """Hold ``job.spec``'s grasp for ``NET_FORCE_TIME`` without load, then measure the net
     ground-truth contact force on the object (the spec's protocol is replaced by a settle)."""
-    from wholehand import registry
-    from wholehand.grasps.store import load_grasps
-    from wholehand.loop.controller import ForceRegulationController
     from wholehand.loop.protocol import PerturbationProtocol
     from wholehand.loop.scheduler import run_protocol
-    from wholehand.loop.trial import _allocator_defaults
+    from wholehand.loop.trial import set_up_trial
     from wholehand.studies.runner import _model, record_row
 
     spec = job.spec
     hand, obj = _model("hand", spec.hand), _model("object", spec.object)
-    grasp = load_grasps(spec.hand, spec.object)[spec.grasp]
-    backend = registry.load(
-        "backends", spec.backend, hand=hand, obj=obj, q_init=grasp.q_array(hand),
-        wMo_init=grasp.object_pose(hand.wMb), gravity=spec.gravity,
-    )  # fmt: skip
-    estimator = registry.load(
-        "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params
-    )
-    allocator = registry.load(
-        "allocators", spec.allocator, **{**_allocator_defaults(hand), **spec.allocator_params}
-    )
-    controller = ForceRegulationController(hand, obj, estimator, allocator)
+    trial = set_up_trial(spec, hand, obj)
+    backend = trial.backend
     protocol = PerturbationProtocol(theta_deg=0.0, settle_time=NET_FORCE_TIME, load_duration=0.0)
-    record = run_protocol(backend, controller, protocol, spec.control_rate, stop_on_loss=False)
+    record = run_protocol(
+        backend, trial.controller, protocol, spec.control_rate, stop_on_loss=False
+    )
     gt = backend.ground_truth_contacts()
     net = gt.f_world.sum(axis=0)
     row = record_row(record)

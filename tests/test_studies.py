@@ -5,16 +5,25 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import operator
 
 import numpy as np
 import pytest
 
 from wholehand.errors import ConfigError
 from wholehand.loop.record import STATUS_CODES, RunRecord
-from wholehand.studies import STUDIES, TIMING_COLUMNS, get_study, run_study
+from wholehand.studies import STUDIES, TIMING_COLUMNS, get_study, run_study, runner
 from wholehand.studies.base import derive_seed, success_stats
 from wholehand.studies.executors import execute
-from wholehand.studies.runner import record_row
+from wholehand.studies.runner import (
+    JOURNAL_NAME,
+    execution_order,
+    match_rows,
+    read_csv,
+    record_row,
+    spec_columns,
+    write_csv,
+)
 
 
 def _read(path) -> list[dict[str, str]]:
@@ -102,6 +111,8 @@ def test_bad_names_raise():
         execute([], dict, executor="dask")
     with pytest.raises(ConfigError, match="workers"):
         execute([], dict, workers=0)
+    with pytest.raises(ConfigError, match="limit must be >= 0"):
+        run_study(get_study("perturbation"), "tiny", limit=-1)
 
 
 def test_cli_parser_registers_study():
@@ -162,3 +173,180 @@ def test_success_stats_leave_out_errored_and_diverged_trials():
     stats = success_stats(rows)
     assert stats["success"] == pytest.approx(0.75)  # grasp 0: 1/2, grasp 1: 1/1
     assert stats["n_trials"] == 3 and stats["n_excluded"] == 1
+
+
+# --- Long runs: journal, resume, limit, partial outputs ---------------------------------------
+
+
+def _strip(rows):
+    """Rows without their timing columns, NaN as a string (NaN != NaN)."""
+    nan = lambda v: "nan" if isinstance(v, float) and v != v else v  # noqa: E731
+    return [{k: nan(v) for k, v in r.items() if k not in TIMING_COLUMNS} for r in rows]
+
+
+def _journal_lines(folder):
+    return (folder / JOURNAL_NAME).read_text().splitlines()
+
+
+@pytest.fixture(scope="module")
+def tiny_fresh(tmp_path_factory):
+    """The tiny perturbation study run once, complete, serially (4 trials)."""
+    folder = tmp_path_factory.mktemp("fresh")
+    return run_study(get_study("perturbation"), "tiny", folder, executor="serial", progress=False)
+
+
+def test_read_csv_inverts_write_csv(tiny_fresh, tmp_path):
+    """Values and types of a tiny study's rows survive trials.csv; cells are typed as written."""
+    back = read_csv(tiny_fresh.csv_path)
+    typed = lambda rows: [{k: (type(v).__name__, v) for k, v in r.items()} for r in _strip(rows)]  # noqa: E731
+    assert typed(back) == typed(tiny_fresh.rows)
+    spec = spec_columns(get_study("perturbation").jobs("tiny", 0)[0].spec)
+    assert back[0]["protocol_params"] == spec["protocol_params"]  # JSON text, as written
+    cells = {"n": "077", "u": "1_000", "f": "-0.5", "e": "1e-05", "x": "nan", "i": "-inf",
+             "b": "True", "z": "", "s": "qp", "error": "", "k": "7"}  # fmt: skip
+    row = read_csv(write_csv([cells], tmp_path / "cells.csv"))[0]
+    assert row == {**row, "n": "077", "u": "1_000", "f": -0.5, "e": 1e-05, "i": -float("inf"),
+                   "b": True, "z": None, "s": "qp", "error": "", "k": 7}  # fmt: skip
+    assert isinstance(row["x"], float) and row["x"] != row["x"]
+
+
+def test_limit_then_resume_gives_the_rows_of_a_complete_run(tmp_path, tiny_fresh, capsys):
+    study = get_study("perturbation")
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / JOURNAL_NAME).write_text('{"stale": "row of an earlier run"}\n')
+    first = run_study(study, "tiny", folder, executor="serial", progress=False, limit=1)
+    # Without --resume the old journal is replaced; each finished row is one line at once.
+    lines = _journal_lines(folder)
+    assert len(lines) == 1 and json.loads(lines[0])["index"] == 0
+    assert not first.complete and len(first.rows) == 1
+    summary = json.loads(first.summary_path.read_text())
+    assert (summary["complete"], summary["n_planned"], summary["n_trials"]) == (False, 4, 1)
+    assert len(read_csv(first.csv_path)) == 1 and first.plot_path.stat().st_size > 1000
+    err = capsys.readouterr().err
+    assert f"wholehand study perturbation --out {folder} --resume --size tiny" in err
+    second = run_study(study, "tiny", folder, executor="serial", progress=False, resume=True)
+    assert second.complete and second.summary["n_reused"] == 1
+    assert json.loads(second.summary_path.read_text())["complete"] is True
+    assert _strip(second.rows) == _strip(tiny_fresh.rows)
+    assert _strip(read_csv(second.csv_path)) == _strip(read_csv(tiny_fresh.csv_path))
+    assert len(_journal_lines(folder)) == 4
+    assert "1 of 4 trials reused" in capsys.readouterr().err
+
+
+def test_interrupted_run_writes_a_balanced_partial_result(tmp_path, monkeypatch, capsys):
+    """KeyboardInterrupt after 5 trials of the full design (fake trials): outputs of the 5,
+    every one a repeat 0, and the command to continue."""
+    ran: list[int] = []
+
+    def fake_trial(job):
+        if len(ran) == 5:
+            raise KeyboardInterrupt
+        ran.append(job.index)
+        return {"held": True, "stages_total": 1, "failure_stage": "", "error": "", "cycles": 1}
+
+    monkeypatch.setitem(runner.JOB_KINDS, "trial", fake_trial)
+    monkeypatch.setattr(runner, "_warm_caches", lambda jobs: None)
+    study = get_study("perturbation")
+    result = run_study(study, "full", tmp_path, executor="serial", progress=False)
+    jobs = study.jobs("full", 0)
+    assert result.interrupted and not result.complete
+    assert ran == [j.index for j in execution_order(jobs)[:5]]
+    assert all(jobs[i].labels["repeat"] == 0 for i in ran)
+    assert [r["index"] for r in read_csv(result.csv_path)] == sorted(ran)
+    summary = json.loads(result.summary_path.read_text())
+    assert (summary["complete"], summary["n_planned"], summary["n_trials"]) == (False, 6200, 5)
+    assert len(_journal_lines(tmp_path)) == 5
+    err = capsys.readouterr().err
+    assert (
+        "interrupted" in err and f"wholehand study perturbation --out {tmp_path} --resume\n" in err
+    )
+    order = execution_order(get_study("k-sweep").jobs("full", 0))
+    first_repeat_1 = [j.labels["repeat"] for j in order].index(1)
+    assert first_repeat_1 == len(order) // 5  # every (object, grasp, theta, K) once first
+
+
+def test_resume_from_trials_csv_of_an_older_version(tmp_path, tiny_fresh):
+    """A folder holding only trials.csv, without the columns newer versions added, continues."""
+    old = [{k: v for k, v in r.items() if k not in ("kind", "pose_error")} for r in tiny_fresh.rows]
+    write_csv(old, tmp_path / "trials.csv")
+    result = run_study(
+        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
+        resume=True, limit=0,
+    )  # fmt: skip
+    assert result.complete and result.summary["n_reused"] == 4
+    restore = lambda rows: [{**r, "kind": "trial", "pose_error": "{}"} for r in rows]  # noqa: E731
+    assert _strip(restore(result.rows)) == _strip(restore(tiny_fresh.rows))
+    assert len(_journal_lines(tmp_path)) == 4  # the reused rows are journaled too
+
+
+def test_resume_reruns_trials_that_raised_and_keeps_diverged_ones(tmp_path, tiny_fresh):
+    rows = [dict(r) for r in tiny_fresh.rows]
+    outcome = set(rows[1]) - set(runner.SPEC_COLUMNS) - {"index", "kind", "method", "repeat"}
+    failed = {k: v for k, v in rows[1].items() if k not in outcome}
+    rows[1] = {**failed, "held": False, "failure_stage": "error", "error": "RuntimeError: boom"}
+    rows[2] = {**rows[2], "held": False, "error": "simulation diverged (MuJoCo bad_qacc x3)"}
+    cut_short = json.dumps(rows[3])[:40]  # the last line of a killed run
+    journal = "".join(json.dumps(r) + "\n" for r in rows) + cut_short
+    (tmp_path / JOURNAL_NAME).write_text(journal)
+    result = run_study(
+        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
+        resume=True,
+    )  # fmt: skip
+    assert result.complete and result.summary["n_reused"] == 3
+    assert _strip(result.rows[1:2]) == _strip(tiny_fresh.rows[1:2])  # recomputed
+    assert result.rows[2] == rows[2]  # a diverged simulation is a result: kept as it is
+    lines = _journal_lines(tmp_path)
+    assert lines[4] == cut_short and json.loads(lines[5])["index"] == 1  # appended on a new line
+    assert len(runner.read_journal(tmp_path / JOURNAL_NAME)) == 5  # the cut line is skipped
+
+
+def test_resume_matches_rows_by_content_and_ignores_other_designs(tmp_path, tiny_fresh, capsys):
+    rows = [dict(r) for r in tiny_fresh.rows]
+    other_seed = [{**r, "seed": r["seed"] + 1} for r in rows]  # same design, another seed
+    moved = {**rows[3], "index": 17}  # e.g. computed under a narrower or wider design
+    journal = other_seed + [moved]
+    (tmp_path / JOURNAL_NAME).write_text("".join(json.dumps(r) + "\n" for r in journal))
+    result = run_study(
+        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
+        resume=True, limit=0,
+    )  # fmt: skip
+    assert result.summary["n_reused"] == 1 and not result.complete
+    assert _strip(result.rows) == _strip([rows[3]])  # given the index of its job, 3
+    assert "4 rows matching no job of this design ignored" in capsys.readouterr().err
+    m = match_rows(get_study("perturbation").jobs("tiny", 0), journal)
+    assert (sorted(m.rows), m.n_ignored, m.n_failed) == ([3], 4, 0)
+
+
+def test_execute_reports_each_result_as_it_arrives():
+    jobs = execution_order(get_study("k-sweep").jobs("quick", 0))[::-1][:3]
+    seen: list[tuple[int, dict]] = []
+    rows = execute(jobs, operator.attrgetter("labels"), executor="serial",
+                   on_result=lambda i, row: seen.append((i, row)))  # fmt: skip
+    assert [i for i, _ in seen] == [j.index for j in jobs]  # submitted in the order given
+    assert rows == [j.labels for j in sorted(jobs, key=lambda j: j.index)]
+    seen.clear()
+    pooled = execute(jobs, operator.attrgetter("labels"), executor="process", workers=2,
+                     progress=False, on_result=lambda i, row: seen.append((i, row)))  # fmt: skip
+    assert pooled == rows and sorted(i for i, _ in seen) == sorted(j.index for j in jobs)
+
+
+def test_cli_resume_and_limit_reach_run_study(tmp_path, monkeypatch, capsys):
+    import wholehand.studies as studies
+    from wholehand.cli.main import main
+
+    calls: list[dict] = []
+
+    def fake_run_study(study, **kwargs):
+        calls.append({"study": study.name, **kwargs})
+        summary = {"study": study.name, "complete": False, "n_planned": 4, "n_trials": 2}
+        paths = [tmp_path / n for n in ("trials.csv", "summary.json", "p.png")]
+        return runner.StudyResult([], summary, *paths, interrupted=len(calls) == 2)
+
+    monkeypatch.setattr(studies, "run_study", fake_run_study)
+    argv = ["study", "perturbation", "--size", "tiny", "--out", str(tmp_path), "--no-progress"]
+    assert main([*argv, "--resume", "--limit", "2"]) == 0
+    assert (calls[0]["resume"], calls[0]["limit"], calls[0]["size"]) == (True, 2, "tiny")
+    assert main(argv) == 130  # interrupted: not a success for a shell script
+    assert (calls[1]["resume"], calls[1]["limit"]) == (False, None)
+    assert '"complete": false' in capsys.readouterr().out

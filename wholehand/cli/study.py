@@ -13,7 +13,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "study",
         help="run one of the paper's simulation studies (trials.csv, summary.json, PNG)",
         description="Expands a study into seeded trials, runs them in a process pool with a "
-        "progress bar and writes trials.csv, summary.json and a plot to --out. Studies: "
+        "progress bar and writes trials.csv, summary.json and a plot to --out. Every finished "
+        "trial is appended at once to --out/rows.jsonl, so a run that is stopped (Ctrl-C, "
+        "--limit) can be continued with --resume, on this machine or another. Studies: "
         + "; ".join(f"{name}: {cls.description}" for name, cls in STUDIES.items()),
     )
     p.add_argument("name", choices=sorted(STUDIES), help="which study")
@@ -33,6 +35,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="--executor ray: cluster address (e.g. auto, ray://head:10001); default: local Ray",
     )
     p.add_argument("--seed", type=int, default=0, help="study seed (random pull axes)")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the run in --out: reuse the finished trials of its rows.jsonl and "
+        "trials.csv (matched by content: labels and spec, seed included; trials that raised "
+        "run again) and run only the others (default: start afresh, replacing rows.jsonl)",
+    )
+    p.add_argument(
+        "--limit",
+        type=int,
+        default=None,
+        metavar="N",
+        help="run at most N unfinished trials this time, then write partial outputs "
+        '("complete": false); with --resume, a long study runs in chunks over sessions',
+    )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument(
         "--view",
@@ -63,11 +80,16 @@ def _cmd_study(args: argparse.Namespace) -> int:
         address=args.address,
         seed=args.seed,
         progress=not args.no_progress,
+        resume=args.resume,
+        limit=args.limit,
     )
     summary = {k: v for k, v in result.summary.items() if k != "description"}
     print(json.dumps(summary, indent=2))
-    print(f"wrote {result.csv_path}, {result.summary_path}, {result.plot_path}")
-    return 0
+    print(
+        f"wrote {result.csv_path}, {result.summary_path}, {result.plot_path} "
+        f"(journal {result.journal_path})"
+    )
+    return 130 if result.interrupted else 0
 
 
 def _view_one(args: argparse.Namespace, size: str) -> int:

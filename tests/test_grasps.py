@@ -58,3 +58,46 @@ def test_round_trip_and_bad_files(tmp_path, allegro):
     partial = Grasp(0, np.eye(4), {"joint_0.0": 0.0})
     with pytest.raises(ConfigError, match="no angle for joints"):
         partial.q_array(allegro)
+
+
+PRECISION_FINGERS = ["index", "middle", "thumb"]
+
+
+@pytest.mark.parametrize("name", PAPER_OBJECTS)
+def test_shipped_precision_grasps_touch_with_three_fingers_only(allegro, name):
+    """Every shipped precision grasp, set up in MuJoCo: only index, middle and thumb links touch
+    the object (the palm and the ring finger are free), as the generator required."""
+    from wholehand import registry
+    from wholehand.grasps.store import grasp_file
+
+    if not grasp_file("allegro_right", name, "precision").is_file():
+        pytest.skip(f"no precision grasp was found for {name}")
+    obj = load_object(name)
+    grasps = load_grasps("allegro_right", name, "precision")
+    backend = registry.load("backends", "mujoco", hand=allegro, obj=obj)
+    allowed = {i for i, f in enumerate(allegro.link_finger) if f in PRECISION_FINGERS}
+    for g in grasps:
+        assert g.type == "precision" and g.extra["fingers"] == PRECISION_FINGERS
+        backend.reset(g.q_array(allegro), g.object_pose(allegro.wMb))
+        links = set(backend.ground_truth_contacts().link.tolist())
+        assert links <= allowed, [allegro.link_names[i] for i in links - allowed]
+        touching = {allegro.link_finger[i] for i in links}
+        assert touching == set(PRECISION_FINGERS)
+
+
+def test_precision_generation_reproduces_the_shipped_grasps(allegro):
+    cup = load_object("065-f_cups")
+    generated, info = generate_grasps(allegro, cup, count=2, seed=0, style="precision")
+    shipped = load_grasps("allegro_right", "065-f_cups", "precision")[:2]
+    assert info["command"].endswith("--type precision")
+    for g, s in zip(generated, shipped, strict=True):
+        np.testing.assert_allclose(g.oMb, s.oMb, atol=1e-8)
+        assert g.q == pytest.approx(s.q, abs=1e-8)
+        assert g.contacts == s.contacts and g.type == "precision"
+
+
+def test_unknown_grasp_style_names_the_defined_ones(allegro):
+    with pytest.raises(ConfigError, match="no grasp style 'lateral'.*'power', 'precision'"):
+        generate_grasps(allegro, load_object("077_rubiks_cube"), count=1, style="lateral")
+    with pytest.raises(ConfigError, match="no grasp file.*precision"):
+        load_grasps("allegro_right", "no_object", "precision")

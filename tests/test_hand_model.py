@@ -214,3 +214,56 @@ def test_distribution_that_is_not_installed(tmp_path):
 
 def test_shipped_hand_folder_has_readme():
     assert (shipped_hands_dir() / "allegro_right" / "README.md").is_file()
+
+
+def _with_grasping(folder, table):
+    text = (
+        (folder / "hand.toml")
+        .read_text()
+        .replace('fingertip_links = ["finger"]', 'fingertip_links = ["finger"]\nthumb = "one"')
+    )
+    (folder / "hand.toml").write_text(text + textwrap.dedent(table))
+    return folder
+
+
+def test_grasp_styles_are_parsed_and_checked(tmp_path):
+    folder = _with_grasping(write_hand(tmp_path), """
+        [grasping]
+        close_torque = { j1 = 0.1 }
+        [grasping.precision]
+        preshape = { j1 = 0.2 }
+        close_torque = { j1 = 0.05 }
+        fingers = ["one"]
+        palm_gap = [0.01, 0.02]
+        """)  # fmt: skip
+    styles = load_hand(folder).config.grasp_styles
+    assert set(styles) == {"power", "precision"}
+    power, precision = styles["power"], styles["precision"]
+    assert power.close_torque == {"j1": 0.1} and not power.palm_free
+    assert precision.preshape == {"j1": 0.2} and precision.fingers == ("one",)
+    assert precision.palm_gap == (0.01, 0.02) and precision.palm_free
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ('fingers = ["one"]\ncolour = 1', "unknown keys \\['colour'\\]"),
+        ('fingers = ["two"]', "fingers = \\['two'\\] must name the thumb"),
+        ("fingers = []", "must name the thumb"),
+        ('fingers = ["one"]\npalm_gap = [0.03, 0.01]', "palm_gap must be \\[low, high\\]"),
+        ('fingers = ["one"]\npalm_gap = 0.01', "palm_gap"),
+        ('fingers = ["one"]\nclose_torque = { j1 = "strong" }', "close_torque.j1 must be"),
+    ],
+)
+def test_bad_grasp_style_raises(tmp_path, table, message):
+    folder = _with_grasping(write_hand(tmp_path), "[grasping.precision]\n" + table + "\n")
+    with pytest.raises(ConfigError, match=message):
+        parse_hand_config(folder)
+
+
+def test_grasp_style_with_unknown_joint_lists_valid_joints(tmp_path):
+    folder = _with_grasping(
+        write_hand(tmp_path), '[grasping.precision]\nfingers = ["one"]\npreshape = { j7 = 0.1 }\n'
+    )
+    with pytest.raises(ConfigError, match="'j7' is not a moving joint.*'j1'"):
+        load_hand(folder)

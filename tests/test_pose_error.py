@@ -12,6 +12,7 @@ import pytest
 import wholehand.loop.scheduler as scheduler
 from wholehand.errors import ConfigError
 from wholehand.loop.trial import TrialSpec, pose_error_offset, run_trial
+from wholehand.models.objects import load_object
 from wholehand.studies import get_study, run_study
 from wholehand.studies.base import TINY_PROTOCOL
 
@@ -35,6 +36,15 @@ def test_offset_is_deterministic_per_seed_and_has_the_asked_size():
     half = pose_error_offset({"rot_deg": 15.0, "trans_mm": 2.5, "seed": 3})
     np.testing.assert_allclose(2 * half[:3, 3], T[:3, 3])
     np.testing.assert_allclose(2 * pin.log3(half[:3, :3]), pin.log3(T[:3, :3]))
+    # About a centre c: the same rotation, c moves by exactly the translation, and a point on
+    # the rotation axis through c moves by the translation too.
+    c = np.array([0.01, -0.07, 0.02])
+    Tc = pose_error_offset(ERROR, centre=c)
+    np.testing.assert_allclose(Tc[:3, :3], T[:3, :3])
+    np.testing.assert_allclose(Tc[:3, :3] @ c + Tc[:3, 3] - c, T[:3, 3], atol=1e-15)
+    axis = pin.log3(T[:3, :3])
+    on_axis = c + 0.05 * axis / np.linalg.norm(axis)
+    np.testing.assert_allclose(Tc[:3, :3] @ on_axis + Tc[:3, 3] - on_axis, T[:3, 3], atol=1e-15)
     assert pose_error_offset({}) is None
     assert pose_error_offset({"rot_deg": 0, "trans_mm": 0, "seed": 9}) is None
     with pytest.raises(ConfigError, match="unknown"):
@@ -60,7 +70,7 @@ def test_offset_goes_to_the_controller_only(monkeypatch):
     monkeypatch.setattr(scheduler.ForceRegulationController, "step", spy_step)
     monkeypatch.setattr(scheduler.GraspLossCheck, "held", spy_held)
     record = run_trial(_spec(pose_error=ERROR))
-    T = pose_error_offset(ERROR)
+    T = pose_error_offset(ERROR, load_object("077_rubiks_cube").com)
     a = record.arrays()
     assert len(seen["controller"]) == len(seen["loss"]) == a["t"].size > 0
     for (true, given), loss_pose, p in zip(
@@ -104,7 +114,7 @@ def test_feedforward_initialises_on_the_perturbed_pose(monkeypatch):
 
     hand = load_hand("allegro_right")
     wMo = load_grasps("allegro_right", "077_rubiks_cube")[0].object_pose(hand.wMb)
-    M = wMo @ pose_error_offset(ERROR) @ np.linalg.inv(wMo)
+    M = wMo @ pose_error_offset(ERROR, load_object("077_rubiks_cube").com) @ np.linalg.inv(wMo)
     np.testing.assert_allclose(c1.p_world, c0.p_world @ M[:3, :3].T + M[:3, 3], atol=1e-9)
     np.testing.assert_allclose(c1.n_world, c0.n_world @ M[:3, :3].T, atol=1e-9)
     np.testing.assert_allclose(com1, M[:3, :3] @ com0 + M[:3, 3], atol=1e-9)

@@ -9,8 +9,14 @@ from pathlib import Path
 def add_parser(sub: argparse._SubParsersAction) -> None:
     grasps = sub.add_parser("grasps", help="generate or list stored grasps")
     gsub = grasps.add_subparsers(dest="grasps", required=True)
-    p = gsub.add_parser("generate", help="generate power grasps in MuJoCo (seeded)")
+    p = gsub.add_parser("generate", help="generate grasps in MuJoCo (seeded)")
     p.add_argument("--hand", default="allegro_right")
+    p.add_argument(
+        "--type",
+        default="power",
+        help="grasp style of the hand's hand.toml: power ([grasping]) or e.g. precision "
+        "([grasping.precision])",
+    )
     p.add_argument(
         "--object", action="append", help="object name (repeatable); default: the paper's five"
     )
@@ -27,18 +33,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_generate(args: argparse.Namespace) -> int:
     from wholehand.grasps.generate import generate_grasps
-    from wholehand.grasps.store import grasps_dir, save_grasps
+    from wholehand.grasps.store import grasp_file, save_grasps
     from wholehand.models.hand import load_hand
     from wholehand.models.objects import PAPER_OBJECTS, load_object
 
     hand = load_hand(args.hand)
-    folder = Path(args.out) if args.out else grasps_dir() / hand.name
     for name in args.object or PAPER_OBJECTS:
         obj = load_object(name)
         grasps, info = generate_grasps(
-            hand, obj, args.count, args.seed, args.max_candidates, progress=True
+            hand, obj, args.count, args.seed, args.max_candidates, progress=True, style=args.type
         )
-        path = save_grasps(folder / f"{obj.name}.json", hand.name, obj.name, grasps, info)
+        if not grasps:
+            print(
+                f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
+                "nothing written (raise --max-candidates or adjust the style in hand.toml)"
+            )
+            continue
+        default = grasp_file(hand.name, obj.name, args.type)
+        path = Path(args.out) / default.name if args.out else default
+        path = save_grasps(path, hand.name, obj.name, grasps, info)
         print(
             f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates -> {path}"
         )
@@ -46,8 +59,11 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
-    from wholehand.grasps.store import grasps_dir, load_grasps
+    from wholehand.grasps.store import grasps_dir, load_grasps, shipped_grasp_files
 
-    for path in sorted(grasps_dir().glob("*/*.json")):
-        print(f"{path.parent.name}/{path.stem}: {len(load_grasps(path))} grasps")
+    for path in shipped_grasp_files():
+        grasps = load_grasps(path)
+        styles = sorted({g.type for g in grasps})
+        name = path.relative_to(grasps_dir()).with_suffix("").as_posix()
+        print(f"{name}: {len(grasps)} grasps ({', '.join(styles)})")
     return 0

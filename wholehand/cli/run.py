@@ -22,6 +22,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--hand", default="allegro_right")
     p.add_argument("--object", default="077_rubiks_cube")
     p.add_argument("--grasp", type=int, default=0, help="index into the object's grasp file")
+    p.add_argument(
+        "--grasp-type", default="power", help="grasp file: power (default) or e.g. precision"
+    )
     p.add_argument("--estimator", default="mesh_sdf", help="contact-estimator plug-in")
     p.add_argument("--allocator", default="qp", help="allocator plug-in")
     p.add_argument("--theta", type=float, default=60.0, help="rotation of the pull [deg]")
@@ -53,6 +56,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         hand=args.hand,
         object=args.object,
         grasp=args.grasp,
+        grasp_type=args.grasp_type,
         estimator=args.estimator,
         allocator=args.allocator,
         theta_deg=args.theta,
@@ -127,7 +131,7 @@ def summarise(record: RunRecord) -> dict[str, object]:
 def print_summary(summary: dict[str, object]) -> None:
     spec = summary["spec"]
     print(
-        f"{spec['hand']} holding {spec['object']} (grasp {spec['grasp']}), "
+        f"{spec['hand']} holding {spec['object']} ({spec['grasp_type']} grasp {spec['grasp']}), "
         f"{spec['estimator']} + {spec['allocator']}, theta = {spec['theta_deg']:g} deg, "
         f"seed {spec['seed']}"
     )

@@ -1,17 +1,23 @@
-"""Power grasps generated in MuJoCo (Dexonomy's grasps are not available offline).
+"""Grasps generated in MuJoCo (Dexonomy's grasps are not available offline).
 
-For a hand and an object, each seeded candidate:
+A grasp style of hand.toml (:class:`~wholehand.models.hand_config.GraspStyle`) says how: ``power``
+from ``[grasping]``, ``precision`` from ``[grasping.precision]``. For a hand and an object, each
+seeded candidate:
 
-1. turns the object to a random orientation and places it against the palm side of the palm
-   link (a gap of ``GAP`` [m]), at a random offset along the palm;
-2. opens the hand to the power pre-shape of ``[grasping] preshape`` in hand.toml; a candidate
-   whose pre-shape already penetrates the object is rejected;
-3. holds the object in place with a stiff spring-damper wrench and applies the closing torques of
-   ``[grasping] close_torque`` (the other joints are held at the pre-shape by a PD law) until
-   the thumb and two other fingers touch the object (MuJoCo contacts), then ``CLOSE_EXTRA`` s more;
+1. turns the object to a random orientation and places it in front of the palm side of the palm
+   link, at a gap drawn from the style's ``palm_gap`` [m]: for power grasps at a random offset
+   along the palm; for a style that names its fingers, centred (+- 1 cm) across the palm on the
+   mean of those fingers' distal links with the closing joints half-way to their limits;
+2. opens the hand to the style's pre-shape; a candidate whose pre-shape already penetrates the
+   object is rejected;
+3. holds the object in place with a stiff spring-damper wrench and applies the style's closing
+   torques (the other joints are held at the pre-shape by a PD law) until the required fingers
+   touch the object (MuJoCo contacts): the thumb and two other fingers, or exactly the style's
+   fingers; then ``CLOSE_EXTRA`` s more;
 4. releases the object and lets the grasp settle for ``SETTLE`` s under the same torques; the
-   grasp is kept if the thumb and two fingers still touch, the grasp-loss criterion holds and the
-   object moved less than ``MAX_SETTLE_MOTION`` [m].
+   grasp is kept if the required fingers still touch (and, for a style that names its fingers,
+   no other link does: the palm stays free), the grasp-loss criterion holds and the object moved
+   less than ``MAX_SETTLE_MOTION`` [m].
 
 The hand base pose in the object frame and the joint angles after settling are stored.
 """
@@ -26,6 +32,7 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from wholehand import registry
+from wholehand.errors import ConfigError
 from wholehand.grasps.store import Grasp
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.models.hand import HandModel
@@ -35,8 +42,8 @@ from wholehand.models.poses import inverse
 
 FloatArray = npt.NDArray[np.float64]
 
-GAP = (0.001, 0.004)
-"""Range of the initial gap between the object and the palm face [m]."""
+PRECISION_JITTER = 0.01
+"""Half-range of the random offset of a precision candidate across the palm [m]."""
 CONTROL_RATE = 200.0
 """Rate of the closing controller in sim time [Hz]."""
 CLOSE_TIMEOUT = 1.5
@@ -68,55 +75,86 @@ def palm_face_in_base(hand: HandModel) -> tuple[float, FloatArray]:
 
 
 class GraspGenerator:
-    """Seeded power-grasp generation for one hand and one object in MuJoCo."""
+    """Seeded grasp generation for one hand, one object and one grasp style in MuJoCo."""
 
-    def __init__(self, hand: HandModel, obj: ObjectModel, backend: str = "mujoco") -> None:
+    def __init__(
+        self, hand: HandModel, obj: ObjectModel, backend: str = "mujoco", style: str = "power"
+    ) -> None:
         self.hand, self.obj = hand, obj
         cfg = hand.config
-        if not cfg.close_torque:
-            from wholehand.errors import ConfigError
-
+        if style not in cfg.grasp_styles:
             raise ConfigError(
-                f"{cfg.path}: [grasping] close_torque is empty; the grasp generator needs the "
+                f"{cfg.path}: no grasp style {style!r}; this hand defines "
+                f"{sorted(cfg.grasp_styles)} (add a [grasping.{style}] table)"
+            )
+        self.style = cfg.grasp_styles[style]
+        table = "[grasping]" if style == "power" else f"[grasping.{style}]"
+        if not self.style.close_torque:
+            raise ConfigError(
+                f"{cfg.path}: {table} close_torque is empty; the grasp generator needs the "
                 "closing torque of each flexion joint"
             )
         self.q_pre = np.clip(np.zeros(hand.nq), hand.q_lower, hand.q_upper)
         self.tau_close = np.zeros(hand.nv)
         self.closing = np.zeros(hand.nv, dtype=bool)
-        for name, value in cfg.preshape.items():
+        for name, value in self.style.preshape.items():
             self.q_pre[hand.model.joints[hand.model.getJointId(name)].idx_q] = value
-        for name, value in cfg.close_torque.items():
+        for name, value in self.style.close_torque.items():
             i = hand.model.joints[hand.model.getJointId(name)].idx_v
             self.tau_close[i], self.closing[i] = value, True
         self.backend = registry.load("backends", backend, hand=hand, obj=obj, q_init=self.q_pre)
         self.kin = HandKinematics(hand)
         self.loss = GraspLossCheck(hand, obj)
-        thumb = cfg.thumb
-        self.thumb = thumb
+        self.thumb = cfg.thumb
         # Candidate poses are built in the hand base frame, then mounted with hand.wMb.
         self._palm_face, self._palm_centre = palm_face_in_base(hand)
+        self._finger_centre = (
+            self._distal_centre(self.style.fingers) if self.style.fingers else None
+        )
+        self.candidates_tried = 0
+        """Candidates tried by the last :meth:`generate`."""
+
+    def _distal_centre(self, fingers: tuple[str, ...]) -> FloatArray:
+        """(3,) mean origin of the fingers' distal links half-way closed, base frame [m]: each
+        closing joint half-way from the pre-shape to its limit in the closing direction."""
+        hand, q = self.hand, self.q_pre.copy()
+        for name, torque in self.style.close_torque.items():
+            joint = hand.model.joints[hand.model.getJointId(name)]
+            limit = hand.q_upper[joint.idx_q] if torque > 0 else hand.q_lower[joint.idx_q]
+            q[joint.idx_q] = 0.5 * (q[joint.idx_q] + limit)
+        self.kin.update(q, np.eye(4))
+        links = [self.hand.config.fingers[f][-1] for f in fingers]
+        return np.mean([self.kin.frame_pose(link)[:3, 3] for link in links], axis=0)
 
     def candidate_pose(self, rng: np.random.Generator) -> FloatArray:
-        """(4, 4) a seeded object pose against the palm."""
+        """(4, 4) a seeded object pose in front of the palm."""
         R = Rotation.random(random_state=rng).as_matrix()
         verts = np.asarray(self.obj.mesh.vertices) @ R.T
         wMo = np.eye(4)
         wMo[:3, :3] = R
-        x = self._palm_face - verts[:, 0].min() + rng.uniform(*GAP)
-        y = (
-            self._palm_centre[1]
-            - 0.5 * (verts[:, 1].min() + verts[:, 1].max())
-            + rng.uniform(-0.01, 0.01)
-        )
-        z = rng.uniform(-0.04, 0.0) - 0.5 * (verts[:, 2].min() + verts[:, 2].max())
+        x = self._palm_face - verts[:, 0].min() + rng.uniform(*self.style.palm_gap)
+        centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
+        if self._finger_centre is None:
+            y = self._palm_centre[1] - centre[1] + rng.uniform(-0.01, 0.01)
+            z = rng.uniform(-0.04, 0.0) - centre[2]
+        else:
+            y, z = (
+                self._finger_centre[1:]
+                - centre[1:]
+                + rng.uniform(-PRECISION_JITTER, PRECISION_JITTER, 2)
+            )
         wMo[:3, 3] = [x, y, z]
         return self.hand.wMb @ wMo
 
     def _fingers_touching(self) -> set[str]:
+        """Fingers touching the object; the palm and other unassigned links count as ``""``."""
         contacts = self.backend.ground_truth_contacts()
-        return {self.hand.link_finger[i] for i in contacts.link} - {""}
+        return {self.hand.link_finger[i] for i in contacts.link}
 
-    def _grasped(self, fingers: set[str]) -> bool:
+    def _grasped(self, touching: set[str]) -> bool:
+        if self.style.fingers:
+            return touching == set(self.style.fingers)
+        fingers = touching - {""}
         return self.thumb in fingers and len(fingers - {self.thumb}) >= 2
 
     def _hold(self, wMo: FloatArray) -> None:
@@ -157,10 +195,11 @@ class GraspGenerator:
         state = b.read_state()
         self.kin.update(state.q, state.wMb)
         moved = float(np.linalg.norm(state.wMo[:3, 3] - before[:3, 3]))
-        fingers = self._fingers_touching()
+        touching = self._fingers_touching()
+        fingers = touching - {""}
         if (
             moved > MAX_SETTLE_MOTION
-            or not self._grasped(fingers)
+            or not self._grasped(touching)
             or not self.loss.held(self.kin, state.wMo)
         ):
             return None
@@ -173,7 +212,7 @@ class GraspGenerator:
             id=-1,
             oMb=inverse(state.wMo) @ state.wMb,
             q=q,
-            type="power",
+            type=self.style.name,
             contacts=len(b.ground_truth_contacts()),
             extra={
                 "candidate": index,
@@ -190,7 +229,9 @@ class GraspGenerator:
 
         grasps: list[Grasp] = []
         bar = tqdm(total=count, desc=f"grasps {self.obj.name}", disable=not progress)
+        self.candidates_tried = 0
         for index in range(max_candidates):
+            self.candidates_tried = index + 1
             grasp = self.try_candidate(index, seed)
             if grasp is not None:
                 grasps.append(
@@ -205,18 +246,22 @@ class GraspGenerator:
 
 def generate_grasps(
     hand: HandModel, obj: ObjectModel, count: int = 10, seed: int = 0,
-    max_candidates: int = 400, progress: bool = False,
+    max_candidates: int = 400, progress: bool = False, style: str = "power",
 ) -> tuple[list[Grasp], dict[str, object]]:  # fmt: skip
     """Grasps and a description of how they were made (for the file's ``generator`` field)."""
     started = time.perf_counter()
-    grasps = GraspGenerator(hand, obj).generate(count, seed, max_candidates, progress)
+    generator = GraspGenerator(hand, obj, style=style)
+    grasps = generator.generate(count, seed, max_candidates, progress)
+    command = (
+        f"wholehand grasps generate --hand {hand.name} --object {obj.name} "
+        f"--count {count} --seed {seed}"
+    )
     info = {
-        "command": f"wholehand grasps generate --hand {hand.name} --object {obj.name} "
-        f"--count {count} --seed {seed}",
+        "command": command if style == "power" else f"{command} --type {style}",
         "seed": seed,
-        "method": "power pre-shape, closing torques with the object held, settle released "
+        "method": f"{style} pre-shape, closing torques with the object held, settle released "
         "(wholehand/grasps/generate.py)",
-        "candidates_tried": (grasps[-1].extra["candidate"] + 1) if grasps else max_candidates,
+        "candidates_tried": generator.candidates_tried,
         "wall_time_s": round(time.perf_counter() - started, 1),
     }
     return grasps, info

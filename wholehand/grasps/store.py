@@ -1,4 +1,6 @@
-"""The grasp file format (``objects/grasps/<hand>/<object>.json``).
+"""The grasp file format (``objects/grasps/<hand>/<object>.json`` for power grasps,
+``objects/grasps/<hand>/<style>/<object>.json`` for another style of hand.toml's ``[grasping]``,
+e.g. ``precision``).
 
 A grasp is a hand base pose in the object frame plus joint angles by joint name, so that grasps
 from any synthesiser (Dexonomy, DexGraspNet, ...) can be converted: express the hand root pose
@@ -73,20 +75,29 @@ def grasps_dir() -> Path:
     return Path(wholehand_objects.__file__).parent / "grasps"
 
 
-def grasp_file(hand: str, obj: str) -> Path:
-    return grasps_dir() / hand / f"{obj}.json"
+def grasp_file(hand: str, obj: str, style: str = "power") -> Path:
+    """The shipped file of a hand's grasps of an object: ``<hand>/<object>.json`` for power
+    grasps, ``<hand>/<style>/<object>.json`` for another grasp style (e.g. ``precision``)."""
+    folder = grasps_dir() / hand
+    return (folder if style == "power" else folder / style) / f"{obj}.json"
 
 
-def load_grasps(path_or_hand: str | Path, obj: str | None = None) -> list[Grasp]:
-    """Grasps from a file path, or the shipped ones for ``(hand name, object name)``."""
-    path = Path(path_or_hand) if obj is None else grasp_file(str(path_or_hand), obj)
+def shipped_grasp_files() -> list[Path]:
+    """Every shipped grasp file, sorted."""
+    root = grasps_dir()
+    return sorted([*root.glob("*/*.json"), *root.glob("*/*/*.json")])
+
+
+def load_grasps(
+    path_or_hand: str | Path, obj: str | None = None, style: str = "power"
+) -> list[Grasp]:
+    """Grasps from a file path, or the shipped ones for ``(hand name, object name, style)``."""
+    path = Path(path_or_hand) if obj is None else grasp_file(str(path_or_hand), obj, style)
     if not path.is_file():
-        shipped = sorted(
-            p.relative_to(grasps_dir()).as_posix() for p in grasps_dir().glob("*/*.json")
-        )
+        shipped = [p.relative_to(grasps_dir()).as_posix() for p in shipped_grasp_files()]
         raise ConfigError(
             f"no grasp file {path}; shipped grasp files: {shipped}. Generate some with "
-            "`wholehand grasps generate --hand HAND --object OBJECT`"
+            "`wholehand grasps generate --hand HAND --object OBJECT [--type STYLE]`"
         )
     try:
         raw = json.loads(path.read_text())

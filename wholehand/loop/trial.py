@@ -38,6 +38,9 @@ class TrialSpec:
     hand: str = "allegro_right"
     object: str = "077_rubiks_cube"
     grasp: int = 0
+    """Index into the stored grasps of (hand, object, grasp_type)."""
+    grasp_type: str = "power"
+    """Grasp style of the stored grasp file: ``power`` or e.g. ``precision``."""
     estimator: str = "mesh_sdf"
     allocator: str | type = "qp"
     theta_deg: float = 60.0
@@ -54,13 +57,22 @@ class TrialSpec:
     ``{"rot_deg": R, "trans_mm": T, "seed": S}``, see :func:`pose_error_offset`. Empty: none."""
 
 
-def pose_error_offset(pose_error: dict[str, Any]) -> FloatArray | None:
+def pose_error_offset(
+    pose_error: dict[str, Any], centre: npt.ArrayLike = (0.0, 0.0, 0.0)
+) -> FloatArray | None:
     """(4, 4) object-frame offset ``T`` of a constant pose error, ``wMo_given = wMo_true @ T``.
 
-    ``T`` rotates by ``rot_deg`` [deg] about a random unit axis and translates by ``trans_mm``
-    [mm] along a random unit direction, both in the object frame and drawn from ``seed``
-    (default 0), so the same seed gives the same directions at every magnitude. Returns None
-    for an empty dict or zero magnitudes (the controller then sees the true pose, unchanged).
+    ``T`` rotates by ``rot_deg`` [deg] about a random unit axis through ``centre`` (3,) [m,
+    object frame; trials pass the object's centre of mass] and translates by ``trans_mm`` [mm]
+    along a random unit direction: a point ``p`` of the object frame goes to
+    ``R (p - centre) + centre + t``, so ``centre`` itself moves by exactly ``trans_mm``. Axis and
+    direction are in the object frame and drawn from ``seed`` (default 0): the same seed gives
+    the same directions at every magnitude. Returns None for an empty dict or zero magnitudes
+    (the controller then sees the true pose, unchanged).
+
+    Rotating about the centre of mass rather than the mesh origin keeps the error's effect
+    independent of where a mesh file happens to put its origin (YCB scans put it up to 7 cm
+    from the object).
 
     Raises:
         ConfigError: unknown keys or negative / non-finite magnitudes.
@@ -78,11 +90,13 @@ def pose_error_offset(pose_error: dict[str, Any]) -> FloatArray | None:
         )
     if rot == 0.0 and trans == 0.0:
         return None
+    c = np.asarray(centre, dtype=float).reshape(3)
     rng = np.random.default_rng(int(pose_error.get("seed", 0)))
     axis, direction = rng.standard_normal((2, 3))
+    R = pin.exp3(np.deg2rad(rot) * axis / np.linalg.norm(axis))
     offset = np.eye(4)
-    offset[:3, :3] = pin.exp3(np.deg2rad(rot) * axis / np.linalg.norm(axis))
-    offset[:3, 3] = 1e-3 * trans * direction / np.linalg.norm(direction)
+    offset[:3, :3] = R
+    offset[:3, 3] = c - R @ c + 1e-3 * trans * direction / np.linalg.norm(direction)
     return offset
 
 
@@ -105,11 +119,11 @@ def set_up_trial(
     """Backend at the stored grasp, the spec's plug-ins in a controller, baselines initialised."""
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)
-    grasps = load_grasps(spec.hand, spec.object)
+    grasps = load_grasps(spec.hand, spec.object, spec.grasp_type)
     if not 0 <= spec.grasp < len(grasps):
         raise ConfigError(
-            f"grasp {spec.grasp} does not exist: {spec.object!r} has {len(grasps)} stored grasps "
-            f"for {spec.hand!r} (0..{len(grasps) - 1})"
+            f"grasp {spec.grasp} does not exist: {spec.object!r} has {len(grasps)} stored "
+            f"{spec.grasp_type} grasps for {spec.hand!r} (0..{len(grasps) - 1})"
         )
     grasp = grasps[spec.grasp]
     backend = registry.load(
@@ -127,7 +141,7 @@ def set_up_trial(
     allocator_params = {**_allocator_defaults(hand), **spec.allocator_params}
     allocator = registry.load("allocators", spec.allocator, **allocator_params)
     controller = ForceRegulationController(hand, obj, estimator, allocator)
-    pose_offset = pose_error_offset(spec.pose_error)
+    pose_offset = pose_error_offset(spec.pose_error, obj.com)
     n_contacts_gt = _ground_truth_init(backend, controller, pose_offset)
     return TrialSetup(backend, controller, grasp, pose_offset, n_contacts_gt)
 

@@ -223,7 +223,9 @@ class HandModel:
         cfg, model = self.config, self.model
         moving = [model.names[j] for j in range(1, model.njoints)]
         actuated = list(cfg.actuated_joints) if cfg.actuated_joints is not None else moving
-        for name in [*actuated, *cfg.torque_limits, *cfg.preshape, *cfg.close_torque]:
+        styles = cfg.grasp_styles.values()
+        grasp_joints = [j for st in styles for j in (*st.preshape, *st.close_torque)]
+        for name in [*actuated, *cfg.torque_limits, *grasp_joints]:
             if name not in moving:
                 raise ConfigError(
                     f"{cfg.path}: joint {name!r} is not a moving joint of "

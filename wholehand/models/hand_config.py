@@ -21,9 +21,14 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     [mount]                                     # pose of the root link in the world
     xyz = [0, 0, 0]
     rpy = [0, 0, 0]
-    [grasping]                                  # for the grasp generator (power grasps)
+    [grasping]                                  # for the grasp generator: power grasps
     preshape = { j1 = 0.0 }                     # open pose [rad]; others 0, clipped to limits
     close_torque = { j1 = 0.15 }                # closing torque [N*m]; others hold the pre-shape
+    [grasping.precision]                        # optional: fingertip grasps, palm free
+    preshape = { j1 = 0.0 }
+    close_torque = { j1 = 0.15 }
+    fingers = ["thumb", "index", "middle"]      # keys of [fingers]: exactly these must touch
+    palm_gap = [0.015, 0.035]                   # object-to-palm gap range at placement [m]
 
 Names are checked against the URDF when the hand is loaded (:mod:`wholehand.models.hand`).
 """
@@ -45,6 +50,32 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 SURFACES = ("collision", "visual")
+
+
+POWER_GAP = (0.001, 0.004)
+"""Default range of the object-to-palm gap when a power-grasp candidate is placed [m]."""
+
+
+@dataclass(frozen=True)
+class GraspStyle:
+    """How the grasp generator closes the hand for one kind of grasp (``[grasping]`` tables)."""
+
+    name: str
+    """``power`` or the name of a ``[grasping.<name>]`` sub-table (e.g. ``precision``)."""
+    preshape: dict[str, float]
+    """Open pose by joint name [rad]; other joints 0, clipped to their limits."""
+    close_torque: dict[str, float]
+    """Closing torque by joint name [N*m]; other joints hold the pre-shape."""
+    fingers: tuple[str, ...] = ()
+    """Fingers (keys of ``[fingers]``) that must touch, and the only links besides them that
+    may: none. Empty: the thumb and any two other fingers must touch, the palm may."""
+    palm_gap: tuple[float, float] = POWER_GAP
+    """Range of the gap between the object and the palm face at placement [m]."""
+
+    @property
+    def palm_free(self) -> bool:
+        """True when the palm must not touch the object (a style that names its fingers)."""
+        return bool(self.fingers)
 
 
 @dataclass(frozen=True)
@@ -70,8 +101,9 @@ class HandConfig:
     torque_limits: dict[str, float]
     damping: float
     armature: float
-    preshape: dict[str, float] = field(default_factory=dict)
-    close_torque: dict[str, float] = field(default_factory=dict)
+    grasp_styles: dict[str, GraspStyle] = field(default_factory=dict)
+    """Grasp styles of the grasp generator by name: ``power`` from ``[grasping]``, others from
+    its sub-tables (``[grasping.precision]``)."""
     mount_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     extra: dict[str, Any] = field(default_factory=dict)
@@ -170,7 +202,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         "joints": {"actuated", "torque_limit"},
         "simulation": {"damping", "armature"},
         "mount": {"xyz", "rpy"},
-        "grasping": {"preshape", "close_torque"},
+        "grasping": {"preshape", "close_torque", *_GRASP_SUBSTYLES},
     }
     for table, allowed in sub_keys.items():
         value = raw.get(table, {})
@@ -194,16 +226,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         for j, v in limits_raw.items()
         if j != "default"
     }
-    grasping = raw.get("grasping", {})
-    preshape, close_torque = {}, {}
-    for key, target in (("preshape", preshape), ("close_torque", close_torque)):
-        table = grasping.get(key, {})
-        if not isinstance(table, dict):
-            raise ConfigError(f"{path}: grasping.{key} must be a table of joint name -> number")
-        for joint, value in table.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"{path}: grasping.{key}.{joint} must be a number, got {value!r}")
-            target[joint] = float(value)
+    grasp_styles = _grasp_styles(raw.get("grasping", {}), fingers, thumb, path)
     sim = raw.get("simulation", {})
     mount = raw.get("mount", {})
     xyz = tuple(float(v) for v in mount.get("xyz", (0.0, 0.0, 0.0)))
@@ -227,11 +250,73 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         torque_limits=limits,
         damping=_number(sim.get("damping", 0.05), "simulation.damping", path),
         armature=_number(sim.get("armature", 0.001), "simulation.armature", path),
-        preshape=preshape,
-        close_torque=close_torque,
+        grasp_styles=grasp_styles,
         mount_xyz=xyz,  # type: ignore[arg-type]
         mount_rpy=rpy,  # type: ignore[arg-type]
     )
+
+
+_GRASP_SUBSTYLES = ("precision",)
+"""Names of the optional ``[grasping.<name>]`` sub-tables."""
+
+
+def _joint_numbers(table: Any, what: str, where: Path) -> dict[str, float]:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: {what} must be a table of joint name -> number")
+    out = {}
+    for joint, value in table.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: {what}.{joint} must be a number, got {value!r}")
+        out[joint] = float(value)
+    return out
+
+
+def _grasp_styles(
+    grasping: dict[str, Any], fingers: dict[str, tuple[str, ...]], thumb: str | None, path: Path
+) -> dict[str, GraspStyle]:
+    styles = {
+        "power": GraspStyle(
+            "power",
+            _joint_numbers(grasping.get("preshape", {}), "grasping.preshape", path),
+            _joint_numbers(grasping.get("close_torque", {}), "grasping.close_torque", path),
+        )
+    }
+    for name in _GRASP_SUBSTYLES:
+        if name not in grasping:
+            continue
+        table, where = grasping[name], f"grasping.{name}"
+        allowed = {"preshape", "close_torque", "fingers", "palm_gap"}
+        if not isinstance(table, dict) or set(table) - allowed:
+            extra = sorted(set(table) - allowed) if isinstance(table, dict) else table
+            raise ConfigError(
+                f"{path}: [{where}] has unknown keys {extra}; valid keys are {sorted(allowed)}"
+            )
+        style_fingers = _str_list(table, "fingers", path, [])
+        unknown = [f for f in style_fingers if f not in fingers]
+        if unknown or not style_fingers or (thumb is not None and thumb not in style_fingers):
+            raise ConfigError(
+                f"{path}: {where}.fingers = {list(style_fingers)} must name the thumb "
+                f"{thumb!r} and other keys of [fingers] {sorted(fingers)}"
+            )
+        gap = table.get("palm_gap", list(POWER_GAP))
+        if (
+            not isinstance(gap, list)
+            or len(gap) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in gap)
+            or not 0.0 <= gap[0] <= gap[1]
+        ):
+            raise ConfigError(
+                f"{path}: {where}.palm_gap must be [low, high] in m with 0 <= low <= high, "
+                f"got {gap!r}"
+            )
+        styles[name] = GraspStyle(
+            name,
+            _joint_numbers(table.get("preshape", {}), f"{where}.preshape", path),
+            _joint_numbers(table.get("close_torque", {}), f"{where}.close_torque", path),
+            style_fingers,
+            (float(gap[0]), float(gap[1])),
+        )
+    return styles
 
 
 def shipped_hands_dir() -> Path:

@@ -83,14 +83,16 @@ class Study(abc.ABC):
 def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     """Success rate over grasps: the mean of grasp-level rates, +- 1 standard error across them.
 
-    A grasp is one (hand, object, grasp) triple; its rate is the fraction of its trials held.
+    A grasp is one (hand, object, grasp type, grasp) entry; its rate is the fraction of its
+    trials held.
     Rows with an ``error`` (the trial raised, or its simulation diverged) say nothing about the
     controller: they are left out and counted in ``n_excluded``.
     """
     valid = [r for r in rows if not r.get("error")]  # failed or diverged runs are excluded
-    per_grasp: dict[tuple[str, str, int], list[bool]] = {}
+    per_grasp: dict[tuple[str, str, str, int], list[bool]] = {}
     for r in valid:
-        per_grasp.setdefault((r["hand"], r["object"], int(r["grasp"])), []).append(bool(r["held"]))
+        key = (r["hand"], r["object"], r.get("grasp_type", "power"), int(r["grasp"]))
+        per_grasp.setdefault(key, []).append(bool(r["held"]))
     rates = np.array([np.mean(v) for v in per_grasp.values()], dtype=float)
     n = int(rates.size)
     return {

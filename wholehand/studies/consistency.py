@@ -1,11 +1,18 @@
 """Actuation-consistency ablation (paper Sec. IV-B-1, Fig. 5).
 
-Two parts. (1) ``qp`` versus ``qp_no_consistency`` under the initial six-direction load test
-(theta = 0) on the shipped grasps (all power grasps: the paper's three-finger precision grasps are
-not shipped). (2) The measured net contact force on the object 2 s after initialisation on a
-three-finger grasp (077_rubiks_cube grasp 4: middle, ring and thumb, plus the palm), both ways:
-the sum of the MuJoCo contact forces ``ground_truth_contacts().f_world``. Without the constraint
-the allocation counts on force components the joints cannot produce, and a resultant remains.
+Two parts, each ``qp`` against ``qp_no_consistency``:
+
+1. ``load_test``: the initial six-direction load test (theta = 0) on the stored power grasps and
+   on the three-finger precision grasps (``objects/grasps/<hand>/precision/``), success per grasp
+   type.
+2. ``net_force``: three-finger precision grasps held without load for ``NET_FORCE_TIME`` s; then
+   the measured net contact force on the object, i.e. the sum of MuJoCo's contact forces
+   ``ground_truth_contacts().f_world`` [N]. With gravity off and no external load this resultant
+   is the object's mass times its acceleration: zero once the realised forces balance. Without
+   the constraint the allocation may count on force components the joints cannot produce, and a
+   resultant remains while the grasp rearranges. Because a grasp that has settled by 2 s shows
+   no resultant either way, each row also has the mean resultant over the window
+   (``net_force_mean_N``, one sample per control cycle) and the object's displacement over it.
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from wholehand.grasps.store import grasp_file, load_grasps
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
@@ -27,13 +35,13 @@ from wholehand.studies.base import (
 )
 
 METHODS = ("qp", "qp_no_consistency")
+GRASP_TYPES = ("power", "precision")
+"""Grasp styles of the load-test part (paper: Dexonomy types 1 and 7)."""
 NET_FORCE_COLUMNS = (
     "method", "object", "grasp", "held", "net_force_N", "net_force_x", "net_force_y",
-    "net_force_z", "normal_force_sum_N", "n_contacts_gt_end", "links_gt_end", "error",
+    "net_force_z", "net_force_mean_N", "displacement_mm", "normal_force_sum_N",
+    "n_contacts_gt_end", "links_gt_end", "error",
 )  # fmt: skip
-NET_FORCE_OBJECT = "077_rubiks_cube"
-NET_FORCE_GRASP = 4
-"""A three-finger grasp of the shipped set: middle, ring and thumb (and the palm) touch."""
 NET_FORCE_TIME = 2.0
 """When the net force is measured, after initialisation [s] (paper Fig. 5)."""
 
@@ -41,14 +49,26 @@ NET_FORCE_TIME = 2.0
 @dataclass(frozen=True)
 class ConsistencyConfig:
     objects: tuple[str, ...]
-    grasps: tuple[int, ...]
+    grasps: tuple[int, ...] | None
+    """Grasp indices per object and type; None: every stored grasp."""
+    net_force_objects: tuple[str, ...]
+    net_force_grasps: tuple[int, ...] | None
+    """Precision grasps whose net force is measured; None: every stored one."""
 
 
 CONFIGS = {
-    "full": ConsistencyConfig(PAPER_OBJECTS, tuple(range(10))),
-    "quick": ConsistencyConfig(PAPER_OBJECTS, (0, 1)),
-    "tiny": ConsistencyConfig(("077_rubiks_cube",), (0,)),
+    "full": ConsistencyConfig(PAPER_OBJECTS, None, PAPER_OBJECTS, None),
+    "quick": ConsistencyConfig(PAPER_OBJECTS, (0, 1), ("077_rubiks_cube", "065-f_cups"), (0,)),
+    "tiny": ConsistencyConfig(("077_rubiks_cube",), (0,), ("077_rubiks_cube",), (0,)),
 }
+
+
+def stored_grasps(hand: str, obj: str, style: str, wanted: tuple[int, ...] | None) -> list[int]:
+    """Indices of the stored grasps of a style that exist among ``wanted`` (None: all)."""
+    if not grasp_file(hand, obj, style).is_file():
+        return []
+    n = len(load_grasps(hand, obj, style))
+    return [g for g in (range(n) if wanted is None else wanted) if g < n]
 
 
 def net_force_row(job: TrialJob) -> dict[str, Any]:
@@ -64,11 +84,18 @@ def net_force_row(job: TrialJob) -> dict[str, Any]:
     trial = set_up_trial(spec, hand, obj)
     backend = trial.backend
     protocol = PerturbationProtocol(theta_deg=0.0, settle_time=NET_FORCE_TIME, load_duration=0.0)
+    resultants: list[float] = []
+
+    def sample(_index: int, _state: Any, _cycle: Any) -> None:
+        resultants.append(float(np.linalg.norm(backend.ground_truth_contacts().f_world.sum(0))))
+
     record = run_protocol(
-        backend, trial.controller, protocol, spec.control_rate, stop_on_loss=False
-    )
+        backend, trial.controller, protocol, spec.control_rate, stop_on_loss=False,
+        on_cycle=sample,
+    )  # fmt: skip
     gt = backend.ground_truth_contacts()
     net = gt.f_world.sum(axis=0)
+    p = record.arrays()["p_object"]
     row = record_row(record)
     row.update({
         "stages_total": 1, "stages_reached": 1,
@@ -77,6 +104,8 @@ def net_force_row(job: TrialJob) -> dict[str, Any]:
         "net_force_N": round(float(np.linalg.norm(net)), 6),
         "net_force_x": round(float(net[0]), 6), "net_force_y": round(float(net[1]), 6),
         "net_force_z": round(float(net[2]), 6),
+        "net_force_mean_N": round(float(np.mean(resultants)), 6),
+        "displacement_mm": round(float(1e3 * np.linalg.norm(p[-1] - p[0])), 6),
         "normal_force_sum_N": round(float(gt.f_normal.sum()), 6),
     })  # fmt: skip
     row["held"] = bool(record.held_throughout)
@@ -86,47 +115,91 @@ def net_force_row(job: TrialJob) -> dict[str, Any]:
 
 class ConsistencyStudy(Study):
     name = "consistency"
-    description = "qp vs qp_no_consistency: load-test success and measured net force (Sec. IV-B-1)"
+    description = (
+        "qp vs qp_no_consistency: load-test success on power and precision grasps, and the "
+        "measured net force on precision grasps (Sec. IV-B-1)"
+    )
 
     def jobs(self, size: str, seed: int) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
+        hand = TrialSpec().hand
         jobs: list[TrialJob] = []
-        for obj in cfg.objects:
-            for grasp in cfg.grasps:
+        for style in GRASP_TYPES:
+            for obj in cfg.objects:
+                for grasp in stored_grasps(hand, obj, style, cfg.grasps):
+                    for method in METHODS:
+                        spec = TrialSpec(
+                            object=obj, grasp=grasp, grasp_type=style, allocator=method,
+                            theta_deg=0.0, seed=seed, protocol_params=protocol_for(size),
+                        )  # fmt: skip
+                        labels = {"method": method, "part": "load_test"}
+                        jobs.append(TrialJob(len(jobs), spec, labels))
+        for obj in cfg.net_force_objects:
+            for grasp in stored_grasps(hand, obj, "precision", cfg.net_force_grasps):
                 for method in METHODS:
                     spec = TrialSpec(
-                        object=obj, grasp=grasp, allocator=method, theta_deg=0.0, seed=seed,
-                        protocol_params=protocol_for(size),
+                        object=obj, grasp=grasp, grasp_type="precision", allocator=method,
+                        theta_deg=0.0, seed=seed,
                     )  # fmt: skip
-                    jobs.append(TrialJob(len(jobs), spec, {"method": method, "part": "load_test"}))
-        for method in METHODS:
-            spec = TrialSpec(object=NET_FORCE_OBJECT, grasp=NET_FORCE_GRASP, allocator=method,
-                             theta_deg=0.0, seed=seed)  # fmt: skip
-            jobs.append(
-                TrialJob(len(jobs), spec, {"method": method, "part": "net_force"}, "net_force")
-            )
+                    labels = {"method": method, "part": "net_force"}
+                    jobs.append(TrialJob(len(jobs), spec, labels, "net_force"))
         return jobs
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         load = [r for r in rows if r["part"] == "load_test"]
         success = [
-            {"method": m, **success_stats(g)} for (m,), g in group_rows(load, "method").items()
+            {"grasp_type": style, "method": m, **success_stats(g)}
+            for (style, m), g in group_rows(load, "grasp_type", "method").items()
         ]
-        net = [{k: r.get(k) for k in NET_FORCE_COLUMNS} for r in rows if r["part"] == "net_force"]
-        return {"load_test": success, "net_force": net, "net_force_time_s": NET_FORCE_TIME}
+        net_rows = [r for r in rows if r["part"] == "net_force" and not r.get("error")]
+        net = []
+        for (m,), group in group_rows(net_rows, "method").items():
+            final = np.array([r["net_force_N"] for r in group], dtype=float)
+            mean = np.array([r["net_force_mean_N"] for r in group], dtype=float)
+            moved = np.array([r["displacement_mm"] for r in group], dtype=float)
+            net.append({
+                "method": m, "n_grasps": len(group),
+                "held": int(sum(bool(r["held"]) for r in group)),
+                "net_force_N_mean": float(final.mean()), "net_force_N_max": float(final.max()),
+                "net_force_window_mean_N": float(mean.mean()),
+                "displacement_mm_mean": float(moved.mean()),
+            })  # fmt: skip
+        per_grasp = [
+            {k: r.get(k) for k in NET_FORCE_COLUMNS} for r in rows if r["part"] == "net_force"
+        ]
+        return {
+            "load_test": success,
+            "net_force": net,
+            "net_force_grasps": per_grasp,
+            "net_force_time_s": NET_FORCE_TIME,
+        }
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
         import matplotlib.pyplot as plt
 
-        fig, axes = plt.subplots(1, 2, figsize=(7, 3))
+        fig, axes = plt.subplots(1, 2, figsize=(8, 3.2))
         s = summary["load_test"]
-        axes[0].bar([x["method"] for x in s], [100 * x["success"] for x in s],
-                    yerr=[100 * x["se"] for x in s], capsize=4)  # fmt: skip
+        styles = sorted({x["grasp_type"] for x in s}, key=GRASP_TYPES.index)
+        width = 0.8 / len(METHODS)
+        for i, method in enumerate(METHODS):
+            cells = {x["grasp_type"]: x for x in s if x["method"] == method}
+            xs = [j + (i - 0.5 * (len(METHODS) - 1)) * width for j in range(len(styles))]
+            axes[0].bar(
+                xs, [100 * cells[t]["success"] if t in cells else 0.0 for t in styles], width,
+                yerr=[100 * cells[t]["se"] if t in cells else 0.0 for t in styles], capsize=3,
+                label=method,
+            )  # fmt: skip
+        axes[0].set_xticks(range(len(styles)), styles)
         axes[0].set_ylabel("load-test success [%]")
         axes[0].set_ylim(0, 105)
+        axes[0].legend(fontsize=7)
         n = summary["net_force"]
-        axes[1].bar([x["method"] for x in n], [x["net_force_N"] or 0.0 for x in n])
-        axes[1].set_ylabel(f"net contact force at {NET_FORCE_TIME:g} s [N]")
+        xs = np.arange(len(n))
+        axes[1].bar(xs - 0.2, [x["net_force_N_mean"] for x in n], 0.4, label="at 2 s")
+        axes[1].bar(xs + 0.2, [x["net_force_window_mean_N"] for x in n], 0.4, label="0-2 s mean")
+        axes[1].set_xticks(xs, [x["method"] for x in n])
+        axes[1].set_ylabel("net contact force, precision [N]")
+        axes[1].legend(fontsize=7)
         for ax in axes:
             ax.tick_params(axis="x", labelsize=8)
         fig.tight_layout()

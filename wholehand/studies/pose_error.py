@@ -1,8 +1,9 @@
 """Pose-error study (paper Sec. IV-B-2, Fig. 6): success vs a constant object-pose error.
 
 The object pose given to the controller carries a constant error ``wMo_true @ T``: a rotation
-by ``rot_deg`` about a random axis and a translation by ``trans_mm`` along a random direction,
-both in the object frame (``TrialSpec.pose_error``). The simulation and the grasp-loss check keep
+by ``rot_deg`` about a random axis through the object's centre of mass and a translation by
+``trans_mm`` along a random direction, both in the object frame (``TrialSpec.pose_error``,
+:func:`~wholehand.loop.trial.pose_error_offset`). The simulation and the grasp-loss check keep
 the true pose. Methods: ``qp`` at three contact thresholds ``d_thresh`` (0.5, 1, 2 cm) and the
 ``feedforward`` baseline, whose one-off allocation uses ground-truth contacts mapped to the world
 with the perturbed pose. Only the six-direction load test runs (theta = 0). Per grasp and level

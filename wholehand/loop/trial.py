@@ -41,8 +41,10 @@ class TrialSpec:
     """Index into the stored grasps of (hand, object, grasp_type)."""
     grasp_type: str = "power"
     """Grasp style of the stored grasp file: ``power`` or e.g. ``precision``."""
-    estimator: str = "mesh_sdf"
+    estimator: str | type = "mesh_sdf"
+    """Contact-estimator plug-in: a registered name or a class."""
     allocator: str | type = "qp"
+    """Allocator plug-in: a registered name or a class."""
     theta_deg: float = 60.0
     seed: int = 0
     control_rate: float = CONTROL_RATE

@@ -1,0 +1,46 @@
+"""Every example runs in its quick mode and prints what it promises."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def _run(name: str, *args: str) -> str:
+    done = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), "--quick", *args],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout
+
+
+def test_every_example_is_tested():
+    tested = {"compare_methods.py", "tracking_noise_estimator.py", "contacts_per_link.py"}
+    assert {p.name for p in EXAMPLES.glob("*.py")} == tested
+
+
+def test_compare_methods_reports_every_method():
+    out = _run("compare_methods.py", "--object", "077_rubiks_cube")
+    for method in ("qp", "fingertip_only", "feedforward", "impedance"):
+        assert f"\n{method} " in out
+
+
+def test_tracking_noise_estimator_runs_four_noise_levels():
+    out = _run("tracking_noise_estimator.py")
+    rows = [line for line in out.splitlines()[2:] if line.strip()]
+    assert len(rows) == 4 and all(r.split()[2] in ("yes", "no") for r in rows)
+
+
+@pytest.mark.parametrize("grasp_type", ["power", "precision"])
+def test_contacts_per_link_lists_links_and_writes_html(tmp_path, grasp_type):
+    html = tmp_path / "run.html"
+    out = _run("contacts_per_link.py", "--grasp-type", grasp_type, "--html", str(html))
+    assert "fingertip" in out and html.stat().st_size > 10_000
+    if grasp_type == "power":
+        assert "palm_link" in out  # a power grasp of the cube rests on the palm

@@ -73,8 +73,8 @@ def pose_error_offset(
     (the controller then sees the true pose, unchanged).
 
     Rotating about the centre of mass rather than the mesh origin keeps the error's effect
-    independent of where a mesh file happens to put its origin (YCB scans put it up to 7 cm
-    from the object).
+    independent of where a mesh file happens to put its origin (YCB scans put it up to 8 cm
+    from the centre of mass).
 
     Raises:
         ConfigError: unknown keys or negative / non-finite magnitudes.

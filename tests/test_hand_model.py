@@ -239,9 +239,9 @@ def test_grasp_styles_are_parsed_and_checked(tmp_path):
     styles = load_hand(folder).config.grasp_styles
     assert set(styles) == {"power", "precision"}
     power, precision = styles["power"], styles["precision"]
-    assert power.close_torque == {"j1": 0.1} and not power.palm_free
+    assert power.close_torque == {"j1": 0.1} and power.fingers == ()
     assert precision.preshape == {"j1": 0.2} and precision.fingers == ("one",)
-    assert precision.palm_gap == (0.01, 0.02) and precision.palm_free
+    assert precision.palm_gap == (0.01, 0.02)
 
 
 @pytest.mark.parametrize(

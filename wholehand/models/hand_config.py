@@ -72,11 +72,6 @@ class GraspStyle:
     palm_gap: tuple[float, float] = POWER_GAP
     """Range of the gap between the object and the palm face at placement [m]."""
 
-    @property
-    def palm_free(self) -> bool:
-        """True when the palm must not touch the object (a style that names its fingers)."""
-        return bool(self.fingers)
-
 
 @dataclass(frozen=True)
 class HandConfig:

@@ -6,6 +6,8 @@ import argparse
 import csv
 import json
 import operator
+import os
+import signal
 
 import numpy as np
 import pytest
@@ -264,6 +266,27 @@ def test_interrupted_run_writes_a_balanced_partial_result(tmp_path, monkeypatch,
     order = execution_order(get_study("k-sweep").jobs("full", 0))
     first_repeat_1 = [j.labels["repeat"] for j in order].index(1)
     assert first_repeat_1 == len(order) // 5  # every (object, grasp, theta, K) once first
+
+
+def test_sigterm_ends_a_run_like_ctrl_c(tmp_path, monkeypatch, capsys):
+    """SIGTERM (a scheduler stopping the job) writes the finished rows and says how to go on;
+    the previous SIGTERM handler is back afterwards."""
+    ran: list[int] = []
+
+    def fake_trial(job):
+        if len(ran) == 3:
+            os.kill(os.getpid(), signal.SIGTERM)
+        ran.append(job.index)
+        return {"held": True, "stages_total": 1, "failure_stage": "", "error": "", "cycles": 1}
+
+    monkeypatch.setitem(runner.JOB_KINDS, "trial", fake_trial)
+    monkeypatch.setattr(runner, "_warm_caches", lambda jobs: None)
+    before = signal.getsignal(signal.SIGTERM)
+    result = run_study(get_study("perturbation"), "full", tmp_path, executor="serial",
+                       progress=False)  # fmt: skip
+    assert result.interrupted and len(read_csv(result.csv_path)) == 3
+    assert "--resume" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGTERM) is before
 
 
 def test_resume_from_trials_csv_of_an_older_version(tmp_path, tiny_fresh):

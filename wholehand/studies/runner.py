@@ -15,6 +15,7 @@ time. A run that ends with trials missing still writes its outputs, marked ``"co
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
@@ -23,9 +24,11 @@ import math
 import os
 import re
 import shlex
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -422,6 +425,25 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """While the block runs, SIGTERM (a batch scheduler's stop, ``timeout``, ``kill``) raises
+    ``KeyboardInterrupt`` like Ctrl-C, so the finished rows are written and the run can be
+    resumed. Only the main thread can set signal handlers; elsewhere nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def continue_command(study: Study, folder: Path, size: str, seed: int) -> str:
     """The command line that continues a study run in ``folder``."""
     words = ["wholehand", "study", study.name, "--out", str(folder), "--resume"]
@@ -516,16 +538,17 @@ def run_study(
     try:
         if todo:
             _warm_caches(todo)
-            execute(
-                todo,
-                run_job,
-                executor=executor,
-                workers=workers,
-                progress=progress,
-                desc=f"study {study.name}",
-                address=address,
-                on_result=finished,
-            )
+            with _terminate_as_interrupt():
+                execute(
+                    todo,
+                    run_job,
+                    executor=executor,
+                    workers=workers,
+                    progress=progress,
+                    desc=f"study {study.name}",
+                    address=address,
+                    on_result=finished,
+                )
     except KeyboardInterrupt:
         interrupted = True
         print(f"\nstudy {study.name}: interrupted; writing the finished rows", file=sys.stderr)

@@ -34,6 +34,14 @@ def test_run_prints_stages_and_timings(capsys):
     assert summary["timing"]["qp_p50_us"] > 0
 
 
+def test_run_takes_grasp_type_and_backend_options(capsys):
+    argv = ["run", "--theta", "0", "--json", "--grasp-type", "precision", "--no-self-collision"]
+    assert main(argv) == 0
+    spec = json.loads(capsys.readouterr().out)["spec"]
+    assert spec["grasp_type"] == "precision"
+    assert spec["backend_params"] == {"self_collision": False}
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

@@ -154,3 +154,24 @@ def test_bad_observations_keep_the_last_torque(allegro, cube):
         assert len(result.contacts) == 0
     assert controller.bad_states == 3 and "wMb" in controller.last_fault
     assert controller.step(good).allocation.ok  # and it recovers
+
+
+def test_backend_params_reach_the_backend():
+    """``TrialSpec.backend_params`` configure the MuJoCo scene: without self-collision no hand
+    geom collides with another hand geom; an unknown option is named."""
+    from wholehand.backends.mujoco_scene import HAND_BIT
+    from wholehand.errors import ConfigError
+    from wholehand.loop.trial import set_up_trial
+
+    spec = TrialSpec(theta_deg=0.0)
+    with_self = set_up_trial(spec).backend
+    without = set_up_trial(
+        TrialSpec(theta_deg=0.0, backend_params={"self_collision": False})
+    ).backend
+    hand_geoms = with_self.model.geom_contype == HAND_BIT
+    assert np.all(with_self.model.geom_conaffinity[hand_geoms] & HAND_BIT)
+    assert not np.any(
+        without.model.geom_conaffinity[without.model.geom_contype == HAND_BIT] & HAND_BIT
+    )
+    with pytest.raises(ConfigError, match="unknown options \\['colour'\\]"):
+        set_up_trial(TrialSpec(theta_deg=0.0, backend_params={"colour": 1}))

@@ -35,6 +35,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--d-thresh", type=float, default=None, help="contact threshold [m] (default 0.01)"
     )
     p.add_argument("--gravity", action="store_true", help="turn gravity on (off in the paper)")
+    p.add_argument(
+        "--no-self-collision",
+        action="store_true",
+        help="MuJoCo: hand links do not collide with each other (they do by default)",
+    )
     p.add_argument("--save", default=None, help="write the run record (.npz) here")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument(
@@ -64,6 +69,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         control_rate=args.rate,
         gravity=args.gravity,
         estimator_params=est_params,
+        backend_params={"self_collision": False} if args.no_self_collision else {},
     )
     on_cycle = live_view_callback(spec, args.view_every) if args.view else None
     record = run_trial(spec, on_cycle=on_cycle)

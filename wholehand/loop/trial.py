@@ -52,6 +52,9 @@ class TrialSpec:
     backend: str = "mujoco"
     estimator_params: dict[str, Any] = field(default_factory=dict)
     allocator_params: dict[str, Any] = field(default_factory=dict)
+    backend_params: dict[str, Any] = field(default_factory=dict)
+    """Keyword options of the backend, e.g. ``{"self_collision": False}`` for ``mujoco``
+    (:class:`~wholehand.backends.mujoco_scene.SceneOptions`)."""
     protocol_params: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`PerturbationProtocol` fields (e.g. shorter stages for tests)."""
     pose_error: dict[str, Any] = field(default_factory=dict)
@@ -136,6 +139,7 @@ def set_up_trial(
         q_init=grasp.q_array(hand),
         wMo_init=grasp.object_pose(hand.wMb),
         gravity=spec.gravity,
+        **spec.backend_params,
     )
     estimator = registry.load(
         "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params

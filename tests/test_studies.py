@@ -303,6 +303,19 @@ def test_resume_from_trials_csv_of_an_older_version(tmp_path, tiny_fresh):
     assert len(_journal_lines(tmp_path)) == 4  # the reused rows are journaled too
 
 
+def test_resume_from_trials_csv_mixing_older_and_newer_rows(tmp_path, tiny_fresh):
+    """Older rows (without kind and pose_error) and newer rows in one trials.csv: the older
+    ones get empty cells in the newer columns, and still match."""
+    old = [{k: v for k, v in r.items() if k not in ("kind", "pose_error")} for r in tiny_fresh.rows]
+    write_csv([*old[:2], *tiny_fresh.rows[2:]], tmp_path / "trials.csv")
+    assert read_csv(tmp_path / "trials.csv")[0]["pose_error"] == ""
+    result = run_study(
+        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
+        resume=True, limit=0,
+    )  # fmt: skip
+    assert result.complete and result.summary["n_reused"] == 4
+
+
 def test_resume_reruns_trials_that_raised_and_keeps_diverged_ones(tmp_path, tiny_fresh):
     rows = [dict(r) for r in tiny_fresh.rows]
     outcome = set(rows[1]) - set(runner.SPEC_COLUMNS) - {"index", "kind", "method", "repeat"}

@@ -346,8 +346,9 @@ def match_rows(jobs: Sequence[TrialJob], rows: Iterable[dict[str, Any]]) -> Matc
     """Give each job the finished row of the same content (:func:`job_key`), whatever index the
     row had: rows of a narrower design with the same seeds fill the matching jobs of a wider
     one. Rows of trials that raised (:func:`failed_to_run`) are not used; later rows win. A spec
-    column a row lacks altogether (written before the field existed) counts as the field's
-    default."""
+    column a row lacks, or holds empty (written before the field existed: such a row read back
+    from a ``trials.csv`` that also holds newer rows has an empty cell there), counts as the
+    field's default; no spec field has the empty string as a valid value."""
     by_key: dict[str, list[int]] = {}
     for job in jobs:
         by_key.setdefault(job_key(job), []).append(job.index)
@@ -359,12 +360,12 @@ def match_rows(jobs: Sequence[TrialJob], rows: Iterable[dict[str, Any]]) -> Matc
         if failed_to_run(row):
             n_failed += 1
             continue
-        spec = [row.get(c, default[c]) for c in SPEC_COLUMNS]
+        spec = [default[c] if row.get(c) in (None, "") else row[c] for c in SPEC_COLUMNS]
         hits: list[int] = []
         for names in label_sets:
             if all(n in row for n in names):
                 labels = {n: row[n] for n in names}
-                hits += by_key.get(_key(row.get("kind", "trial"), labels, spec), [])
+                hits += by_key.get(_key(row.get("kind") or "trial", labels, spec), [])
         if not hits:
             n_ignored += 1
         for index in hits:

@@ -104,6 +104,16 @@ def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     }
 
 
+def trials_label(summary: dict[str, Any]) -> str:
+    """``"<size>, N trials"``, or ``"<size>, N of M trials"`` for a partial run."""
+    n, planned = summary["n_trials"], summary.get("n_planned", summary["n_trials"])
+    return (
+        f"{summary['size']}, {n} trials"
+        if n == planned
+        else f"{summary['size']}, {n} of {planned} trials"
+    )
+
+
 def save_success_figure(fig: Any, ax: Any, path: Path, title: str | None = None) -> None:
     """Finish a success-rate plot (axis label and range, title, legend) and write it as PNG."""
     import matplotlib.pyplot as plt

@@ -23,6 +23,7 @@ from wholehand.studies.base import (
     protocol_for,
     save_success_figure,
     success_stats,
+    trials_label,
 )
 
 
@@ -94,5 +95,5 @@ class PerturbationStudy(Study):
             ax.plot(theta, rate, marker="o", label=method)
             ax.fill_between(theta, rate - se, rate + se, alpha=0.2)
         ax.set_xlabel("rotation of the pull [deg]")
-        title = f"perturbation ({summary['size']}, {summary['n_trials']} trials)"
+        title = f"perturbation ({trials_label(summary)})"
         save_success_figure(fig, ax, path, title)

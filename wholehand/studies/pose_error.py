@@ -28,6 +28,7 @@ from wholehand.studies.base import (
     protocol_for,
     save_success_figure,
     success_stats,
+    trials_label,
 )
 
 LEVELS: tuple[tuple[float, float], ...] = ((0.0, 0.0), (10.0, 5 / 3), (20.0, 10 / 3), (30.0, 5.0))
@@ -129,5 +130,5 @@ class PoseErrorStudy(Study):
             )
         ax.set_xticks(list(ticks), list(ticks.values()), fontsize=8)
         ax.set_xlabel("object pose error (rotation, translation)")
-        title = f"pose error ({summary['size']}, {summary['n_trials']} trials)"
+        title = f"pose error ({trials_label(summary)})"
         save_success_figure(fig, ax, path, title)

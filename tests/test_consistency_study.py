@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wholehand.grasps.store import load_grasps
+from wholehand.grasps.store import load_grasps, stored_grasp_indices
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies import get_study, run_study
-from wholehand.studies.consistency import METHODS, stored_grasps
+from wholehand.studies.consistency import METHODS
 
 
 def _stored(style: str) -> int:
-    return sum(len(stored_grasps("allegro_right", o, style, None)) for o in PAPER_OBJECTS)
+    return sum(len(stored_grasp_indices("allegro_right", o, style, None)) for o in PAPER_OBJECTS)
 
 
 def test_full_design_covers_every_stored_power_and_precision_grasp():
@@ -34,11 +34,11 @@ def test_full_design_covers_every_stored_power_and_precision_grasp():
     assert all(j.spec.theta_deg == 0.0 for j in jobs)
 
 
-def test_stored_grasps_keeps_existing_indices_only():
+def test_stored_grasp_indices_keeps_existing_indices_only():
     n = len(load_grasps("allegro_right", "065-f_cups", "precision"))
-    assert stored_grasps("allegro_right", "065-f_cups", "precision", None) == list(range(n))
-    assert stored_grasps("allegro_right", "065-f_cups", "precision", (0, n, n + 5)) == [0]
-    assert stored_grasps("allegro_right", "no_object", "precision", None) == []
+    assert stored_grasp_indices("allegro_right", "065-f_cups", "precision", None) == list(range(n))
+    assert stored_grasp_indices("allegro_right", "065-f_cups", "precision", (0, n, n + 5)) == [0]
+    assert stored_grasp_indices("allegro_right", "no_object", "precision", None) == []
 
 
 def test_tiny_consistency_study_measures_both_grasp_types(tmp_path):

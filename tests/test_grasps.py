@@ -9,7 +9,14 @@ import pytest
 
 from wholehand.errors import ConfigError
 from wholehand.grasps.generate import generate_grasps
-from wholehand.grasps.store import FORMAT, Grasp, load_grasps, save_grasps
+from wholehand.grasps.store import (
+    FORMAT,
+    Grasp,
+    grasp_file,
+    load_grasps,
+    objects_with_grasps,
+    save_grasps,
+)
 from wholehand.models.objects import PAPER_OBJECTS, load_object
 
 
@@ -101,3 +108,11 @@ def test_unknown_grasp_style_names_the_defined_ones(allegro):
         generate_grasps(allegro, load_object("077_rubiks_cube"), count=1, style="lateral")
     with pytest.raises(ConfigError, match="no grasp file.*precision"):
         load_grasps("allegro_right", "no_object", "precision")
+
+
+def test_objects_with_grasps_lists_the_shipped_files():
+    power = objects_with_grasps("allegro_right")
+    assert power == sorted(power) and set(PAPER_OBJECTS) <= set(power)
+    assert all(grasp_file("allegro_right", name).is_file() for name in power)
+    assert objects_with_grasps("allegro_right", "precision") == sorted(PAPER_OBJECTS)
+    assert objects_with_grasps("no_hand") == []

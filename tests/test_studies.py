@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from wholehand.errors import ConfigError
+from wholehand.grasps.store import load_grasps, objects_with_grasps
 from wholehand.loop.record import STATUS_CODES, RunRecord
+from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies import STUDIES, TIMING_COLUMNS, get_study, run_study, runner
 from wholehand.studies.base import derive_seed, success_stats
 from wholehand.studies.executors import execute
@@ -47,7 +49,12 @@ def test_full_designs_match_the_paper():
     per_k = {k: sum(j.labels["k"] == k for j in ks) for k in (1, 3, 5, 7)}
     assert per_k == {1: 750, 3: 750, 5: 750, 7: 750}  # paper Fig. 7: 750 attempts per K
     assert {j.spec.estimator_params["k"] for j in ks} == {1, 3, 5, 7}
-    assert len(get_study("contacts").jobs("full", seed=0)) == 50 * 4
+    contacts = get_study("contacts").jobs("full", seed=0)
+    # Every object with shipped power grasps, every stored grasp, the four methods.
+    objects = objects_with_grasps("allegro_right")
+    n_grasps = sum(len(load_grasps("allegro_right", o)) for o in objects)
+    assert set(PAPER_OBJECTS) <= {j.spec.object for j in contacts} == set(objects)
+    assert len(contacts) == 4 * n_grasps
     assert [j.index for j in pert] == list(range(len(pert)))
 
 

@@ -157,6 +157,12 @@ def _shipped_path(name: str, key: str, folder: Path | None = None) -> Path:
     return (folder or shipped_dir()) / f"{name}-{key[:16]}.npz"
 
 
+def shipped_decomposition_file(name: str, mesh: trimesh.Trimesh, **params: Any) -> Path:
+    """Where the shipped decomposition of ``mesh`` (named ``name``) with these CoACD parameters
+    is, or would be; it is used only if it exists (it is never computed here)."""
+    return _shipped_path(name, decomposition_key(mesh, _params(params)))
+
+
 def _run_coacd(
     mesh: trimesh.Trimesh, params: dict[str, Any]
 ) -> list[tuple[np.ndarray, np.ndarray]]:

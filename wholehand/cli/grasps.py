@@ -18,7 +18,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "([grasping.precision])",
     )
     p.add_argument(
-        "--object", action="append", help="object name (repeatable); default: the paper's five"
+        "--object",
+        action="append",
+        help="object name (repeatable), or 'all' for every YCB mesh; default: the paper's five",
     )
     p.add_argument("--count", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
@@ -32,18 +34,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
+    from wholehand.backends.convex import ship_decompositions
     from wholehand.grasps.generate import generate_grasps
     from wholehand.grasps.store import grasp_file, save_grasps
     from wholehand.models.hand import load_hand
-    from wholehand.models.objects import PAPER_OBJECTS, load_object
+    from wholehand.models.objects import PAPER_OBJECTS, available_objects, load_object
 
     hand = load_hand(args.hand)
-    for name in args.object or PAPER_OBJECTS:
+    ycb = available_objects()
+    names = args.object or list(PAPER_OBJECTS)
+    if "all" in names:
+        names = ycb
+    without: list[str] = []
+    for name in names:
         obj = load_object(name)
         grasps, info = generate_grasps(
             hand, obj, args.count, args.seed, args.max_candidates, progress=True, style=args.type
         )
         if not grasps:
+            without.append(obj.name)
             print(
                 f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
                 "nothing written (raise --max-candidates or adjust the style in hand.toml)"
@@ -52,9 +61,17 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         default = grasp_file(hand.name, obj.name, args.type)
         path = Path(args.out) / default.name if args.out else default
         path = save_grasps(path, hand.name, obj.name, grasps, info)
+        if not args.out and obj.name in ycb:
+            # A shipped grasp was made on this decomposition: ship it, so that MuJoCo
+            # reproduces the grasp without running CoACD again (cached, so no extra cost here).
+            ship_decompositions([obj.name])
         print(
             f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates -> {path}"
         )
+    if len(names) > 1:
+        print(f"{len(names) - len(without)} of {len(names)} objects yield {args.type} grasps")
+        if without:
+            print(f"none for: {', '.join(without)}")
     return 0
 
 

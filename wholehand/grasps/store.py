@@ -88,6 +88,23 @@ def shipped_grasp_files() -> list[Path]:
     return sorted([*root.glob("*/*.json"), *root.glob("*/*/*.json")])
 
 
+def objects_with_grasps(hand: str, style: str = "power") -> list[str]:
+    """Names of the objects that have a shipped grasp file of ``hand`` and ``style``, sorted."""
+    folder = grasp_file(hand, "_", style).parent
+    return sorted(p.stem for p in folder.glob("*.json"))
+
+
+def stored_grasp_indices(
+    hand: str, obj: str, style: str = "power", wanted: tuple[int, ...] | None = None
+) -> list[int]:
+    """Indices of the shipped grasps of ``(hand, obj, style)`` among ``wanted`` (None: all);
+    empty when there is no such file."""
+    if not grasp_file(hand, obj, style).is_file():
+        return []
+    n = len(load_grasps(hand, obj, style))
+    return [g for g in (range(n) if wanted is None else wanted) if g < n]
+
+
 def load_grasps(
     path_or_hand: str | Path, obj: str | None = None, style: str = "power"
 ) -> list[Grasp]:

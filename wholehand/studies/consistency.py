@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from wholehand.grasps.store import grasp_file, load_grasps
+from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
@@ -61,14 +61,6 @@ CONFIGS = {
     "quick": ConsistencyConfig(PAPER_OBJECTS, (0, 1), ("077_rubiks_cube", "065-f_cups"), (0,)),
     "tiny": ConsistencyConfig(("077_rubiks_cube",), (0,), ("077_rubiks_cube",), (0,)),
 }
-
-
-def stored_grasps(hand: str, obj: str, style: str, wanted: tuple[int, ...] | None) -> list[int]:
-    """Indices of the stored grasps of a style that exist among ``wanted`` (None: all)."""
-    if not grasp_file(hand, obj, style).is_file():
-        return []
-    n = len(load_grasps(hand, obj, style))
-    return [g for g in (range(n) if wanted is None else wanted) if g < n]
 
 
 def net_force_row(job: TrialJob) -> dict[str, Any]:
@@ -125,7 +117,7 @@ class ConsistencyStudy(Study):
         jobs: list[TrialJob] = []
         for style in GRASP_TYPES:
             for obj in cfg.objects:
-                for grasp in stored_grasps(hand, obj, style, cfg.grasps):
+                for grasp in stored_grasp_indices(hand, obj, style, cfg.grasps):
                     for method in METHODS:
                         spec = TrialSpec(
                             object=obj, grasp=grasp, grasp_type=style, allocator=method,
@@ -134,7 +126,7 @@ class ConsistencyStudy(Study):
                         labels = {"method": method, "part": "load_test"}
                         jobs.append(TrialJob(len(jobs), spec, labels))
         for obj in cfg.net_force_objects:
-            for grasp in stored_grasps(hand, obj, "precision", cfg.net_force_grasps):
+            for grasp in stored_grasp_indices(hand, obj, "precision", cfg.net_force_grasps):
                 for method in METHODS:
                     spec = TrialSpec(
                         object=obj, grasp=grasp, grasp_type="precision", allocator=method,

@@ -2,7 +2,9 @@
 
 Every grasp runs the initial six-direction load test (theta = 0) with each method; trials are
 binned by the number of MuJoCo contacts at initialisation, N_c^gt (the contacts the baselines
-allocate over; ours uses only its own estimate), with the last bin open (>= ``open_bin``).
+allocate over; ours uses only its own estimate), with the last bin open (>= ``OPEN_BIN``).
+The full design runs every stored grasp of every object with shipped power grasps of the hand:
+``wholehand grasps generate --object all`` makes them for each YCB mesh that yields one.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from wholehand.grasps.store import objects_with_grasps, stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
@@ -26,15 +29,20 @@ OPEN_BIN = 10
 """Contact counts at or above this share one bin (the paper's ">= 10")."""
 
 
+HAND = "allegro_right"
+
+
 @dataclass(frozen=True)
 class ContactsConfig:
-    objects: tuple[str, ...]
-    grasps: tuple[int, ...]
+    objects: tuple[str, ...] | None
+    """Objects; None: every object with shipped power grasps of :data:`HAND`."""
+    grasps: tuple[int, ...] | None
+    """Grasp indices per object (those stored); None: every stored grasp."""
     methods: tuple[str, ...] = METHODS
 
 
 CONFIGS = {
-    "full": ContactsConfig(PAPER_OBJECTS, tuple(range(10))),
+    "full": ContactsConfig(None, None),
     "quick": ContactsConfig(PAPER_OBJECTS, (0, 1, 2)),
     "tiny": ContactsConfig(("077_rubiks_cube",), (0, 4), ("qp", "feedforward")),
 }
@@ -54,13 +62,14 @@ class ContactsStudy(Study):
 
     def jobs(self, size: str, seed: int) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
+        objects = objects_with_grasps(HAND) if cfg.objects is None else cfg.objects
         jobs: list[TrialJob] = []
-        for obj in cfg.objects:
-            for grasp in cfg.grasps:
+        for obj in objects:
+            for grasp in stored_grasp_indices(HAND, obj, "power", cfg.grasps):
                 for method in cfg.methods:
                     spec = TrialSpec(
-                        object=obj, grasp=grasp, allocator=method, theta_deg=0.0, seed=seed,
-                        protocol_params=protocol_for(size),
+                        hand=HAND, object=obj, grasp=grasp, allocator=method, theta_deg=0.0,
+                        seed=seed, protocol_params=protocol_for(size),
                     )  # fmt: skip
                     jobs.append(TrialJob(len(jobs), spec, {"method": method}))
         return jobs

@@ -182,6 +182,11 @@ def test_success_stats_leave_out_errored_and_diverged_trials():
     stats = success_stats(rows)
     assert stats["success"] == pytest.approx(0.75)  # grasp 0: 1/2, grasp 1: 1/1
     assert stats["n_trials"] == 3 and stats["n_excluded"] == 1
+    # Diverged counted as lost: grasp 1 holds 1 of 2; a trial that raised stays out.
+    raised = {**row, "grasp": 2, "error": "ValueError: bad spec"}
+    stats = success_stats([*rows, raised])
+    assert stats["success_diverged_lost"] == pytest.approx(0.5)
+    assert (stats["n_diverged"], stats["n_excluded"], stats["n_grasps"]) == (1, 2, 2)
 
 
 # --- Long runs: journal, resume, limit, partial outputs ---------------------------------------

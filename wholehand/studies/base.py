@@ -8,9 +8,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from wholehand.errors import ConfigError
 from wholehand.loop.trial import TrialSpec
+
+FloatArray = npt.NDArray[np.float64]
 
 SIZES = ("tiny", "quick", "full")
 """Study sizes: ``full`` is the paper's design; ``quick`` a < 2 min subset on 2 cores;
@@ -80,27 +83,41 @@ class Study(abc.ABC):
         return size
 
 
+DIVERGED_PREFIX = "simulation diverged"
+"""Start of the ``error`` of a row whose MuJoCo simulation diverged (the trial itself ran)."""
+
+
+def _grasp_rates(rows: list[dict[str, Any]], held: Any) -> FloatArray:
+    per_grasp: dict[tuple[str, str, str, int], list[bool]] = {}
+    for r in rows:
+        key = (r["hand"], r["object"], r.get("grasp_type", "power"), int(r["grasp"]))
+        per_grasp.setdefault(key, []).append(held(r))
+    return np.array([np.mean(v) for v in per_grasp.values()], dtype=float)
+
+
 def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     """Success rate over grasps: the mean of grasp-level rates, +- 1 standard error across them.
 
     A grasp is one (hand, object, grasp type, grasp) entry; its rate is the fraction of its
     trials held.
     Rows with an ``error`` (the trial raised, or its simulation diverged) say nothing about the
-    controller: they are left out and counted in ``n_excluded``.
+    controller: they are left out and counted in ``n_excluded``. Because divergence is not
+    independent of the method, ``success_diverged_lost`` is the same rate with diverged trials
+    counted as lost (trials that raised are still left out); ``n_diverged`` counts them.
     """
     valid = [r for r in rows if not r.get("error")]  # failed or diverged runs are excluded
-    per_grasp: dict[tuple[str, str, str, int], list[bool]] = {}
-    for r in valid:
-        key = (r["hand"], r["object"], r.get("grasp_type", "power"), int(r["grasp"]))
-        per_grasp.setdefault(key, []).append(bool(r["held"]))
-    rates = np.array([np.mean(v) for v in per_grasp.values()], dtype=float)
+    diverged = [r for r in rows if str(r.get("error") or "").startswith(DIVERGED_PREFIX)]
+    rates = _grasp_rates(valid, lambda r: bool(r["held"]))
+    rates_lost = _grasp_rates(valid + diverged, lambda r: not r.get("error") and bool(r["held"]))
     n = int(rates.size)
     return {
         "success": float(rates.mean()) if n else float("nan"),
         "se": float(rates.std(ddof=1) / np.sqrt(n)) if n > 1 else 0.0,
+        "success_diverged_lost": float(rates_lost.mean()) if rates_lost.size else float("nan"),
         "n_grasps": n,
         "n_trials": len(valid),
         "n_excluded": len(rows) - len(valid),
+        "n_diverged": len(diverged),
     }
 
 

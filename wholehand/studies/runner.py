@@ -40,7 +40,7 @@ from wholehand.allocation.base import AllocationStatus
 from wholehand.errors import ConfigError
 from wholehand.loop.record import STATUS_CODES, RunRecord
 from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.studies.base import Study, TrialJob
+from wholehand.studies.base import DIVERGED_PREFIX, Study, TrialJob
 from wholehand.studies.executors import execute
 
 log = logging.getLogger(__name__)
@@ -135,7 +135,7 @@ def record_row(record: RunRecord) -> dict[str, Any]:
 def _simulation_error(record: RunRecord) -> str:
     """Why a trial says nothing about the controller ("" if it does): the simulation diverged."""
     diverged = record.meta.get("sim_warnings", {}).get("bad_qacc", 0)
-    return f"simulation diverged (MuJoCo bad_qacc x{diverged})" if diverged else ""
+    return f"{DIVERGED_PREFIX} (MuJoCo bad_qacc x{diverged})" if diverged else ""
 
 
 def _trial(job: TrialJob) -> dict[str, Any]:

@@ -116,3 +116,29 @@ def test_objects_with_grasps_lists_the_shipped_files():
     assert all(grasp_file("allegro_right", name).is_file() for name in power)
     assert objects_with_grasps("allegro_right", "precision") == sorted(PAPER_OBJECTS)
     assert objects_with_grasps("no_hand") == []
+
+
+def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
+    tmp_path, monkeypatch, capsys
+):
+    """``--object all`` runs the generator once per YCB mesh, writes the files that have grasps
+    to --out (never the shipped folder then) and names the objects that yield none."""
+    import wholehand.grasps.generate as generate
+    import wholehand.models.objects as objects
+    from wholehand.cli.main import main
+
+    names = ["077_rubiks_cube", "065-f_cups"]
+    monkeypatch.setattr(objects, "available_objects", lambda: names)
+    seen: list[str] = []
+
+    def fake(hand, obj, count, seed, max_candidates, progress, style):
+        seen.append(obj.name)
+        found = [Grasp(0, np.eye(4), dict.fromkeys(hand.joint_names, 0.0))]
+        return (found if obj.name == names[0] else []), {"candidates_tried": 3, "seed": seed}
+
+    monkeypatch.setattr(generate, "generate_grasps", fake)
+    assert main(["grasps", "generate", "--object", "all", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert seen == names
+    assert [p.name for p in tmp_path.iterdir()] == ["077_rubiks_cube.json"]
+    assert "1 of 2 objects yield power grasps" in out and "none for: 065-f_cups" in out

@@ -78,8 +78,12 @@ def grasps_dir() -> Path:
 def grasp_file(hand: str, obj: str, style: str = "power") -> Path:
     """The shipped file of a hand's grasps of an object: ``<hand>/<object>.json`` for power
     grasps, ``<hand>/<style>/<object>.json`` for another grasp style (e.g. ``precision``)."""
+    return _style_dir(hand, style) / f"{obj}.json"
+
+
+def _style_dir(hand: str, style: str) -> Path:
     folder = grasps_dir() / hand
-    return (folder if style == "power" else folder / style) / f"{obj}.json"
+    return folder if style == "power" else folder / style
 
 
 def shipped_grasp_files() -> list[Path]:
@@ -90,8 +94,7 @@ def shipped_grasp_files() -> list[Path]:
 
 def objects_with_grasps(hand: str, style: str = "power") -> list[str]:
     """Names of the objects that have a shipped grasp file of ``hand`` and ``style``, sorted."""
-    folder = grasp_file(hand, "_", style).parent
-    return sorted(p.stem for p in folder.glob("*.json"))
+    return sorted(p.stem for p in _style_dir(hand, style).glob("*.json"))
 
 
 def stored_grasp_indices(

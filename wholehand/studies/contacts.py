@@ -30,6 +30,7 @@ OPEN_BIN = 10
 
 
 HAND = "allegro_right"
+"""The hand whose shipped grasps the study runs."""
 
 
 @dataclass(frozen=True)

@@ -301,24 +301,27 @@ def test_sigterm_ends_a_run_like_ctrl_c(tmp_path, monkeypatch, capsys):
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+OLDER_COLUMNS = ("kind", "pose_error", "grasp_type")
+"""Columns that rows of older versions lack."""
+
+
 def test_resume_from_trials_csv_of_an_older_version(tmp_path, tiny_fresh):
     """A folder holding only trials.csv, without the columns newer versions added, continues."""
-    old = [{k: v for k, v in r.items() if k not in ("kind", "pose_error")} for r in tiny_fresh.rows]
+    old = [{k: v for k, v in r.items() if k not in OLDER_COLUMNS} for r in tiny_fresh.rows]
     write_csv(old, tmp_path / "trials.csv")
     result = run_study(
         get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
         resume=True, limit=0,
     )  # fmt: skip
     assert result.complete and result.summary["n_reused"] == 4
-    restore = lambda rows: [{**r, "kind": "trial", "pose_error": "{}"} for r in rows]  # noqa: E731
-    assert _strip(restore(result.rows)) == _strip(restore(tiny_fresh.rows))
+    assert _strip(result.rows) == _strip(tiny_fresh.rows)  # the missing cells read as defaults
     assert len(_journal_lines(tmp_path)) == 4  # the reused rows are journaled too
 
 
 def test_resume_from_trials_csv_mixing_older_and_newer_rows(tmp_path, tiny_fresh):
-    """Older rows (without kind and pose_error) and newer rows in one trials.csv: the older
-    ones get empty cells in the newer columns, and still match."""
-    old = [{k: v for k, v in r.items() if k not in ("kind", "pose_error")} for r in tiny_fresh.rows]
+    """Older rows (without the OLDER_COLUMNS) and newer rows in one trials.csv: the older ones
+    get empty cells in the newer columns, and still match."""
+    old = [{k: v for k, v in r.items() if k not in OLDER_COLUMNS} for r in tiny_fresh.rows]
     write_csv([*old[:2], *tiny_fresh.rows[2:]], tmp_path / "trials.csv")
     assert read_csv(tmp_path / "trials.csv")[0]["pose_error"] == ""
     result = run_study(
@@ -326,6 +329,9 @@ def test_resume_from_trials_csv_mixing_older_and_newer_rows(tmp_path, tiny_fresh
         resume=True, limit=0,
     )  # fmt: skip
     assert result.complete and result.summary["n_reused"] == 4
+    # The empty cells are filled, so every trial counts for its own grasp in the summary.
+    assert _strip(result.rows) == _strip(tiny_fresh.rows)
+    assert result.summary["groups"] == tiny_fresh.summary["groups"]
 
 
 def test_resume_reruns_trials_that_raised_and_keeps_diverged_ones(tmp_path, tiny_fresh):

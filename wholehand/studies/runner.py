@@ -348,10 +348,12 @@ def match_rows(jobs: Sequence[TrialJob], rows: Iterable[dict[str, Any]]) -> Matc
     one. Rows of trials that raised (:func:`failed_to_run`) are not used; later rows win. A spec
     column a row lacks, or holds empty (written before the field existed: such a row read back
     from a ``trials.csv`` that also holds newer rows has an empty cell there), counts as the
-    field's default; no spec field has the empty string as a valid value."""
+    field's default; no spec field has the empty string as a valid value. A matched row gets
+    the job's kind and spec cells, so rows of older versions read back like new ones."""
     by_key: dict[str, list[int]] = {}
     for job in jobs:
         by_key.setdefault(job_key(job), []).append(job.index)
+    jobs_by_index = {job.index: job for job in jobs}
     label_sets = list(dict.fromkeys(tuple(job.labels) for job in jobs))
     default = spec_columns(TrialSpec())  # for spec fields a row predates (older versions)
     matched: dict[int, dict[str, Any]] = {}
@@ -369,7 +371,8 @@ def match_rows(jobs: Sequence[TrialJob], rows: Iterable[dict[str, Any]]) -> Matc
         if not hits:
             n_ignored += 1
         for index in hits:
-            matched[index] = {**row, "index": index}
+            job = jobs_by_index[index]
+            matched[index] = {**row, "kind": job.kind, **spec_columns(job.spec), "index": index}
     return Matched(matched, n_ignored, n_failed)
 
 

@@ -48,8 +48,8 @@ class FeedforwardBaseline(FixedAllocationBaseline):
         tau[~self.actuated_mask(n_v)] = 0.0
         self._tau = tau
 
-    def command(self) -> FloatArray:
-        """The torque computed at initialisation (a copy) [N*m]."""
+    def command(self, kinematics: HandKinematics) -> FloatArray:
+        """The torque computed at initialisation (a copy) [N*m], whatever the configuration."""
         assert self._tau is not None
         return self._tau.copy()
 

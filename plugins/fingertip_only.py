@@ -14,6 +14,7 @@ from wholehand_plugins.qp import QPAllocator
 from wholehand.allocation.base import Allocation
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
+from wholehand.models.kinematics import HandKinematics
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -22,7 +23,11 @@ class FingertipOnlyAllocator(QPAllocator):
     """Force-allocation QP restricted to fingertip contacts (paper ablation)."""
 
     def allocate(
-        self, contacts: ContactSet, J_world: FloatArray, p_com_world: FloatArray
+        self,
+        contacts: ContactSet,
+        J_world: FloatArray,
+        p_com_world: FloatArray,
+        kinematics: HandKinematics | None = None,
     ) -> Allocation:
         """Allocate over ``contacts.select(contacts.fingertip)``; see :meth:`QPAllocator.allocate`.
 

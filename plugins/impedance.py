@@ -77,20 +77,19 @@ class ImpedanceBaseline(FixedAllocationBaseline):
         self.p_joint = np.einsum("nba,nb->na", R[self.joint], contacts_gt.p_world - t[self.joint])
         self.x_target = contacts_gt.p_world + allocation.f_world / self.stiffness
 
-    def spring_forces(self) -> tuple[FloatArray, FloatArray]:
-        """Current contact points (N, 3) [m] and spring forces k (x* - x) (N, 3) [N], world."""
-        assert self.kinematics is not None
-        x = self.kinematics.transform_points(self.p_joint, self.joint)
+    def spring_forces(self, kinematics: HandKinematics) -> tuple[FloatArray, FloatArray]:
+        """Contact points (N, 3) [m] and spring forces k (x* - x) (N, 3) [N], world, at the
+        configuration of ``kinematics``."""
+        x = kinematics.transform_points(self.p_joint, self.joint)
         return x, self.stiffness * (self.x_target - x)
 
-    def command(self) -> FloatArray:
-        """``sum_i J_i(q)^T k (x*_i - x_i(q))`` at the kinematics' current q [N*m]."""
-        kin = self.kinematics
-        assert kin is not None
+    def command(self, kinematics: HandKinematics) -> FloatArray:
+        """``sum_i J_i(q)^T k (x*_i - x_i(q))`` at the configuration of ``kinematics`` [N*m]."""
+        kin = kinematics
         n_v = kin.model.nv
         if self.joint.size == 0:
             return np.zeros(n_v)
-        x, f = self.spring_forces()
+        x, f = self.spring_forces(kin)
         J = kin.point_jacobians(self.joint, x)
         tau = np.einsum("nak,na->k", J, f)
         tau[~self.actuated_mask(n_v)] = 0.0

@@ -17,7 +17,13 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from wholehand.backends.base import HandObjectState, PerturbableBackend
+from wholehand.backends.base import (
+    Backend,
+    HasGroundTruth,
+    PushesObject,
+    ReportsWarnings,
+    Resettable,
+)
 from wholehand.backends.mujoco_scene import (
     DEFAULT_TIMESTEP,
     HandObjectScene,
@@ -28,6 +34,8 @@ from wholehand.backends.mujoco_scene import (
     warning_counts,
 )
 from wholehand.errors import ConfigError
+from wholehand.loop.command import Command
+from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
 from wholehand.models.poses import check_pose
 
 if TYPE_CHECKING:
@@ -66,8 +74,35 @@ def _quat_of(M: FloatArray) -> FloatArray:
     return quat
 
 
-class MujocoBackend(PerturbableBackend):
-    """MuJoCo simulation of a mounted hand and a free object (torque control, push the object).
+_PDTerms = tuple[
+    npt.NDArray[np.intp],
+    npt.NDArray[np.intp],
+    FloatArray | None,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+]
+"""Target dofs, their q indices, q targets, dq targets, kp, kd (all groups concatenated)."""
+
+
+def _pd_terms(command: Command) -> _PDTerms:
+    """The command's target groups as flat arrays (hand joints have one dof each: nq = nv)."""
+    dofs, q_ref, dq_ref, kp, kd = [], [], [], [], []
+    for g in command.targets:
+        dofs.append(g.dofs)
+        q_ref.append(g.q if g.q is not None else np.full(g.dofs.shape, np.nan))
+        dq_ref.append(g.dq if g.dq is not None else np.zeros(g.dofs.shape))
+        kp.append(g.kp if g.q is not None else np.zeros(g.dofs.shape))
+        kd.append(g.kd)
+    all_dofs = np.concatenate(dofs)
+    qidx = all_dofs
+    q_all = np.concatenate(q_ref)
+    q_out = None if np.isnan(q_all).all() else np.nan_to_num(q_all)
+    return all_dofs, qidx, q_out, np.concatenate(dq_ref), np.concatenate(kp), np.concatenate(kd)
+
+
+class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWarnings):
+    """MuJoCo simulation of a mounted hand and a free object (torques and joint targets).
 
     Args:
         hand: a :class:`~wholehand.models.hand.HandModel` or the name/path of a hand.
@@ -78,6 +113,7 @@ class MujocoBackend(PerturbableBackend):
         q_init: (n_q,) initial joint positions, Pinocchio order; default ``hand.neutral()``.
         gravity: gravity (0, 0, -9.81) m/s^2 when True; off by default as in the paper.
         timestep: simulation step [s] (default 1 ms).
+        history: joint samples kept for :meth:`Observation.q_at` (one per :meth:`observe`).
         wMb: (4, 4) pose of the hand base in the world; default: the mount pose ``hand.wMb``.
         **options: further :class:`~wholehand.backends.mujoco_scene.SceneOptions` fields
             (``cone``, ``impratio``, ``condim``, ``friction``, ``solref``, ``solimp``, ``base``,
@@ -97,6 +133,7 @@ class MujocoBackend(PerturbableBackend):
         gravity: bool = False,
         timestep: float = DEFAULT_TIMESTEP,
         wMb: FloatArray | None = None,
+        history: int = HISTORY_SAMPLES,
         **options: Any,
     ) -> None:
         if isinstance(hand, str):
@@ -120,24 +157,32 @@ class MujocoBackend(PerturbableBackend):
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
         self._warned: set[str] = set()
+        self.history = JointHistory(hand.nq, history)
+        self._targets: _PDTerms | None = None
+        self._spring: tuple[FloatArray, FloatArray, FloatArray] | None = None
         wMo = self.object_pose_in_model() if wMo_init is None else wMo_init
         self.reset(hand.neutral() if q_init is None else q_init, wMo)
 
     # --- Backend interface --------------------------------------------------------------------
-    def read_state(self) -> HandObjectState:
-        """Joint positions and velocities (Pinocchio order), base and object poses; stamps are
-        the simulation time."""
+    def observe(self) -> Observation:
+        """Joint positions and velocities (Pinocchio order), base and object poses, all stamped
+        with the simulation time; the joint sample is added to :attr:`history` (once per time)."""
         d, s = self.data, self.scene
-        t = float(d.time)
+        t = self.time
         a = s.object_qpos
+        q = d.qpos[s.qpos_index].copy()
+        wMb = self._base_pose()
+        if not len(self.history) or self.history.newest_stamp < t:
+            self.history.push(t, q, wMb)
         # From qpos, not xpos: after mj_step, xpos still holds the pose before the integration.
-        return HandObjectState(
-            q=d.qpos[s.qpos_index].copy(),
+        return Observation(
+            q=q,
             dq=d.qvel[s.qvel_index].copy(),
-            wMb=self._base_pose(),
-            wMo=_pose_from(d.qpos[a : a + 3], d.qpos[a + 3 : a + 7]),
+            wMb=wMb,
             stamp_q=t,
+            wMo=_pose_from(d.qpos[a : a + 3], d.qpos[a + 3 : a + 7]),
             stamp_object=t,
+            history=self.history,
         )
 
     def _base_pose(self) -> FloatArray:
@@ -147,35 +192,64 @@ class MujocoBackend(PerturbableBackend):
             return _pose_from(self.data.mocap_pos[mocap], self.data.mocap_quat[mocap])
         return _pose_from(m.body_pos[body], m.body_quat[body])
 
-    def apply_torques(self, tau: FloatArray) -> None:
-        """Command (n_v,) joint torques [N*m] (Pinocchio order), clipped to +-tau_max; entries of
-        joints that are not actuated are ignored. Held until the next command."""
-        tau = _vector(tau, self.hand.nv, "tau")
+    def apply(self, command: Command) -> None:
+        """Send joint torques [N*m] (Pinocchio order) and joint targets, held until the next
+        command. Torques are clipped to +-tau_max; entries of joints that are not actuated are
+        ignored. A target group's PD law (:mod:`wholehand.loop.command`) is evaluated before
+        every MuJoCo step on the state of that step."""
+        tau = _vector(command.tau, self.hand.nv, "tau")
+        self._tau = tau
+        self._targets = None
+        if command.targets:
+            self._targets = _pd_terms(command)
+        self._set_ctrl(tau if self._targets is None else self._pd_torque())
+
+    def _set_ctrl(self, tau: FloatArray) -> None:
         s = self.scene
         act = s.ctrl_index >= 0
         clipped = np.clip(tau[act], -s.tau_max[act], s.tau_max[act])
         self.data.ctrl[s.ctrl_index[act]] = clipped
+
+    def _pd_torque(self) -> FloatArray:
+        """The commanded torques with every target group's PD term at the current state."""
+        assert self._targets is not None
+        dofs, qidx, q_ref, dq_ref, kp, kd = self._targets
+        d, s = self.data, self.scene
+        tau = self._tau.copy()
+        q = d.qpos[s.qpos_index]
+        dq = d.qvel[s.qvel_index]
+        tau[dofs] += kd * (dq_ref - dq[dofs])
+        if q_ref is not None:
+            tau[dofs] += kp * (q_ref - q[qidx])
+        return tau
 
     def step(self, duration: float) -> None:
         """Advance the simulation by ``ceil(duration / timestep)`` steps (0 for duration 0)."""
         if not (math.isfinite(duration) and duration >= 0.0):
             raise ConfigError(f"MujocoBackend.step: duration must be >= 0 [s], got {duration!r}")
         n = math.ceil(duration / self.model.opt.timestep - _STEP_EPS)
-        if n > 0 and self._spring is None:
+        t_before = float(self.data.time)
+        if n > 0 and self._spring is None and self._targets is None:
             mujoco.mj_step(self.model, self.data, nstep=n)
         else:
             body = self.scene.object_body
             for _ in range(n):
-                self.data.xfrc_applied[body] = self._wrench + self._spring_wrench()
+                if self._spring is not None:
+                    self.data.xfrc_applied[body] = self._wrench + self._spring_wrench()
+                if self._targets is not None:
+                    self._set_ctrl(self._pd_torque())
                 mujoco.mj_step(self.model, self.data)
             self.data.xfrc_applied[body] = self._wrench
         if n > 0:
+            if self.data.time < t_before:  # MuJoCo diverged and reset its data, time included
+                self._time_offset += t_before + n * self.model.opt.timestep - self.data.time
             self._check_warnings()
 
     @property
     def time(self) -> float:
-        """Simulation time [s]."""
-        return float(self.data.time)
+        """Simulation time [s]: MuJoCo's, kept running when a divergence makes MuJoCo reset its
+        data (and its clock) to the initial state, so the schedule of a run never goes back."""
+        return float(self.data.time) + self._time_offset
 
     def apply_object_wrench(self, force_world: FloatArray, torque_world: FloatArray) -> None:
         """Apply a force [N] and torque [N*m], world axes, at the object's centre of mass; held
@@ -234,8 +308,12 @@ class MujocoBackend(PerturbableBackend):
         wMo = check_pose(wMo, "wMo")
         d, s = self.data, self.scene
         mujoco.mj_resetData(self.model, d)
+        self.history.clear()
+        self._time_offset = 0.0
+        self._tau = np.zeros(self.hand.nv)
+        self._targets = None
         self._wrench = np.zeros(6)
-        self._spring: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        self._spring = None
         d.qpos[s.qpos_index] = q
         d.qpos[s.object_qpos : s.object_qpos + 3] = wMo[:3, 3]
         d.qpos[s.object_qpos + 3 : s.object_qpos + 7] = _quat_of(wMo)

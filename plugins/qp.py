@@ -3,8 +3,8 @@
 Per cycle: build the QP over every current contact, palm included
 (:func:`wholehand.allocation.problem.build_allocation_qp`), solve it with the named solver
 (:func:`wholehand.allocation.solve.solve_allocation`, warm-started from the previous cycle) and
-command ``tau* = J_act^T f_act*``. A failed or infeasible solve never raises: the last feasible
-torque (initially zero) is returned with the status.
+command ``tau* = J_act^T f_act*``. A failed or infeasible solve never raises: it returns no
+torque, with the status; the control loop keeps the last feasible torque.
 
 Joints. By default all ``n_v`` columns of ``J_world`` are commanded joints. With
 ``actuated_dofs`` only those are: the torque limits and ``J_act`` (hence the consistency basis)
@@ -20,7 +20,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -47,6 +47,9 @@ from wholehand.allocation.solve import (
 )
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
+
+if TYPE_CHECKING:
+    from wholehand.models.kinematics import HandKinematics
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -131,7 +134,6 @@ class QPAllocator(Allocator):
         self.feas_tol = float(feas_tol)
         self.screen_tol = float(screen_tol)
         self._warm = WarmStart(match_radius=float(match_radius))
-        self._last_tau: FloatArray | None = None
         self.counts: Counter[AllocationStatus] = Counter()
         """Allocations per status since construction (or :meth:`reset`)."""
         self.last_solution: AllocationSolution | None = None
@@ -139,22 +141,11 @@ class QPAllocator(Allocator):
 
     # --------------------------------------------------------------------------------------------
     def reset(self) -> None:
-        """Forget the warm start, the last feasible torque and the counts."""
+        """Forget the warm start and the counts."""
         self._warm.clear()
         self.backend.reset()
-        self._last_tau = None
         self.counts.clear()
         self.last_solution = None
-
-    @property
-    def last_tau(self) -> FloatArray | None:
-        """(n_v,) last commanded torque [N*m], None before the first cycle."""
-        return None if self._last_tau is None else self._last_tau.copy()
-
-    def _held(self, n_v: int) -> FloatArray:
-        if self._last_tau is None or self._last_tau.shape != (n_v,):
-            return np.zeros(n_v)
-        return self._last_tau.copy()
 
     def _result(
         self,
@@ -169,8 +160,6 @@ class QPAllocator(Allocator):
         solve_time: float = 0.0,
     ) -> Allocation:
         self.counts[status] += 1
-        if tau is None:
-            tau = self._held(n_v)
         return Allocation(
             f_local=np.zeros((n, 3)) if f_local is None else f_local,
             f_world=np.zeros((n, 3)) if f_world is None else f_world,
@@ -183,7 +172,11 @@ class QPAllocator(Allocator):
 
     # --------------------------------------------------------------------------------------------
     def allocate(
-        self, contacts: ContactSet, J_world: FloatArray, p_com_world: FloatArray
+        self,
+        contacts: ContactSet,
+        J_world: FloatArray,
+        p_com_world: FloatArray,
+        kinematics: HandKinematics | None = None,
     ) -> Allocation:
         """Contact forces and joint torques for the current contacts.
 
@@ -191,12 +184,13 @@ class QPAllocator(Allocator):
             contacts: The N contacts of this cycle.
             J_world: (N, 3, n_v) point Jacobians at the contact points, world axes.
             p_com_world: (3,) object centre of mass, world frame [m].
+            kinematics: unused (the QP needs only the Jacobians).
 
         Returns:
-            The allocation. ``EMPTY`` / ``NO_ACTUATED_CONTACT``: zero forces and torque (and the
-            held torque is reset to zero: zero is what was commanded); ``INFEASIBLE`` /
-            ``SOLVER_FAILED`` (also for NaN/inf inputs, a non-finite solution or one violating
-            a constraint by more than ``feas_tol``): zero forces and the last feasible torque;
+            The allocation. ``EMPTY`` / ``NO_ACTUATED_CONTACT``: zero forces and torque (zero
+            is a feasible command); ``INFEASIBLE`` / ``SOLVER_FAILED`` (also for NaN/inf inputs,
+            a non-finite solution or one violating a constraint by more than ``feas_tol``): zero
+            forces and no torque (``tau=None``: keep the last feasible one);
             ``OK``: the new forces and torque. ``solve_time`` is the wall time of building and
             solving the QP (all screening rounds) [s].
 
@@ -216,11 +210,9 @@ class QPAllocator(Allocator):
         self.params.dofs_and_limits(n_v, owner)  # shape errors raise even without contacts
         if n == 0:
             self._warm.clear()
-            self._last_tau = np.zeros(n_v)
             return self._result(AllocationStatus.EMPTY, 0, n_v, tau=np.zeros(n_v))
         if not contacts.actuated.any():
             self._warm.clear()
-            self._last_tau = np.zeros(n_v)
             return self._result(AllocationStatus.NO_ACTUATED_CONTACT, n, n_v, tau=np.zeros(n_v))
 
         t0 = time.perf_counter_ns()
@@ -250,13 +242,12 @@ class QPAllocator(Allocator):
             return self._result(status, n, n_v, solve_time=dt)
         lam = sol.x[: qp.n_lambda]
         tau = qp.tau(lam)
-        self._last_tau = tau
         self._remember(qp, contacts, sol)
         return self._result(
             AllocationStatus.OK,
             n,
             n_v,
-            tau=tau.copy(),
+            tau=tau,
             f_local=qp.f_local(lam),
             f_world=qp.f_world(lam),
             wrench=qp.G_lam @ lam,

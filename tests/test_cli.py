@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -25,11 +26,11 @@ def test_info_prints_hand_and_object(capsys):
     assert report["object"]["kind"] == "sphere"
 
 
-def test_run_prints_stages_and_timings(capsys):
+def test_run_prints_phases_and_timings(capsys):
     assert main(["run", "--theta", "0", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert summary["held"] is True
-    assert [s["stage"] for s in summary["stages"]][:2] == ["settle", "load +x"]
+    assert summary["held"] is True and summary["faults"] == {}
+    assert [s["phase"] for s in summary["phases"]][:2] == ["settle", "load +x"]
     assert summary["timing"]["cycles"] == 1300
     assert summary["timing"]["qp_p50_us"] > 0
 
@@ -49,9 +50,46 @@ def test_run_takes_grasp_type_and_backend_options(capsys):
         (["run", "--object", "077_rubiks_cub"], "077_rubiks_cube"),
         (["info", "--hand", "no_hand"], "no hand named 'no_hand'"),
         (["run", "--grasp", "10"], "grasp 10 does not exist"),
+        (["run", "--theta", "nan"], "--theta nan must be a finite angle"),
+        (["run", "--theta", "-30"], "--theta -30.0 must be a finite angle"),
+        (["run", "--pose-rate", "0"], "--pose-rate 0.0 is invalid"),
+        (["run", "--pose-dropout", "1"], "START:DURATION"),
+        (["run", "--pose-noise-mm", "inf"], "--pose-noise-mm inf"),
     ],
 )
 def test_bad_input_exits_with_a_clear_message(capsys, argv, message):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("wholehand: error:") and message in err
+
+
+def test_run_takes_the_tracking_filters(capsys):
+    argv = [
+        "run", "--theta", "0", "--json", "--pose-rate", "30", "--pose-latency", "0.033",
+        "--pose-noise-mm", "0.5", "--pose-dropout", "1.0:0.2", "--estimate-at", "current",
+    ]  # fmt: skip
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["spec"]["tracking"] == {
+        "rate_hz": 30.0, "latency_s": 0.033, "noise_mm": 0.5, "noise_seed": 0,
+        "dropouts": [[1.0, 0.2]],
+    }  # fmt: skip
+    assert summary["spec"]["estimate_at"] == "current"
+    assert summary["timing"]["cycles"] == 1300
+
+
+def test_run_exits_non_zero_when_a_stage_raises(capsys, monkeypatch):
+    """A misconfigured plug-in must not look like a string of bad observations."""
+    from wholehand_plugins.mesh_sdf import MeshSDFEstimator
+
+    def broken(self, kinematics, wMo, stamp=0.0):
+        raise TypeError("estimate() of a broken plug-in")
+
+    monkeypatch.setattr(MeshSDFEstimator, "estimate", broken)
+    assert main(["run", "--theta", "0"]) == 1
+    captured = capsys.readouterr()
+    # Zero torque from the start: the grasp is lost, and every cycle until then raised.
+    count = re.search(r"stage 'regulate' raised (\d+) times", captured.err)
+    assert count and int(count.group(1)) > 100
+    assert "TypeError: estimate() of a broken plug-in" in captured.err
+    assert f"{count.group(1)} stage_error" in captured.out

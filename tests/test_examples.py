@@ -21,7 +21,10 @@ def _run(name: str, *args: str) -> str:
 
 
 def test_every_example_is_tested():
-    tested = {"compare_methods.py", "tracking_noise_estimator.py", "contacts_per_link.py"}
+    tested = {
+        "compare_methods.py", "tracking_noise_estimator.py", "contacts_per_link.py",
+        "tracking_latency.py",
+    }  # fmt: skip
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
 
 
@@ -44,3 +47,10 @@ def test_contacts_per_link_lists_links_and_writes_html(tmp_path, grasp_type):
     assert "fingertip" in out and html.stat().st_size > 10_000
     if grasp_type == "power":
         assert "palm_link" in out  # a power grasp of the cube rests on the palm
+
+
+def test_tracking_latency_compares_three_conditions():
+    out = _run("tracking_latency.py")
+    rows = {line.split()[0]: line.split() for line in out.splitlines()[2:] if line.strip()}
+    assert set(rows) == {"exact", "object_stamp", "current"}
+    assert all(0.0 <= float(r[1]) <= 100.0 for r in rows.values())

@@ -1,23 +1,34 @@
-"""The closed loop in MuJoCo: realised versus desired forces, holding versus losing, determinism."""
+"""The closed loop in MuJoCo: realised versus desired forces, holding versus losing, determinism,
+faults that never escape the loop, the backend's clock, and mixed joint groups."""
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
 
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
-from wholehand.backends.base import HandObjectState
+from wholehand.backends import Backend
+from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
-from wholehand.loop.controller import ForceRegulationController
+from wholehand.loop.command import Command, JointTargets
+from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.loop.observation import Observation
+from wholehand.loop.outcome import outcome_of
 from wholehand.loop.protocol import PerturbationProtocol
 from wholehand.loop.record import RunRecord
+from wholehand.loop.regulation import ForceRegulation
+from wholehand.loop.stage import CycleContext, LoopStatus, Stage, StageOutput
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.objects import load_object
+from wholehand.studies.runner import record_row
 
 OBJECT = "077_rubiks_cube"
 THREE_FINGER_GRASP = 4  # middle, ring and thumb (and the palm) touch the cube
 SHORT = {"settle_time": 0.3, "load_duration": 0.4, "rotation_time": 0.4}
+TINY = {"settle_time": 0.1, "load_duration": 0.05, "rotation_time": 0.2}
 
 
 class ZeroTorqueAllocator(Allocator):
@@ -26,11 +37,21 @@ class ZeroTorqueAllocator(Allocator):
     def __init__(self, **params):
         pass
 
-    def allocate(self, contacts, J_world, p_com_world):
+    def allocate(self, contacts, J_world, p_com_world, kinematics=None):
         n, n_v = len(contacts), J_world.shape[2]
         return Allocation(
             np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n_v), np.zeros(6), AllocationStatus.HOLD
         )
+
+
+class Last(Observer):
+    """Keeps every cycle."""
+
+    def __init__(self):
+        self.cycles: list[Cycle] = []
+
+    def on_cycle(self, cycle):
+        self.cycles.append(cycle)
 
 
 @pytest.fixture(scope="module")
@@ -38,36 +59,39 @@ def cube():
     return load_object(OBJECT)
 
 
-def settled(allegro, cube, allocator, seconds=1.0):
-    grasp = load_grasps(allegro.name, OBJECT)[THREE_FINGER_GRASP]
-    backend = registry.load(
-        "backends", "mujoco", hand=allegro, obj=cube,
-        q_init=grasp.q_array(allegro), wMo_init=grasp.object_pose(allegro.wMb),
+def grasp_backend(hand, obj, grasp=THREE_FINGER_GRASP, backend=None):
+    g = load_grasps(hand.name, obj.name)[grasp]
+    cls = backend or "mujoco"
+    return registry.load(
+        "backends", cls, hand=hand, obj=obj,
+        q_init=g.q_array(hand), wMo_init=g.object_pose(hand.wMb),
     )  # fmt: skip
-    estimator = registry.load("contact_estimators", "mesh_sdf", hand=allegro, obj=cube)
-    alloc = registry.load("allocators", allocator, tau_max=allegro.tau_max)
-    controller = ForceRegulationController(allegro, cube, estimator, alloc)
-    for _ in range(int(seconds * 200)):
-        cycle = controller.step(backend.read_state())
-        backend.apply_torques(cycle.allocation.tau)
-        backend.step(0.005)
-    cycle = controller.step(backend.read_state())
-    backend.apply_torques(cycle.allocation.tau)
-    return backend, cycle
+
+
+def regulation(hand, obj, allocator="qp", **estimator_params):
+    estimator = registry.load(
+        "contact_estimators", "mesh_sdf", hand=hand, obj=obj, **estimator_params
+    )
+    alloc = registry.load("allocators", allocator, tau_max=hand.tau_max)
+    return ForceRegulation(hand, obj, estimator, alloc)
 
 
 def test_realised_forces_match_allocated_ones(allegro, cube):
-    backend, cycle = settled(allegro, cube, "qp")
-    assert cycle.allocation.ok
+    backend = grasp_backend(allegro, cube)
+    seen = Last()
+    ControlLoop(backend, allegro, cube, regulation(allegro, cube), observers=[seen]).run(1.0)
+    cycle = seen.cycles[-1]
+    assert len(seen.cycles) == 200 and cycle.output.status == "ok"
+    allocation, contacts = cycle.output.allocation, cycle.output.contacts
     measured = backend.ground_truth_contacts()
     # Compare per rigid body (a link and its fixed fingertip are one body): the estimate has
     # several points per link, MuJoCo one or a few per touching geometry. Bodies the estimate
     # sees within d_thresh but that do not touch cannot realise their share; they are skipped.
-    joint_est = allegro.link_joint[cycle.contacts.link]
+    joint_est = allegro.link_joint[contacts.link]
     joint_gt = allegro.link_joint[measured.link]
     compared = 0
     for joint in np.unique(joint_gt):
-        f_alloc = cycle.allocation.f_world[joint_est == joint].sum(axis=0)
+        f_alloc = allocation.f_world[joint_est == joint].sum(axis=0)
         f_meas = measured.f_world[joint_gt == joint].sum(axis=0)
         a, m = np.linalg.norm(f_alloc), np.linalg.norm(f_meas)
         if m < 0.5:
@@ -86,92 +110,374 @@ def test_qp_holds_the_load_test_and_a_limp_hand_loses_it(allegro, cube):
     spec = TrialSpec(object=OBJECT, grasp=0, theta_deg=0.0)
     held = run_trial(spec, hand=allegro, obj=cube)
     assert held.held_throughout and len(held.arrays()["t"]) == 6.5 * 200
+    assert outcome_of(held).held and outcome_of(held).failure_phase == ""
     limp = run_trial(
         TrialSpec(**{**spec.__dict__, "allocator": ZeroTorqueAllocator}), allegro, cube
     )
-    assert not limp.held_throughout
+    outcome = outcome_of(limp)
+    assert not limp.held_throughout and not outcome.held
+    assert outcome.failure_phase in limp.phases and outcome.cycles < 6.5 * 200
 
 
 def test_same_seed_same_record(allegro, cube, tmp_path):
     spec = TrialSpec(object=OBJECT, grasp=1, theta_deg=45.0, seed=3, protocol_params=SHORT)
     record = run_trial(spec, hand=allegro, obj=cube)
     loaded = RunRecord.load(record.save(tmp_path / "run.npz"))
-    assert loaded.stages == record.stages and loaded.meta["spec"]["seed"] == 3
-    assert loaded.stage_summary() == record.stage_summary()
+    assert loaded.phases == record.phases and loaded.meta["spec"]["seed"] == 3
+    assert loaded.phase_summary() == record.phase_summary()
     a, b = record.arrays(), loaded.arrays()
     for key in (*RunRecord.FIELDS, *RunRecord.CONTACT_FIELDS, "contact_offset"):
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     assert a["contact_offset"][-1] == a["n_contacts"].sum() == len(a["contact_link"])
+    assert set(a["status"]) <= {s.value for s in AllocationStatus}  # stored by name
+    assert set(a["stage"]) == {"regulate"}
     middle = len(a["t"]) // 2
     np.testing.assert_array_equal(
         loaded.contacts_at(middle)["contact_f"], record.contacts_at(middle)["contact_f"]
     )
     first = record.arrays()
     second = run_trial(spec, hand=allegro, obj=cube).arrays()
-    for key in ("t", "stage", "n_contacts", "residual_wrench", "tau", "status", "held", "p_object"):
+    for key in ("t", "phase", "n_contacts", "residual_wrench", "tau", "status", "held", "p_object"):
         np.testing.assert_array_equal(first[key], second[key], err_msg=key)
     other = run_trial(TrialSpec(**{**spec.__dict__, "seed": 4}), hand=allegro, obj=cube).arrays()
     assert not np.array_equal(first["p_object"][-1], other["p_object"][-1])
 
 
-def test_protocol_stages_and_wrenches():
+def test_an_old_record_is_refused_by_name(tmp_path):
+    path = tmp_path / "old.npz"
+    np.savez(path, stages=np.asarray(["settle"]), meta=np.asarray("{}"))
+    with pytest.raises(ConfigError, match="record the run again"):
+        RunRecord.load(path)
+
+
+def test_protocol_phases_and_wrenches():
     protocol = PerturbationProtocol(theta_deg=60.0, seed=1)
-    names = [s.name for s in protocol.stages()]
+    names = [s.name for s in protocol.phases()]
     assert names[:2] == ["settle", "load +x"] and "rotate" in names and names[-1] == "load2 -z"
     assert protocol.duration == pytest.approx(0.5 + 6 + protocol.rotation_time + 6)
-    load = protocol.stages()[1]
+    load = protocol.phases()[1]
     np.testing.assert_allclose(protocol.load_force(load, 2.0), [0.1 * 2.0 * 9.81, 0, 0])
     com = np.array([0.01, 0.0, 0.02])
     target, _, _ = protocol.spring(0.3, np.eye(3) * 1e-4, com, np.eye(4))
     angle = np.degrees(np.arccos((np.trace(target[:3, :3]) - 1) / 2))
     assert angle == pytest.approx(60.0)
     np.testing.assert_allclose(target[:3, :3] @ com + target[:3, 3], com, atol=1e-12)
-    assert [s.name for s in PerturbationProtocol(theta_deg=0.0).stages()][-1] == "load -z"
+    assert [s.name for s in PerturbationProtocol(theta_deg=0.0).phases()][-1] == "load -z"
+
+
+def test_protocol_phases_follow_the_clock(allegro, cube):
+    """Cycles per phase are duration x rate, whatever the float rounding of the clock."""
+    spec = TrialSpec(object=OBJECT, grasp=0, theta_deg=30.0, protocol_params=TINY)
+    a = run_trial(spec, hand=allegro, obj=cube, stop_on_loss=False).arrays()
+    counts = np.bincount(a["phase"])
+    protocol = PerturbationProtocol(theta_deg=30.0, **TINY)
+    np.testing.assert_array_equal(counts, [round(p.duration * 200) for p in protocol.phases()])
+    np.testing.assert_allclose(a["t"], np.arange(len(a["t"])) * 0.005, atol=1e-12)
+
+
+class FaultyBackend(Backend):
+    """MuJoCo, with given cycles' observations corrupted."""
+
+    def __init__(self, sim, faults):
+        self.sim, self.faults, self.n = sim, faults, 0
+
+    def observe(self):
+        obs = self.sim.observe()
+        fault = self.faults.get(self.n)
+        self.n += 1
+        if fault is None:
+            return obs
+        q, wMb, wMo = obs.q.copy(), obs.wMb.copy(), obs.wMo.copy()
+        if fault == "nan_pose":
+            wMo[0, 3] = np.nan
+        elif fault == "inf_q":
+            q[3] = np.inf
+        elif fault == "scaled_base":
+            wMb = 2.0 * wMb
+        elif fault == "short_q":
+            q = q[:-1]
+        return Observation(q, obs.dq, wMb, obs.stamp_q, wMo, obs.stamp_object, obs.history)
+
+    def apply(self, command):
+        self.sim.apply(command)
+
+    def step(self, duration):
+        self.sim.step(duration)
+
+    @property
+    def time(self):
+        return self.sim.time
 
 
 def test_bad_observations_keep_the_last_torque(allegro, cube):
-    backend, cycle = settled(allegro, cube, "qp", seconds=0.2)
-    controller_torque = cycle.allocation.tau
-    assert cycle.allocation.ok and np.abs(controller_torque).max() > 0.0
-    estimator = registry.load("contact_estimators", "mesh_sdf", hand=allegro, obj=cube)
-    alloc = registry.load("allocators", "qp", tau_max=allegro.tau_max)
-    controller = ForceRegulationController(allegro, cube, estimator, alloc)
-    good = backend.read_state()
-    first = controller.step(good)
-    assert first.allocation.ok
-    bad_pose = good.wMo.copy()
-    bad_pose[0, 3] = np.nan
-    bad_q = good.q.copy()
-    bad_q[3] = np.inf
-    for bad in (
-        HandObjectState(good.q, good.dq, good.wMb, bad_pose, good.stamp_q, good.stamp_object),
-        HandObjectState(bad_q, good.dq, good.wMb, good.wMo, good.stamp_q, good.stamp_object),
-        HandObjectState(good.q, good.dq, 2.0 * good.wMb, good.wMo, good.stamp_q, good.stamp_object),
-    ):
-        result = controller.step(bad)
-        assert result.allocation.status is AllocationStatus.BAD_STATE
-        np.testing.assert_array_equal(result.allocation.tau, first.allocation.tau)
-        assert len(result.contacts) == 0
-    assert controller.bad_states == 3 and "wMb" in controller.last_fault
-    assert controller.step(good).allocation.ok  # and it recovers
+    faults = {20: "nan_pose", 21: "inf_q", 22: "scaled_base", 23: "short_q"}
+    backend = FaultyBackend(grasp_backend(allegro, cube), faults)
+    seen = Last()
+    loop = ControlLoop(backend, allegro, cube, regulation(allegro, cube), observers=[seen])
+    report = loop.run(0.2)
+    statuses = [c.output.status for c in seen.cycles]
+    assert statuses[19] == "ok" and statuses[24] == "ok"  # it recovers at once
+    last_good = seen.cycles[19].command.tau
+    assert np.abs(last_good).max() > 0.0
+    for i in faults:
+        assert statuses[i] == LoopStatus.BAD_STATE.value
+        np.testing.assert_array_equal(seen.cycles[i].command.tau, last_good)
+    assert "wMo" in seen.cycles[20].fault and "q contains NaN or inf" in seen.cycles[21].fault
+    assert "wMb" in seen.cycles[22].fault
+    assert "shape" in seen.cycles[23].fault
+    assert report.faults == {"bad_state": 4} and report.n_errors == 0
+    assert report.cycles == 40 and report.stopped_by == "duration"
 
 
-def test_backend_params_reach_the_backend():
-    """``TrialSpec.backend_params`` configure the MuJoCo scene: without self-collision no hand
-    geom collides with another hand geom; an unknown option is named."""
-    from wholehand.backends.mujoco_scene import HAND_BIT
-    from wholehand.errors import ConfigError
-    from wholehand.loop.trial import set_up_trial
+class FailingEstimator:
+    """Raises a plain ValueError on given calls (a broken plug-in, not a bad observation)."""
 
-    spec = TrialSpec(theta_deg=0.0)
-    with_self = set_up_trial(spec).backend
-    without = set_up_trial(
-        TrialSpec(theta_deg=0.0, backend_params={"self_collision": False})
-    ).backend
-    hand_geoms = with_self.model.geom_contype == HAND_BIT
-    assert np.all(with_self.model.geom_conaffinity[hand_geoms] & HAND_BIT)
-    assert not np.any(
-        without.model.geom_conaffinity[without.model.geom_contype == HAND_BIT] & HAND_BIT
+    def __init__(self, inner, fail_on):
+        self.inner, self.fail_on, self.calls = inner, fail_on, 0
+
+    def estimate(self, kinematics, wMo, stamp=0.0):
+        self.calls += 1
+        if self.calls in self.fail_on:
+            raise ValueError("plug-in bug")
+        return self.inner.estimate(kinematics, wMo, stamp)
+
+
+def test_a_stage_exception_is_caught_recorded_and_reported(allegro, cube):
+    stage = regulation(allegro, cube)
+    stage.estimator = FailingEstimator(stage.estimator, {11, 12})
+    seen = Last()
+    report = ControlLoop(grasp_backend(allegro, cube), allegro, cube, stage, observers=[seen]).run(
+        0.1
     )
-    with pytest.raises(ConfigError, match="unknown options \\['colour'\\]"):
-        set_up_trial(TrialSpec(theta_deg=0.0, backend_params={"colour": 1}))
+    statuses = [c.output.status for c in seen.cycles]
+    assert statuses[10] == statuses[11] == LoopStatus.STAGE_ERROR.value
+    assert statuses[9] == statuses[12] == "ok"
+    np.testing.assert_array_equal(seen.cycles[11].command.tau, seen.cycles[9].command.tau)
+    assert report.n_errors == 2 and report.faults == {"stage_error": 2}
+    assert "ValueError: plug-in bug" in report.errors[0].error
+    assert "FailingEstimator" not in report.errors[0].error  # the message, the trace below
+    assert "in estimate" in report.errors[0].traceback
+
+
+def test_a_trial_whose_stage_raises_is_an_error_row(allegro, cube, monkeypatch):
+    from wholehand_plugins.mesh_sdf import MeshSDFEstimator
+
+    estimate = MeshSDFEstimator.estimate
+    calls = []
+
+    def flaky(self, kinematics, wMo, stamp=0.0):
+        calls.append(1)
+        if len(calls) == 5:
+            raise RuntimeError("boom")
+        return estimate(self, kinematics, wMo, stamp)
+
+    monkeypatch.setattr(MeshSDFEstimator, "estimate", flaky)
+    record = run_trial(TrialSpec(object=OBJECT, theta_deg=0.0, protocol_params=TINY), allegro)
+    assert record.meta["loop"]["n_errors"] == 1
+    assert "RuntimeError: boom" in outcome_of(record).error
+    row = record_row(record)
+    assert row["failure_stage"] == "error" and "boom" in row["error"]
+
+
+class WallClockBackend(Backend):
+    """A hand that does not move, on the wall clock: time passes while the stage computes."""
+
+    clock = "wall"
+
+    def __init__(self, sim):
+        self.sim, self.t0 = sim, time.perf_counter()
+        self.observation = sim.observe()
+
+    def observe(self):
+        o = self.observation
+        t = self.time
+        o.history.push(t, o.q, o.wMb)
+        return Observation(o.q, o.dq, o.wMb, t, o.wMo, t, o.history)
+
+    def apply(self, command):
+        pass
+
+    def step(self, duration):
+        time.sleep(duration)
+
+    @property
+    def time(self):
+        return time.perf_counter() - self.t0
+
+
+class SlowStage(Stage):
+    """Zero torque; every third cycle computes for three control periods."""
+
+    name = "slow"
+
+    def __init__(self, dt):
+        self.dt, self.n = dt, 0
+
+    def step(self, context):
+        self.n += 1
+        if self.n % 3 == 0:
+            time.sleep(3 * self.dt)
+        return StageOutput(Command.torques(np.zeros(context.hand.nv)), "ok")
+
+
+def test_a_wall_clock_overrun_is_measured_not_absorbed(allegro, cube):
+    rate = 50.0
+    backend = WallClockBackend(grasp_backend(allegro, cube))
+    stage = SlowStage(1.0 / rate)
+    seen = Last()
+    report = ControlLoop(backend, allegro, cube, stage, rate=rate, observers=[seen]).run(0.6)
+    slow = stage.n // 3
+    assert slow >= 2 and report.overruns >= slow
+    assert report.max_overrun >= 1.5 / rate
+    # Time comes from the clock: fewer cycles than 0.6 s x 50 Hz, because of the slow ones.
+    assert report.cycles < 0.6 * rate
+    ts = np.array([c.t for c in seen.cycles])
+    assert np.all(np.diff(ts) > 0.9 / rate)
+
+
+def _thumb_dofs(hand):
+    links = [i for i, f in enumerate(hand.link_finger) if f == hand.config.thumb]
+    joints = sorted({int(hand.link_joint[i]) for i in links} - {0})
+    return np.array([hand.model.joints[j].idx_v for j in joints])
+
+
+class ThumbHeldRegulation(Stage):
+    """Force regulation on the fingers, the thumb held at its grasp angles by joint targets."""
+
+    name = "mixed"
+
+    def __init__(self, inner, thumb, q_thumb):
+        self.inner, self.thumb, self.q_thumb = inner, thumb, q_thumb
+
+    def start(self, context):
+        self.inner.start(context)
+
+    def step(self, context):
+        out = self.inner.step(context)
+        if out.command is None:
+            return out
+        tau = out.command.tau.copy()
+        tau[self.thumb] = 0.0
+        hold = JointTargets(self.thumb, self.q_thumb, None, 1.0, 0.02, name="thumb")
+        return StageOutput(Command(tau, (hold,)), out.status, out.contacts, out.allocation)
+
+
+def test_position_and_torque_groups_share_the_loop(allegro, cube):
+    grasp = load_grasps(allegro.name, OBJECT)[0]
+    backend = grasp_backend(allegro, cube, grasp=0)
+    thumb = _thumb_dofs(allegro)
+    assert len(thumb) == 4
+    q_thumb = grasp.q_array(allegro)[thumb]
+    stage = ThumbHeldRegulation(regulation(allegro, cube), thumb, q_thumb)
+    seen = Last()
+    ControlLoop(backend, allegro, cube, stage, observers=[seen]).run(0.5)
+    cycle = seen.cycles[-1]
+    assert cycle.output.status == "ok" and cycle.command.targets[0].name == "thumb"
+    # The thumb tracks its targets; the torque joints get exactly their torques.
+    obs = backend.observe()
+    assert np.abs(obs.q[thumb] - q_thumb).max() < 0.05
+    applied = backend.applied_torques()
+    others = np.setdiff1d(np.arange(allegro.nv), thumb)
+    expected = np.clip(cycle.command.tau[others], -allegro.tau_max[others], allegro.tau_max[others])
+    np.testing.assert_allclose(applied[others], expected, atol=1e-12)
+    # The thumb's torque is its PD law at the state of the last MuJoCo step.
+    d, s = backend.data, backend.scene
+    q_prev = d.qpos[s.qpos_index][thumb] - d.qvel[s.qvel_index][thumb] * backend.timestep
+    assert np.abs(applied[thumb]).max() > 0.0
+    pd = 1.0 * (q_thumb - q_prev) - 0.02 * d.qvel[s.qvel_index][thumb]
+    limit = allegro.tau_max[thumb]
+    np.testing.assert_allclose(applied[thumb], np.clip(pd, -limit, limit), atol=5e-3)
+    assert (cycle.command.tau[thumb] == 0.0).all()
+
+
+def test_command_and_targets_reject_bad_groups(allegro):
+    with pytest.raises(ConfigError, match="overlap"):
+        Command(
+            np.zeros(4),
+            (JointTargets([0, 1], [0, 0], None, 1, 0), JointTargets([1], [0], None, 1, 0)),
+        )
+    with pytest.raises(ConfigError, match="outside"):
+        Command(np.zeros(4), (JointTargets([4], [0.0], None, 1, 0),))
+    with pytest.raises(ConfigError, match=">= 0"):
+        JointTargets([0], [0.0], None, -1.0, 0.0)
+    with pytest.raises(ConfigError, match="give q, dq"):
+        JointTargets([0], None, None, 1.0, 0.0)
+
+
+def test_stage_transitions_and_the_end(allegro, cube):
+    class Count(Stage):
+        def __init__(self, name, n, nxt):
+            self.name, self.n, self.nxt, self.started = name, n, nxt, 0
+
+        def start(self, context):
+            self.started += 1
+
+        def step(self, context: CycleContext):
+            self.n -= 1
+            return StageOutput(
+                Command.torques(np.zeros(context.hand.nv)), self.name,
+                next=self.nxt if self.n == 0 else None,
+            )  # fmt: skip
+
+    a, b = Count("a", 3, "b"), Count("b", 2, "end")
+    seen = Last()
+    report = ControlLoop(
+        grasp_backend(allegro, cube), allegro, cube, {"a": a, "b": b}, observers=[seen]
+    ).run()
+    assert [c.stage for c in seen.cycles] == ["a", "a", "a", "b", "b"]
+    assert report.stopped_by == "end" and a.started == b.started == 1
+    with pytest.raises(ConfigError, match="not one of"):
+        ControlLoop(grasp_backend(allegro, cube), allegro, cube, {"a": a}, first="c")
+
+
+class MinimalAllocator(Allocator):
+    """A third-party allocator written as docs/plugins.md says, with no constructor keywords."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def allocate(self, contacts, J_world, p_com_world, kinematics=None):
+        assert kinematics is not None and kinematics.q.shape == (J_world.shape[2],)
+        n = len(contacts)
+        return Allocation(
+            np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(J_world.shape[2]), np.zeros(6),
+            AllocationStatus.OK,
+        )  # fmt: skip
+
+
+def test_an_allocator_gets_only_the_hand_keywords_it_accepts(allegro):
+    from wholehand.loop.trial import load_allocator
+
+    assert isinstance(load_allocator(MinimalAllocator, allegro, {}), MinimalAllocator)
+    qp = load_allocator("qp", allegro, {"mu": 0.5})
+    np.testing.assert_array_equal(qp.params.tau_max, allegro.tau_max)
+    record = run_trial(
+        TrialSpec(object=OBJECT, theta_deg=0.0, allocator=MinimalAllocator, protocol_params=TINY),
+        allegro, stop_on_loss=False,
+    )  # fmt: skip
+    assert record.meta["loop"]["n_errors"] == 0 and (record.arrays()["tau"] == 0).all()
+
+
+def test_a_bad_observation_is_recorded_as_unknown_and_a_bad_switch_is_reported(allegro, cube):
+    from wholehand.loop.grasp_loss import GraspLossMonitor
+    from wholehand.loop.record import Recorder
+
+    backend = FaultyBackend(grasp_backend(allegro, cube), {3: "short_q", 4: "nan_pose"})
+    loss = GraspLossMonitor(allegro, cube)
+    recorder = Recorder(loss)
+    ControlLoop(
+        backend, allegro, cube, regulation(allegro, cube), observers=[loss, recorder]
+    ).run(0.05)
+    a = recorder.record.arrays()
+    assert a["q"].shape == (10, allegro.nq) and np.isnan(a["q"][3]).all()
+    assert np.isnan(a["p_object"][4]).any() and np.isfinite(a["q"][4]).all()
+    assert list(a["status"][3:5]) == ["bad_state", "bad_state"] and a["held"].all()
+
+    class Wrong(Stage):
+        name = "wrong"
+
+        def step(self, context):
+            return StageOutput(Command.torques(np.zeros(context.hand.nv)), "ok", next="nowhere")
+
+    report = ControlLoop(grasp_backend(allegro, cube), allegro, cube, Wrong()).run(0.02)
+    assert report.cycles == 4 and report.n_errors == 4 and "'nowhere'" in report.errors[0].error

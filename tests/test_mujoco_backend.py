@@ -23,6 +23,7 @@ from wholehand.backends.mujoco_scene import (
 )
 from wholehand.errors import AssetError, ConfigError, WholehandError
 from wholehand.grasps.store import objects_with_grasps
+from wholehand.loop.command import Command
 from wholehand.models.objects import PAPER_OBJECTS, ObjectModel, load_object
 from wholehand.models.poses import pose_from_xyz_rpy
 
@@ -95,7 +96,7 @@ def test_primitive_scene_compiles_and_steps_cleanly(allegro, make):
     np.testing.assert_allclose(m.dof_damping[backend.scene.qvel_index], allegro.config.damping)
     np.testing.assert_allclose(m.dof_armature[backend.scene.qvel_index], allegro.config.armature)
     assert np.all(m.dof_frictionloss[backend.scene.qvel_index] == 0.0)
-    backend.apply_torques(squeeze(allegro))
+    backend.apply(Command.torques(squeeze(allegro)))
     backend.step(0.3)
     assert_no_warnings(backend)
     assert np.all(np.isfinite(backend.data.qpos))
@@ -162,7 +163,7 @@ def test_ycb_scene_compiles_and_steps_cleanly(allegro, name):
         )  # fmt: skip
     assert backend.scene.decomposition_parts > 1
     assert backend.data.ncon == 0  # placed clear of the hand
-    backend.apply_torques(squeeze(allegro))
+    backend.apply(Command.torques(squeeze(allegro)))
     backend.step(0.2)
     assert_no_warnings(backend)
     assert np.all(np.isfinite(backend.data.qpos))
@@ -182,7 +183,7 @@ def test_joint_order_maps_by_name_fk_matches_pinocchio(allegro):
     for _ in range(3):
         q = rng.uniform(allegro.q_lower, allegro.q_upper)
         backend.set_kinematic_hand(q)
-        np.testing.assert_allclose(backend.read_state().q, q, atol=0)
+        np.testing.assert_allclose(backend.observe().q, q, atol=0)
         pin.framesForwardKinematics(allegro.model, data, q)
         for i, frame in enumerate(allegro.link_frame):
             wMl = wMb @ data.oMf[int(frame)].homogeneous
@@ -191,7 +192,7 @@ def test_joint_order_maps_by_name_fk_matches_pinocchio(allegro):
             np.testing.assert_allclose(
                 backend.data.xmat[body].reshape(3, 3), wMl[:3, :3], atol=1e-9
             )
-    np.testing.assert_allclose(backend.read_state().wMb, wMb, atol=1e-12)
+    np.testing.assert_allclose(backend.observe().wMb, wMb, atol=1e-12)
 
 
 def test_actuators_follow_pinocchio_order(allegro):
@@ -212,7 +213,7 @@ def test_torques_are_clipped_to_limits(allegro):
     signs = np.where(np.arange(allegro.nv) % 2 == 0, 1.0, -1.0)
     tau = 10.0 * allegro.tau_max * signs
     tau[3] = 0.05  # one inside the limits stays as it is
-    backend.apply_torques(tau)
+    backend.apply(Command.torques(tau))
     mujoco.mj_forward(backend.model, backend.data)
     expected = np.clip(tau, -allegro.tau_max, allegro.tau_max)
     np.testing.assert_allclose(backend.applied_torques(), expected)
@@ -226,10 +227,10 @@ def test_joint_torque_accelerates_that_joint_its_way(allegro, joint, sign):
     i = allegro.joint_names.index(joint)
     tau = np.zeros(allegro.nv)
     tau[i] = sign * 0.1
-    backend.apply_torques(tau)
-    q0 = backend.read_state().q
+    backend.apply(Command.torques(tau))
+    q0 = backend.observe().q
     backend.step(0.01)
-    state = backend.read_state()
+    state = backend.observe()
     dq = state.q - q0
     assert np.sign(dq[i]) == sign and np.sign(state.dq[i]) == sign
     assert abs(dq[i]) > 5.0 * np.max(np.abs(np.delete(dq, i)))  # it is this joint that moves
@@ -249,12 +250,12 @@ def test_step_counts_whole_timesteps(allegro):
 def test_gravity_off_by_default_on_by_option(allegro):
     obj = make_sphere()
     still = MujocoBackend(allegro, obj)
-    z0 = still.read_state().wMo[2, 3]
+    z0 = still.observe().wMo[2, 3]
     still.step(0.3)
-    assert still.read_state().wMo[2, 3] == pytest.approx(z0, abs=1e-12)
+    assert still.observe().wMo[2, 3] == pytest.approx(z0, abs=1e-12)
     falling = MujocoBackend(allegro, obj, gravity=True)
     falling.step(0.3)
-    drop = z0 - falling.read_state().wMo[2, 3]
+    drop = z0 - falling.observe().wMo[2, 3]
     assert drop == pytest.approx(0.5 * 9.81 * falling.time**2, rel=0.02)
 
 
@@ -266,7 +267,7 @@ def test_object_pose_round_trip(allegro):
         wMo = pose_from_xyz_rpy(rng.uniform(-1, 1, 3), rng.uniform(-np.pi, np.pi, 3))
         q = rng.uniform(allegro.q_lower, allegro.q_upper)
         backend.reset(q, wMo)
-        state = backend.read_state()
+        state = backend.observe()
         np.testing.assert_allclose(state.wMo, wMo, atol=1e-12)
         np.testing.assert_allclose(state.q, q, atol=0)
         assert state.stamp_q == state.stamp_object == backend.time == 0.0
@@ -321,7 +322,7 @@ def test_contact_queries_do_not_change_the_trajectory(allegro):
     runs = []
     for query in (False, True):
         obj, backend = resting_box(allegro)
-        backend.apply_torques(squeeze(allegro, 0.15))
+        backend.apply(Command.torques(squeeze(allegro, 0.15)))
         for _ in range(40):
             backend.step(0.002)
             if query:
@@ -334,7 +335,7 @@ def test_mocap_base_moves_the_hand(allegro):
     backend = MujocoBackend(allegro, make_sphere(), base="mocap")
     wMb = pose_from_xyz_rpy([0.05, 0.0, 0.1], [0.0, 0.3, 0.0])
     backend.set_base_pose(wMb)
-    np.testing.assert_allclose(backend.read_state().wMb, wMb, atol=1e-12)
+    np.testing.assert_allclose(backend.observe().wMb, wMb, atol=1e-12)
     backend.step(0.002)
     base = backend.scene.base_body
     np.testing.assert_allclose(backend.data.xpos[base], wMb[:3, 3], atol=1e-12)
@@ -345,8 +346,8 @@ def test_hand_hand_contacts_are_not_reported(allegro):
     q = allegro.neutral()
     q[allegro.joint_names.index("joint_12.0")] = allegro.q_upper[12]  # thumb across the palm
     tau = squeeze(allegro, 0.2)
-    backend.reset(q, backend.read_state().wMo)
-    backend.apply_torques(tau)
+    backend.reset(q, backend.observe().wMo)
+    backend.apply(Command.torques(tau))
     backend.step(0.3)
     assert backend.data.ncon > 0  # fingertips on the palm
     assert len(backend.ground_truth_contacts()) == 0
@@ -441,9 +442,9 @@ def test_bad_arguments_raise_config_errors(allegro):
         MujocoBackend(allegro, obj, wMo_init=bad)
     backend = MujocoBackend(allegro, obj)
     with pytest.raises(ConfigError, match="tau"):
-        backend.apply_torques(np.zeros(3))
+        backend.apply(Command.torques(np.zeros(3)))
     with pytest.raises(ConfigError, match="NaN"):
-        backend.apply_torques(np.full(allegro.nv, np.nan))
+        backend.apply(Command.torques(np.full(allegro.nv, np.nan)))
     with pytest.raises(ConfigError, match="duration"):
         backend.step(-0.1)
     with pytest.raises(ConfigError, match="mocap"):
@@ -491,3 +492,21 @@ def test_broken_urdf_raises_asset_error(allegro, tmp_path):
     hand.config = dataclasses.replace(allegro.config, urdf_path=missing)
     with pytest.raises(AssetError, match="none.stl"):
         build_scene(hand, make_sphere())
+
+
+def test_the_clock_keeps_running_when_mujoco_resets_a_diverged_simulation(allegro):
+    """MuJoCo resets its data, time included, when it diverges; the backend's clock (and so
+    the loop's schedule and the joint history) goes on."""
+    backend = MujocoBackend(allegro, make_sphere())
+    backend.step(0.1)
+    backend.observe()
+    backend.data.qvel[:] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        backend.step(0.005)
+    assert backend.warnings()["bad_qvel"] == 1 and backend.data.time < 0.01
+    assert backend.time == pytest.approx(0.105, abs=1e-12)
+    obs = backend.observe()
+    assert obs.stamp_q == backend.time and obs.history.newest_stamp == backend.time
+    backend.reset(allegro.neutral(), obs.wMo)
+    assert backend.time == 0.0 and len(backend.history) == 0

@@ -9,7 +9,6 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-import wholehand.loop.scheduler as scheduler
 from wholehand.errors import ConfigError
 from wholehand.loop.trial import TrialSpec, pose_error_offset, run_trial
 from wholehand.models.objects import load_object
@@ -54,27 +53,35 @@ def test_offset_is_deterministic_per_seed_and_has_the_asked_size():
 
 
 def test_offset_goes_to_the_controller_only(monkeypatch):
-    """The controller gets wMo_true @ T; grasp loss and the record keep the true pose."""
-    seen: dict[str, list[np.ndarray]] = {"controller": [], "loss": []}
-    step = scheduler.ForceRegulationController.step
-    held = scheduler.GraspLossCheck.held
+    """The estimator gets wMo_true @ T; grasp loss and the record keep the true pose."""
+    from wholehand_plugins.mesh_sdf import MeshSDFEstimator
 
-    def spy_step(self, state, wMo=None):
-        seen["controller"].append((state.wMo.copy(), None if wMo is None else wMo.copy()))
-        return step(self, state, wMo)
+    from wholehand.loop.control_loop import Observer
+    from wholehand.loop.grasp_loss import GraspLossCheck
+
+    seen: dict[str, list[np.ndarray]] = {"estimator": [], "truth": [], "loss": []}
+    estimate, held = MeshSDFEstimator.estimate, GraspLossCheck.held
+
+    def spy_estimate(self, kinematics, wMo, stamp=0.0):
+        seen["estimator"].append(wMo.copy())
+        return estimate(self, kinematics, wMo, stamp)
 
     def spy_held(self, kinematics, wMo):
         seen["loss"].append(wMo.copy())
         return held(self, kinematics, wMo)
 
-    monkeypatch.setattr(scheduler.ForceRegulationController, "step", spy_step)
-    monkeypatch.setattr(scheduler.GraspLossCheck, "held", spy_held)
-    record = run_trial(_spec(pose_error=ERROR))
+    class Truth(Observer):
+        def on_cycle(self, cycle):
+            seen["truth"].append(cycle.truth.wMo.copy())
+
+    monkeypatch.setattr(MeshSDFEstimator, "estimate", spy_estimate)
+    monkeypatch.setattr(GraspLossCheck, "held", spy_held)
+    record = run_trial(_spec(pose_error=ERROR), observers=[Truth()])
     T = pose_error_offset(ERROR, load_object("077_rubiks_cube").com)
     a = record.arrays()
-    assert len(seen["controller"]) == len(seen["loss"]) == a["t"].size > 0
-    for (true, given), loss_pose, p in zip(
-        seen["controller"], seen["loss"], a["p_object"], strict=True
+    assert len(seen["estimator"]) == len(seen["loss"]) == len(seen["truth"]) == a["t"].size > 0
+    for given, true, loss_pose, p in zip(
+        seen["estimator"], seen["truth"], seen["loss"], a["p_object"], strict=True
     ):
         np.testing.assert_allclose(given, true @ T)
         np.testing.assert_array_equal(loss_pose, true)  # true-pose grasp-loss criterion

@@ -14,7 +14,7 @@ import pytest
 
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps, objects_with_grasps
-from wholehand.loop.record import STATUS_CODES, RunRecord
+from wholehand.loop.record import RunRecord
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies import STUDIES, TIMING_COLUMNS, get_study, run_study, runner
 from wholehand.studies.base import derive_seed, success_stats
@@ -90,16 +90,16 @@ def test_success_stats_by_hand():
 
 
 def test_record_row_names_the_failure_stage():
-    record = RunRecord(stages=["settle", "load +x", "load -x"])
+    record = RunRecord(phases=["settle", "load +x", "load -x"])
     extra = {k: np.zeros(2) for k in RunRecord.FIELDS}  # fields this test does not look at
     extra.update({k: np.zeros((0, 3)) for k in getattr(RunRecord, "CONTACT_FIELDS", ())})
     extra["contact_link"] = np.zeros(0, dtype=int)
     for i, (stage, held) in enumerate([(0, True), (1, True), (1, False)]):
         values = {
-            **extra, "t": 0.005 * i, "stage": stage, "n_contacts": 4 + i,
+            **extra, "t": 0.005 * i, "phase": stage, "stage": "regulate", "n_contacts": 4 + i,
             "residual_wrench": np.zeros(6), "tau": np.zeros(2), "qp_time": 1e-4,
             "estimate_time": 1e-4, "cycle_time": 2e-3,
-            "status": STATUS_CODES[next(iter(STATUS_CODES))], "held": held,
+            "status": "ok", "held": held,
             "p_object": np.array([0.0, 0.0, 0.001 * i]), "r_object": np.zeros(3),
         }  # fmt: skip
         record.append(**values)

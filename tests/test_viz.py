@@ -21,7 +21,7 @@ from wholehand.loop.record import RunRecord
 from wholehand.models.hand import load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import load_object
-from wholehand.viz.plots import plot_run, stage_boundaries
+from wholehand.viz.plots import phase_boundaries, plot_run
 from wholehand.viz.replay import build_animation, frame_cycles, write_html
 from wholehand.viz.scene import (
     HIDDEN_SCALE,
@@ -50,7 +50,7 @@ def obj():
 
 @pytest.fixture(scope="module")
 def record(hand, obj) -> RunRecord:
-    """12 cycles over two stages holding a stored grasp; one contact per fingertip with forces
+    """12 cycles over two phases holding a stored grasp; one contact per fingertip with forces
     FORCES_N pointing at the object's centre."""
     grasp = load_grasps(hand.name, obj.name)[0]
     q = grasp.q_array(hand)
@@ -73,14 +73,14 @@ def record(hand, obj) -> RunRecord:
     contact_f = direction * np.asarray(FORCES_N)[: len(rows), None]
     rec = RunRecord(
         meta={"spec": {"hand": hand.name, "object": obj.name, "grasp": 0}},
-        stages=["settle", "load +x"],
+        phases=["settle", "load +x"],
     )
     for i in range(12):
         rec.append(
-            t=0.05 * i, stage=int(i >= 6), n_contacts=len(rows),
+            t=0.05 * i, phase=int(i >= 6), stage="regulate", n_contacts=len(rows),
             residual_wrench=np.full(6, 1e-3 * i),
             tau=np.linspace(-0.1, 0.1, hand.nv), qp_time=1e-4, estimate_time=1e-4, cycle_time=5e-4,
-            status=0, held=True, p_object=wMo[:3, 3].copy(), r_object=pin.log3(wMo[:3, :3]),
+            status="ok", held=True, p_object=wMo[:3, 3].copy(), r_object=pin.log3(wMo[:3, :3]),
             q=q.copy(),
             contact_p=contact_p, contact_n=-direction, contact_f=contact_f,
             contact_link=tips.astype(np.intp),
@@ -198,7 +198,7 @@ def test_animation_and_html_embed_the_viewer(tmp_path, hand, obj, record):
 
 
 def test_plot_written(tmp_path, record):
-    assert [name for _, name in stage_boundaries(record)] == ["settle", "load +x"]
+    assert [name for _, name in phase_boundaries(record)] == ["settle", "load +x"]
     out = plot_run(record, tmp_path / "plot.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
 

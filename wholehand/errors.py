@@ -26,6 +26,12 @@ class PluginError(WholehandError):
     """A plug-in cannot be found, imported or constructed."""
 
 
+class ObservationError(WholehandError):
+    """An observation is unusable (NaN or inf, wrong shape, not a rigid pose, a stamp the joint
+    history does not cover). Inside the control loop it becomes a status, a count and a logged
+    reason, and the last feasible command is kept; it never ends a run."""
+
+
 class SolverError(WholehandError):
     """A numerical solve failed; carries the problem and the solver's result for debugging.
 

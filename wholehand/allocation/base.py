@@ -5,11 +5,16 @@ from __future__ import annotations
 import abc
 import enum
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import numpy.typing as npt
 
 from wholehand.contacts.base import ContactSet
+
+if TYPE_CHECKING:
+    from wholehand.loop.stage import CycleContext
+    from wholehand.models.kinematics import HandKinematics
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -24,13 +29,11 @@ class AllocationStatus(str, enum.Enum):
     NO_ACTUATED_CONTACT = "no_actuated_contact"
     """Contacts exist but none is on an actuated link: zero torque."""
     INFEASIBLE = "infeasible"
-    """The QP has no solution; the last feasible torque is kept."""
+    """The QP has no solution: no torque (the loop keeps the last feasible one)."""
     SOLVER_FAILED = "solver_failed"
-    """The solver failed or returned garbage; the last feasible torque is kept."""
+    """The solver failed or returned garbage: no torque (the loop keeps the last feasible one)."""
     HOLD = "hold"
     """A non-adaptive allocator applies its stored command."""
-    BAD_STATE = "bad_state"
-    """The observation was unusable (NaN, inf, not a pose); the last torque is kept."""
 
 
 @dataclass(frozen=True)
@@ -41,8 +44,10 @@ class Allocation:
     """(N, 3) contact forces [f_n, f_t1, f_t2] in each contact's local frame [N]."""
     f_world: FloatArray
     """(N, 3) the same forces, applied by the hand on the object, in the world frame [N]."""
-    tau: FloatArray
-    """(n_v,) joint torques commanded to the hand's joints [N*m]."""
+    tau: FloatArray | None
+    """(n_v,) joint torques commanded to the hand's joints [N*m]; None when the allocation
+    produced none (``INFEASIBLE``, ``SOLVER_FAILED``): the caller keeps its last feasible
+    torque."""
     residual_wrench: FloatArray
     """(6,) net contact wrench on the object [force N, torque N*m] about its centre of mass,
     world axes."""
@@ -59,17 +64,41 @@ class Allocation:
         return self.status is AllocationStatus.OK
 
 
+HAND_KEYWORDS = ("tau_max", "actuated_dofs")
+"""Constructor keywords the trial set-up derives from the hand and passes to an allocator whose
+constructor accepts them: ``tau_max`` ((n_v,) torque limit per joint [N*m], ``inf`` where none)
+and ``actuated_dofs`` ((n_v,) bool, True for the joints the allocator commands)."""
+
+
 class Allocator(abc.ABC):
     """Turns a :class:`ContactSet` and contact Jacobians into an :class:`Allocation`.
 
-    Registered in the ``wholehand.allocators`` entry-point group. Inside the control loop an
-    allocator never raises on a failed solve: it keeps the last feasible torque and says so in
-    :attr:`Allocation.status`.
+    Registered in the ``wholehand.allocators`` entry-point group. The contract:
+
+    - Construction: keyword arguments only: the user's parameters, plus those of
+      :data:`HAND_KEYWORDS` that the constructor accepts (by name, or through ``**params``).
+    - :meth:`start` (optional): called on the first cycle of force regulation with the cycle's
+      context, e.g. to allocate once from ground-truth contacts. A class that needs them sets
+      :attr:`needs_ground_truth`, and the set-up refuses a backend without them.
+    - :meth:`allocate`: every cycle. Inside the control loop it never raises on a failed
+      solve: it returns no torque (``tau=None``) and says why in :attr:`Allocation.status`; the
+      loop keeps the last feasible torque.
+    - :meth:`reset` (optional): forget what is carried between cycles (warm starts).
     """
+
+    needs_ground_truth: ClassVar[bool] = False
+    """True for allocators whose :meth:`start` reads ``context.ground_truth()``."""
+
+    def start(self, context: CycleContext) -> None:  # noqa: B027 - an optional hook
+        """Called on the first cycle of force regulation, before the first :meth:`allocate`."""
 
     @abc.abstractmethod
     def allocate(
-        self, contacts: ContactSet, J_world: FloatArray, p_com_world: FloatArray
+        self,
+        contacts: ContactSet,
+        J_world: FloatArray,
+        p_com_world: FloatArray,
+        kinematics: HandKinematics | None = None,
     ) -> Allocation:
         """Contact forces and joint torques for the current contacts.
 
@@ -78,7 +107,10 @@ class Allocator(abc.ABC):
             J_world: (N, 3, n_v) point Jacobians of the hand at the contact points: linear
                 velocity of each contact point, world axes, per joint velocity.
             p_com_world: (3,) object centre of mass in the world [m].
+            kinematics: the hand at the configuration of ``J_world`` (the loop always passes
+                it; only laws that depend on the configuration read it). Read it during the
+                call; never keep it.
         """
 
     def reset(self) -> None:  # noqa: B027 - an optional hook, stateless allocators keep it
-        """Forget state carried between cycles (warm start, last feasible torque)."""
+        """Forget state carried between cycles (warm start)."""

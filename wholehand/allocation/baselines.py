@@ -6,17 +6,19 @@ the adaptive controller, run on the ground-truth contact set), and never again. 
 in how they apply those forces afterwards (see ``wholehand_plugins.feedforward`` and
 ``wholehand_plugins.impedance``).
 
-Life cycle: the trial runner builds the controller, updates its kinematics to the initial state
-and calls :meth:`FixedAllocationBaseline.initialise` with the ground-truth contacts; from then on
-the controller calls :meth:`~FixedAllocationBaseline.allocate` every cycle as for any allocator,
-and the baseline ignores the estimated contacts it is given. The baseline keeps a reference to
-the controller's :class:`~wholehand.models.kinematics.HandKinematics`, which the controller
-updates in place every cycle, so a baseline that needs the current configuration reads it there.
+Life cycle: on the first cycle of force regulation the stage calls
+:meth:`FixedAllocationBaseline.start` with the cycle's context, whose ``ground_truth()`` gives
+the simulator's contacts (mapped into the object pose the controller sees); the baseline
+allocates once there (:meth:`~FixedAllocationBaseline.initialise`). From then on
+:meth:`~FixedAllocationBaseline.allocate` is called every cycle as for any allocator; the
+baseline ignores the estimated contacts and applies its law at the configuration of the
+``kinematics`` it is given.
 """
 
 from __future__ import annotations
 
 import abc
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -25,6 +27,9 @@ from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 from wholehand.models.kinematics import HandKinematics
+
+if TYPE_CHECKING:
+    from wholehand.loop.stage import CycleContext
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -43,15 +48,32 @@ class FixedAllocationBaseline(Allocator):
         J_gt: (N, 3, n_v) point Jacobians of those contacts at the initial configuration.
     """
 
+    needs_ground_truth: ClassVar[bool] = True
+
     def __init__(self, allocator: Allocator, actuated_dofs: npt.ArrayLike | None = None) -> None:
         self.allocator = allocator
         self._actuated = None if actuated_dofs is None else np.asarray(actuated_dofs)
         self.initial: Allocation | None = None
         self.contacts_gt: ContactSet | None = None
         self.J_gt: FloatArray | None = None
-        self.kinematics: HandKinematics | None = None
 
     # --------------------------------------------------------------------------------------------
+    def start(self, context: CycleContext) -> None:
+        """Allocate once on the ground-truth contacts at this cycle's configuration.
+
+        Raises:
+            ConfigError: the context has no ground truth (the backend offers none).
+        """
+        if context.ground_truth is None:
+            raise ConfigError(
+                f"{type(self).__name__} needs ground-truth contacts at initialisation; the "
+                "backend has no ground_truth_contacts() (use a simulation backend)"
+            )
+        wMo = context.obs.wMo
+        assert wMo is not None
+        p_com = wMo[:3, :3] @ context.obj.com + wMo[:3, 3]
+        self.initialise(context.ground_truth(), context.kinematics, p_com)
+
     def initialise(
         self, contacts_gt: ContactSet, kinematics: HandKinematics, p_com_world: FloatArray
     ) -> Allocation:
@@ -59,8 +81,7 @@ class FixedAllocationBaseline(Allocator):
 
         Args:
             contacts_gt: ground-truth contacts at grasp initialisation (world frame).
-            kinematics: the controller's kinematics, already updated to the initial state; the
-                reference is kept (the controller updates it in place every cycle).
+            kinematics: the hand at the initial state (read now, not kept).
             p_com_world: (3,) object centre of mass in the world [m].
 
         Returns:
@@ -83,7 +104,6 @@ class FixedAllocationBaseline(Allocator):
                 solver=allocation.solver,
             )
         self.initial, self.contacts_gt, self.J_gt = allocation, contacts_gt, J
-        self.kinematics = kinematics
         self._initialise(contacts_gt, J, allocation, kinematics)
         return allocation
 
@@ -98,9 +118,9 @@ class FixedAllocationBaseline(Allocator):
         """Store what the control law needs (called once by :meth:`initialise`)."""
 
     @abc.abstractmethod
-    def command(self) -> FloatArray:
+    def command(self, kinematics: HandKinematics) -> FloatArray:
         """(n_v,) joint torques of this cycle [N*m], from the stored allocation and the current
-        configuration in :attr:`kinematics`."""
+        configuration ``kinematics``."""
 
     # --------------------------------------------------------------------------------------------
     @property
@@ -123,15 +143,20 @@ class FixedAllocationBaseline(Allocator):
         return mask
 
     def allocate(
-        self, contacts: ContactSet, J_world: FloatArray, p_com_world: FloatArray
+        self,
+        contacts: ContactSet,
+        J_world: FloatArray,
+        p_com_world: FloatArray,
+        kinematics: HandKinematics | None = None,
     ) -> Allocation:
-        """The stored law's torque; the estimated ``contacts`` are ignored (status ``HOLD``).
+        """The stored law's torque at ``kinematics``; the estimated ``contacts`` are ignored
+        (status ``HOLD``).
 
         The per-contact arrays have one zero row per estimated contact (the baseline assigns
         no force to them); the residual wrench is that of the initial allocation.
 
         Raises:
-            ConfigError: :meth:`initialise` was not called first.
+            ConfigError: :meth:`initialise` was not called first, or no ``kinematics``.
         """
         if self.initial is None:
             raise ConfigError(
@@ -139,11 +164,15 @@ class FixedAllocationBaseline(Allocator):
                 "needs the ground-truth contacts at grasp initialisation (run it through "
                 "wholehand.loop.trial.run_trial, or call initialise() yourself)"
             )
+        if kinematics is None:
+            raise ConfigError(
+                f"{type(self).__name__}.allocate needs the hand kinematics at the current q"
+            )
         n = len(contacts)
         return Allocation(
             f_local=np.zeros((n, 3)),
             f_world=np.zeros((n, 3)),
-            tau=self.command(),
+            tau=self.command(kinematics),
             residual_wrench=self.initial.residual_wrench.copy(),
             status=AllocationStatus.HOLD,
             solve_time=0.0,

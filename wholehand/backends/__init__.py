@@ -1,5 +1,11 @@
 """Backends: simulation or hardware the control loop runs over."""
 
-from wholehand.backends.base import Backend, HandObjectState, PerturbableBackend
+from wholehand.backends.base import (
+    Backend,
+    HasGroundTruth,
+    PushesObject,
+    ReportsWarnings,
+    Resettable,
+)
 
-__all__ = ["Backend", "HandObjectState", "PerturbableBackend"]
+__all__ = ["Backend", "HasGroundTruth", "PushesObject", "ReportsWarnings", "Resettable"]

@@ -1,63 +1,70 @@
-"""The backend interface: where joint torques go and states come from (simulation or hardware)."""
+"""The backend interface: where commands go and observations come from (simulation or hardware).
+
+Every backend can be read (:meth:`Backend.observe`), commanded (:meth:`Backend.apply`) and
+advanced in time (:meth:`Backend.step`) on its own clock. Anything more is an optional
+capability, declared by deriving from one of the classes below, and checked with
+``isinstance`` where a caller needs it:
+
+- :class:`PushesObject`: external wrench and a spring-damper on the object (the perturbation
+  protocol needs it; a real robot cannot).
+- :class:`HasGroundTruth`: the simulator's own contacts and forces (baselines that allocate once
+  from ground truth, studies, tests). The controller never sees them.
+- :class:`Resettable`: restart at a given joint configuration and object pose.
+- :class:`ReportsWarnings`: counts of the simulator's warnings (divergence).
+"""
 
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.loop.command import Command
+from wholehand.loop.observation import Observation
+
+if TYPE_CHECKING:
+    from wholehand.backends.mujoco_scene import SimContacts
+
 FloatArray = npt.NDArray[np.float64]
 
-
-@dataclass(frozen=True)
-class HandObjectState:
-    """One observation of the hand and the tracked object.
-
-    Poses are 4x4 homogeneous transforms ``aMb`` (pose of frame b in frame a) throughout wholehand.
-    """
-
-    q: FloatArray
-    """(n_q,) hand joint positions [rad or m], in the order of the hand's Pinocchio model."""
-    dq: FloatArray
-    """(n_v,) hand joint velocities [rad/s or m/s]."""
-    wMb: FloatArray
-    """(4, 4) pose of the hand base (root link) in the world."""
-    wMo: FloatArray
-    """(4, 4) pose of the object frame in the world."""
-    stamp_q: float
-    """Time at which q and dq were measured [s]."""
-    stamp_object: float
-    """Time at which the object pose was measured [s]."""
+Clock = Literal["sim", "wall"]
 
 
 class Backend(abc.ABC):
     """A hand-object system that can be read, commanded and advanced in time.
 
-    Registered in the ``wholehand.backends`` entry-point group.
+    Registered in the ``wholehand.backends`` entry-point group. Constructed with the keywords
+    ``hand``, ``obj``, ``q_init`` ((n_q,) joint positions), ``wMo_init`` ((4, 4) object pose),
+    ``gravity`` (bool) and the backend's own options.
     """
 
-    @abc.abstractmethod
-    def read_state(self) -> HandObjectState:
-        """The latest observation."""
+    clock: Clock = "sim"
+    """``"sim"``: :meth:`step` advances simulated time at once; ``"wall"``: time passes on its own
+    and :meth:`step` waits, so a cycle that computes too long overruns (the loop records it)."""
 
     @abc.abstractmethod
-    def apply_torques(self, tau: FloatArray) -> None:
-        """Command (n_v,) joint torques [N*m], held until the next command."""
+    def observe(self) -> Observation:
+        """The latest sample of every stream, with the joint history."""
+
+    @abc.abstractmethod
+    def apply(self, command: Command) -> None:
+        """Send a command (torques and/or joint targets), held until the next one; torques are
+        clamped to the joints' limits."""
 
     @abc.abstractmethod
     def step(self, duration: float) -> None:
-        """Advance time by ``duration`` seconds (simulation) or wait for it (hardware)."""
+        """Advance time by ``duration`` [s] (simulation) or wait that long (hardware)."""
 
     @property
     @abc.abstractmethod
     def time(self) -> float:
-        """Current time of the backend [s]."""
+        """Current time of the backend's clock [s]."""
 
 
-class PerturbableBackend(Backend):
-    """A backend that can push the object with an external wrench (simulation)."""
+class PushesObject(abc.ABC):
+    """Capability: push the object with an external wrench or a spring-damper (simulation)."""
 
     @abc.abstractmethod
     def apply_object_wrench(self, force_world: FloatArray, torque_world: FloatArray) -> None:
@@ -79,3 +86,29 @@ class PerturbableBackend(Backend):
             stiffness: translational [N/m] (on the centre of mass) and rotational [N*m/rad].
             damping: translational [N*s/m] and rotational [N*m*s/rad].
         """
+
+
+class HasGroundTruth(abc.ABC):
+    """Capability: the simulator's hand-object contacts."""
+
+    @abc.abstractmethod
+    def ground_truth_contacts(self) -> SimContacts:
+        """Contacts and forces at the current state, world frame (see
+        :class:`~wholehand.backends.mujoco_scene.SimContacts`)."""
+
+
+class Resettable(abc.ABC):
+    """Capability: restart at a joint configuration and an object pose."""
+
+    @abc.abstractmethod
+    def reset(self, q: FloatArray, wMo: FloatArray) -> None:
+        """Restart at time 0 with joint positions ``q`` (n_q,), object pose ``wMo`` (4, 4), zero
+        velocities and no command."""
+
+
+class ReportsWarnings(abc.ABC):
+    """Capability: counts of the simulator's run-time warnings."""
+
+    @abc.abstractmethod
+    def warnings(self) -> dict[str, int]:
+        """Warning name -> count since the last reset (all zero in a healthy simulation)."""

@@ -4,11 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable
+import math
+import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+from wholehand.errors import ConfigError
+from wholehand.loop.outcome import outcome_of
 from wholehand.loop.record import RunRecord
+
+if TYPE_CHECKING:
+    from wholehand.loop.control_loop import Cycle, Observer
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +43,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--d-thresh", type=float, default=None, help="contact threshold [m] (default 0.01)"
     )
     p.add_argument("--gravity", action="store_true", help="turn gravity on (off in the paper)")
+    g = p.add_argument_group(
+        "object tracking",
+        "how the object pose reaches the controller (default: exact, every cycle)",
+    )
+    g.add_argument("--pose-rate", type=float, default=None, help="tracker frame rate [Hz]")
+    g.add_argument(
+        "--pose-latency", type=float, default=None, help="delay of each frame [s] (e.g. 0.033)"
+    )
+    g.add_argument("--pose-noise-mm", type=float, default=0.0, help="noise per axis [mm]")
+    g.add_argument("--pose-noise-deg", type=float, default=0.0, help="rotation noise [deg]")
+    g.add_argument(
+        "--pose-dropout",
+        action="append",
+        default=[],
+        metavar="START:DURATION",
+        help="no new pose from START for DURATION [s] (repeatable)",
+    )
+    g.add_argument(
+        "--estimate-at",
+        choices=("object_stamp", "current"),
+        default="object_stamp",
+        help="estimate contacts at q(stamp of the pose) as in the paper, or at the current q",
+    )
     p.add_argument(
         "--no-self-collision",
         action="store_true",
@@ -51,9 +82,48 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_run)
 
 
+def tracking_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``TrialSpec.tracking`` from the command line (errors name the option)."""
+    out: dict[str, Any] = {}
+    for option, key, value in (
+        ("--pose-rate", "rate_hz", args.pose_rate),
+        ("--pose-latency", "latency_s", args.pose_latency),
+    ):
+        if value is not None:
+            if not (math.isfinite(value) and value >= 0.0 and (value > 0 or key != "rate_hz")):
+                raise ConfigError(f"{option} {value} is invalid")
+            out[key] = value
+    for option, key, value in (
+        ("--pose-noise-mm", "noise_mm", args.pose_noise_mm),
+        ("--pose-noise-deg", "noise_deg", args.pose_noise_deg),
+    ):
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ConfigError(f"{option} {value} must be finite and >= 0")
+        if value:
+            out[key] = value
+    if out.get("noise_mm") or out.get("noise_deg"):
+        out["noise_seed"] = args.seed
+    dropouts = []
+    for text in args.pose_dropout:
+        try:
+            start, duration = (float(x) for x in text.split(":"))
+        except ValueError:
+            raise ConfigError(
+                f"--pose-dropout {text!r} must be START:DURATION in seconds"
+            ) from None
+        dropouts.append([start, duration])
+    if dropouts:
+        out["dropouts"] = dropouts
+    return out
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from wholehand.loop.trial import TrialSpec, run_trial
 
+    if not (math.isfinite(args.theta) and args.theta >= 0.0):
+        raise ConfigError(f"--theta {args.theta} must be a finite angle >= 0 [deg]")
+    if not (math.isfinite(args.rate) and args.rate > 0.0):
+        raise ConfigError(f"--rate {args.rate} must be a finite rate > 0 [Hz]")
     est_params = {
         k: v for k, v in {"k": args.k, "d_thresh": args.d_thresh}.items() if v is not None
     }
@@ -70,9 +140,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         gravity=args.gravity,
         estimator_params=est_params,
         backend_params={"self_collision": False} if args.no_self_collision else {},
+        tracking=tracking_options(args),
+        estimate_at=args.estimate_at,
     )
-    on_cycle = live_view_callback(spec, args.view_every) if args.view else None
-    record = run_trial(spec, on_cycle=on_cycle)
+    observers = [live_view(spec, args.view_every)] if args.view else []
+    record = run_trial(spec, observers=observers)
     if args.save:
         print(f"run record: {record.save(Path(args.save))}")
     if args.record_html:
@@ -88,45 +160,65 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print_summary(summary)
+    loop = record.meta["loop"]
+    if loop["n_errors"]:
+        first = loop["errors"][0]
+        print(
+            f"\nERROR: stage {first['stage']!r} raised {loop['n_errors']} times (first at t = "
+            f"{first['t']:.3f} s); the last feasible torque was kept each time:\n"
+            f"{first['traceback']}",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
-def live_view_callback(spec: object, every: int) -> Callable[[int, Any, Any], None]:
-    """A per-cycle callback drawing every ``every``-th cycle in a live meshcat viewer."""
+def live_view(spec: Any, every: int) -> Observer:
+    """A loop observer drawing every ``every``-th cycle in a live meshcat viewer (true object
+    pose, the contacts and forces the controller used)."""
+    from wholehand.loop.control_loop import Observer
     from wholehand.models.hand import load_hand
     from wholehand.models.objects import load_object
     from wholehand.viz.scene import SceneViewer
 
-    hand, obj = load_hand(spec.hand), load_object(spec.object)  # type: ignore[attr-defined]
+    hand, obj = load_hand(spec.hand), load_object(spec.object)
     viewer = SceneViewer.live(hand, obj)
-    started: list[bool] = []
 
-    def draw(i: int, state: Any, cycle: Any) -> None:
-        if i % max(1, every):
-            return
-        if not started:
-            viewer.set_camera(state.wMo[:3, 3])
-            started.append(True)
-        f_world = cycle.allocation.f_world
-        viewer.update(state.q, state.wMo, cycle.contacts.p_world, f_world, state.wMb)
+    class LiveView(Observer):
+        def on_cycle(self, cycle: Cycle) -> str | None:
+            truth, out = cycle.truth, cycle.output
+            if cycle.index % max(1, every) or truth.wMo is None:
+                return None
+            if cycle.index == 0:
+                viewer.set_camera(truth.wMo[:3, 3])
+            p = _NONE if out.contacts is None else out.contacts.p_world
+            f = _NONE if out.allocation is None else out.allocation.f_world
+            viewer.update(truth.q, truth.wMo, p, f, truth.wMb)
+            return None
 
-    return draw
+    return LiveView()
+
+
+_NONE = np.zeros((0, 3))
 
 
 def summarise(record: RunRecord) -> dict[str, object]:
-    """Per-stage results, timing and the verdict of a run, JSON-serialisable."""
+    """Per-phase results, faults, timing and the verdict of a run, JSON-serialisable."""
     meta = record.meta
-    cycles = int(record.arrays()["t"].size)
+    outcome = outcome_of(record)
     wall = float(meta.get("wall_time_s", float("nan")))
+    loop = meta.get("loop", {})
     return {
         "spec": meta.get("spec"),
-        "held": record.held_throughout
-        and len(record.stage_summary()) == len(record.stages)
-        and all(s["held"] for s in record.stage_summary()),
-        "stages": record.stage_summary(),
+        "held": outcome.held,
+        "failure_phase": outcome.failure_phase,
+        "error": outcome.error,
+        "phases": record.phase_summary(),
+        "faults": loop.get("faults", {}),
+        "last_fault": loop.get("last_fault", ""),
         "timing": {
             **record.timing_summary(),
-            "cycles": cycles,
+            "cycles": outcome.cycles,
             "sim_time_s": meta.get("sim_time_s"),
             "wall_time_s": wall,
             "control_rate_hz": meta.get("control_rate"),
@@ -142,23 +234,23 @@ def print_summary(summary: dict[str, object]) -> None:
         f"seed {spec['seed']}"
     )
     header = (
-        f"{'stage':<10} {'held':<5} {'contacts':>8} {'|f_res| N':>10} {'|t_res| Nmm':>11} "
+        f"{'phase':<10} {'held':<5} {'contacts':>8} {'|f_res| N':>10} {'|t_res| Nmm':>11} "
         f"{'disp mm':>8} {'rot deg':>8}"
     )
     print(header)
     print("-" * len(header))
-    for s in summary["stages"]:
+    for s in summary["phases"]:
         if s.get("held") is None:
-            print(f"{s['stage']:<10} {'-':<5} (not reached)")
+            print(f"{s['phase']:<10} {'-':<5} (not reached)")
             continue
         print(
-            f"{s['stage']:<10} {'yes' if s['held'] else 'LOST':<5} {s['contacts_mean']:>8.1f} "
+            f"{s['phase']:<10} {'yes' if s['held'] else 'LOST':<5} {s['contacts_mean']:>8.1f} "
             f"{s['residual_force_N']:>10.3f} {1e3 * s['residual_torque_Nm']:>11.2f} "
             f"{s['displacement_mm']:>8.1f} {s['rotation_deg']:>8.1f}"
         )
     t = summary["timing"]
     print(
-        f"\nresult: {'HELD through every stage' if summary['held'] else 'LOST'}\n"
+        f"\nresult: {'HELD through every phase' if summary['held'] else 'LOST'}\n"
         f"QP time        p50 {t['qp_p50_us']:8.0f} us   p99 {t['qp_p99_us']:8.0f} us\n"
         f"estimate time  p50 {t['estimate_p50_us']:8.0f} us   p99 {t['estimate_p99_us']:8.0f} us\n"
         f"cycle time     p50 {t['cycle_p50_us']:8.0f} us   p99 {t['cycle_p99_us']:8.0f} us"
@@ -167,3 +259,6 @@ def print_summary(summary: dict[str, object]) -> None:
         f"{t['cycles']} cycles, {t['sim_time_s']:.2f} s simulated "
         f"in {t['wall_time_s']:.1f} s wall time"
     )
+    if summary["faults"]:
+        counts = ", ".join(f"{n} {status}" for status, n in summary["faults"].items())
+        print(f"faulted cycles: {counts} (last: {summary['last_fault']})")

@@ -94,7 +94,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 def _view_one(args: argparse.Namespace, size: str) -> int:
     """Run one trial of the study in this process with the live viewer."""
-    from wholehand.cli.run import live_view_callback, print_summary, summarise
+    from wholehand.cli.run import live_view, print_summary, summarise
     from wholehand.errors import ConfigError
     from wholehand.loop.trial import run_trial
     from wholehand.studies import get_study
@@ -106,6 +106,6 @@ def _view_one(args: argparse.Namespace, size: str) -> int:
         )
     job = jobs[args.view]
     print(f"trial {job.index}: {job.labels}")
-    record = run_trial(job.spec, on_cycle=live_view_callback(job.spec, args.view_every))
+    record = run_trial(job.spec, observers=[live_view(job.spec, args.view_every)])
     print_summary(summarise(record))
     return 0

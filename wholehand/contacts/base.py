@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+import dataclasses
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -42,6 +43,13 @@ class ContactSet:
     """Time of the state the set was computed from [s]."""
     frame: str = field(default="world")
     """Frame of every position and normal; always ``"world"``."""
+    p_joint: FloatArray | None = None
+    """(N, 3) the same points in the frame of the joint carrying their link [m]; None until
+    :meth:`in_joint_frames` fills it (estimators may leave it out)."""
+    n_joint: FloatArray | None = None
+    """(N, 3) the normals in the same joint frames (set together with ``p_joint``)."""
+    joint: IntArray | None = None
+    """(N,) Pinocchio joint carrying each contact's link (set together with ``p_joint``)."""
 
     def __post_init__(self) -> None:
         n = self.p_world.shape[0]
@@ -59,6 +67,19 @@ class ContactSet:
                 "ContactSet.link_actuated and link_fingertip must both have shape (L,), got "
                 f"{self.link_actuated.shape} and {self.link_fingertip.shape}"
             )
+        if (self.p_joint is None) != (self.joint is None) or (
+            (self.p_joint is None) != (self.n_joint is None)
+        ):
+            raise ConfigError("ContactSet: give p_joint, n_joint and joint together, or none")
+        if self.p_joint is not None:
+            assert self.n_joint is not None and self.joint is not None
+            for name, got, want in (
+                ("p_joint", self.p_joint.shape, (n, 3)),
+                ("n_joint", self.n_joint.shape, (n, 3)),
+                ("joint", self.joint.shape, (n,)),
+            ):
+                if got != want:
+                    raise ConfigError(f"ContactSet.{name} has shape {got}, expected {want}")
         if n and (self.link.min() < 0 or self.link.max() >= self.link_actuated.shape[0]):
             raise ConfigError(
                 f"ContactSet.link holds indices outside [0, {self.link_actuated.shape[0]})"
@@ -79,6 +100,7 @@ class ContactSet:
 
     def select(self, mask: BoolArray | IntArray) -> ContactSet:
         """The subset of contacts picked by a boolean mask or an index array."""
+        has_joint = self.p_joint is not None
         return ContactSet(
             p_world=self.p_world[mask],
             n_world=self.n_world[mask],
@@ -87,6 +109,50 @@ class ContactSet:
             link_actuated=self.link_actuated,
             link_fingertip=self.link_fingertip,
             stamp=self.stamp,
+            p_joint=self.p_joint[mask] if has_joint else None,  # type: ignore[index]
+            n_joint=self.n_joint[mask] if has_joint else None,  # type: ignore[index]
+            joint=self.joint[mask] if has_joint else None,  # type: ignore[index]
+        )
+
+    def transformed(self, M: FloatArray) -> ContactSet:
+        """The set moved rigidly by the world transform ``M`` (4, 4): points and normals (the
+        joint-frame copies are dropped: they no longer match)."""
+        R, t = M[:3, :3], M[:3, 3]
+        return dataclasses.replace(
+            self,
+            p_world=self.p_world @ R.T + t,
+            n_world=self.n_world @ R.T,
+            p_joint=None,
+            n_joint=None,
+            joint=None,
+        )
+
+    def in_joint_frames(self, kinematics: HandKinematics) -> ContactSet:
+        """The set with ``p_joint``, ``n_joint`` and ``joint`` filled from the kinematics the
+        contacts were found at (kept as they are when already filled)."""
+        if self.p_joint is not None:
+            return self
+        joint = kinematics.hand.link_joint[self.link].astype(np.intp)
+        R, t = kinematics.joint_poses_in(np.eye(4))  # joint frames in the world
+        R = R[joint]
+        p_joint = np.einsum("nba,nb->na", R, self.p_world - t[joint])
+        n_joint = np.einsum("nba,nb->na", R, self.n_world)
+        return dataclasses.replace(self, p_joint=p_joint, n_joint=n_joint, joint=joint)
+
+    def moved_to(self, kinematics: HandKinematics) -> ContactSet:
+        """The contacts carried with their links to the configuration of ``kinematics``: each
+        point and normal stays fixed in its joint frame (needs :meth:`in_joint_frames`)."""
+        if self.p_joint is None or self.n_joint is None or self.joint is None:
+            raise ConfigError(
+                "ContactSet.moved_to needs the contacts in their joint frames; call "
+                "in_joint_frames(kinematics at the configuration they were found at) first"
+            )
+        R, t = kinematics.joint_poses_in(np.eye(4))
+        R = R[self.joint]
+        return dataclasses.replace(
+            self,
+            p_world=np.einsum("nab,nb->na", R, self.p_joint) + t[self.joint],
+            n_world=np.einsum("nab,nb->na", R, self.n_joint),
         )
 
     @classmethod

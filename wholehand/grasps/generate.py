@@ -34,7 +34,10 @@ from scipy.spatial.transform import Rotation
 from wholehand import registry
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import Grasp
+from wholehand.loop.command import Command
+from wholehand.loop.control_loop import ControlLoop
 from wholehand.loop.grasp_loss import GraspLossCheck
+from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
@@ -72,6 +75,51 @@ def palm_face_in_base(hand: HandModel) -> tuple[float, FloatArray]:
     p_joint, joint = hand.samples.p_joint[rows], hand.samples.joint[rows]
     pts = HandKinematics(hand).transform_points(p_joint, joint, inverse(hand.wMb))
     return float(pts[:, 0].max()), 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+
+
+class ClosingStage(Stage):
+    """The generator's closing phase: constant torques on the closing joints, a PD law holding
+    the other joints at the pre-shape; the PD law runs at the control rate (it is part of the
+    stage, not the backend's servo).
+
+    Exit: when ``until`` (if given) holds, checked every ``check_every`` cycles (from the
+    ``check_every``-th) on the state the cycle observes; :attr:`closed` then says so.
+
+    Args:
+        q_pre: (n_q,) pre-shape [rad]; tau_close: (n_v,) closing torques [N*m]; closing: (n_v,)
+            bool, the closing joints; gains: PD gains [N*m/rad], [N*m*s/rad].
+    """
+
+    name = "close"
+
+    def __init__(
+        self,
+        q_pre: FloatArray,
+        tau_close: FloatArray,
+        closing: npt.NDArray[np.bool_],
+        gains: tuple[float, float] = PD_GAINS,
+        until: Callable[[], bool] | None = None,
+        check_every: int = 5,
+    ) -> None:
+        self.q_pre, self.tau_close, self.closing = q_pre, tau_close, closing
+        self.gains, self.until, self.check_every = gains, until, check_every
+        self.cycles = 0
+        self.closed = False
+
+    def step(self, context: CycleContext) -> StageOutput:
+        if (
+            self.until is not None
+            and self.cycles
+            and self.cycles % self.check_every == 0
+            and self.until()
+        ):
+            self.closed = True
+            return StageOutput(None, "closed", next=END)
+        self.cycles += 1
+        obs = context.obs
+        tau = self.gains[0] * (self.q_pre - obs.q) - self.gains[1] * obs.dq
+        tau[self.closing] = self.tau_close[self.closing]
+        return StageOutput(Command.torques(tau), "closing")
 
 
 class GraspGenerator:
@@ -166,16 +214,13 @@ class GraspGenerator:
         )
 
     def _run(self, duration: float, until: Callable[[], bool] | None = None) -> bool:
-        b, dt = self.backend, 1.0 / CONTROL_RATE
-        for i in range(int(round(duration * CONTROL_RATE))):
-            s = b.read_state()
-            tau = PD_GAINS[0] * (self.q_pre - s.q) - PD_GAINS[1] * s.dq
-            tau[self.closing] = self.tau_close[self.closing]
-            b.apply_torques(tau)
-            b.step(dt)
-            if until is not None and i % 5 == 4 and until():
-                return True
-        return until is None
+        """Run the closing stage for ``duration`` [s] or until ``until`` holds (checked every
+        5 cycles and once when the time is up); True when it held (or there is no ``until``)."""
+        stage = ClosingStage(self.q_pre, self.tau_close, self.closing, until=until)
+        ControlLoop(self.backend, self.hand, self.obj, stage, rate=CONTROL_RATE).run(duration)
+        if until is None:
+            return True
+        return stage.closed or (stage.cycles % stage.check_every == 0 and until())
 
     def try_candidate(self, index: int, seed: int) -> Grasp | None:
         """One candidate; the grasp, or None when it is rejected."""
@@ -189,10 +234,10 @@ class GraspGenerator:
         if not self._run(CLOSE_TIMEOUT, lambda: self._grasped(self._fingers_touching())):
             return None
         self._run(CLOSE_EXTRA)
-        before = b.read_state().wMo
+        before = b.observe().wMo
         b.set_object_spring(None)
         self._run(SETTLE)
-        state = b.read_state()
+        state = b.observe()
         self.kin.update(state.q, state.wMb)
         moved = float(np.linalg.norm(state.wMo[:3, 3] - before[:3, 3]))
         touching = self._fingers_touching()

@@ -1,1 +1,1 @@
-"""The control loop: one force-regulation cycle, the scheduler over a backend, run records."""
+"""The control loop: observations, commands, stages, observers and filters, run records."""

@@ -18,6 +18,8 @@ import coal
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.loop.control_loop import Cycle, Observer
+from wholehand.loop.stage import LoopStatus
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
@@ -77,3 +79,33 @@ class GraspLossCheck:
         return bool(
             coal.collide(hull, coal.Transform3s(), self._box, tf_box, self._request, result)
         )
+
+
+LOST = "grasp lost"
+"""Reason a run stopped by :class:`GraspLossMonitor` gives."""
+
+
+class GraspLossMonitor(Observer):
+    """Applies :class:`GraspLossCheck` every cycle to the true object pose and the current q.
+
+    Args:
+        hand, obj: the models.
+        stop_on_loss: end the run on the first cycle the grasp is lost.
+
+    Attributes:
+        held: the latest verdict (a cycle whose observation was unusable keeps the previous one).
+        lost_at: backend time of the first cycle the grasp was lost [s] (None while held).
+    """
+
+    def __init__(self, hand: HandModel, obj: ObjectModel, stop_on_loss: bool = True) -> None:
+        self.check = GraspLossCheck(hand, obj)
+        self.stop_on_loss = stop_on_loss
+        self.held = True
+        self.lost_at: float | None = None
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        if cycle.output.status != LoopStatus.BAD_STATE.value and cycle.truth.wMo is not None:
+            self.held = self.check.held(cycle.context.kinematics, cycle.truth.wMo)
+        if not self.held and self.lost_at is None:
+            self.lost_at = cycle.t
+        return LOST if not self.held and self.stop_on_loss else None

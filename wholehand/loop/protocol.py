@@ -1,8 +1,12 @@
-"""The perturbation protocol of the paper's simulation studies (Fig. 2).
+"""The perturbation protocol of the paper's simulation studies (Fig. 2), and its driver.
 
-Settle; load test (a force of 0.1 m g for 1 s along +x, -x, +y, -y, +z, -z in turn); a
+Phases: settle; load test (a force of 0.1 m g for 1 s along +x, -x, +y, -y, +z, -z in turn); a
 spring-damper wrench pulls the object toward its initial pose rotated by theta about a random
 axis; the load test again. The paper gives no spring constants: ours are named below.
+
+:class:`ProtocolDriver` plays the protocol as a loop observer: the phase of each cycle comes from
+the backend's clock, and before the backend advances it sets the phase's wrench or spring. It
+needs a backend that can push the object (:class:`~wholehand.backends.base.PushesObject`).
 """
 
 from __future__ import annotations
@@ -14,6 +18,10 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand import defaults
+from wholehand.backends.base import PushesObject
+from wholehand.errors import ConfigError
+from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.models.objects import ObjectModel
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -39,8 +47,8 @@ DIRECTIONS = {
 
 
 @dataclass(frozen=True)
-class Stage:
-    """One stage of the protocol."""
+class Phase:
+    """One phase of the protocol."""
 
     name: str
     """e.g. "settle", "load +x", "rotate", "load2 -z"."""
@@ -49,12 +57,12 @@ class Stage:
     kind: str
     """"settle", "load" or "rotate"."""
     direction: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """Unit load direction in the world, for load stages."""
+    """Unit load direction in the world, for load phases."""
 
 
 @dataclass(frozen=True)
 class PerturbationProtocol:
-    """Stage sequence and the external wrench applied in each stage.
+    """Phase sequence and the external wrench applied in each phase.
 
     Args:
         theta_deg: rotation of the pull target [deg]; 0 skips the pull and the second load test.
@@ -77,19 +85,20 @@ class PerturbationProtocol:
         axis = np.random.default_rng(self.seed).standard_normal(3)
         object.__setattr__(self, "axis", axis / np.linalg.norm(axis))
 
-    def stages(self) -> list[Stage]:
-        """The stages in order."""
-        out = [Stage("settle", self.settle_time, "settle")]
-        loads = [Stage(f"load {n}", self.load_duration, "load", d) for n, d in DIRECTIONS.items()]
+    def phases(self) -> list[Phase]:
+        """The phases in order."""
+        out = [Phase("settle", self.settle_time, "settle")]
+        loads = [Phase(f"load {n}", self.load_duration, "load", d) for n, d in DIRECTIONS.items()]
         out += loads
         if self.theta_deg > 0.0:
-            out.append(Stage("rotate", self.rotation_time, "rotate"))
-            out += [Stage(f"load2 {s.name[5:]}", s.duration, "load", s.direction) for s in loads]
+            out.append(Phase("rotate", self.rotation_time, "rotate"))
+            out += [Phase(f"load2 {s.name[5:]}", s.duration, "load", s.direction) for s in loads]
         return out
 
     @property
     def duration(self) -> float:
-        return float(sum(s.duration for s in self.stages()))
+        """Total duration [s]."""
+        return float(sum(s.duration for s in self.phases()))
 
     def target_rotation(self, wRo_initial: FloatArray) -> FloatArray:
         """(3, 3) world orientation the pull drives the object toward."""
@@ -99,7 +108,7 @@ class PerturbationProtocol:
         self, mass: float, inertia: FloatArray, com: FloatArray, wMo_initial: FloatArray
     ) -> tuple[FloatArray, tuple[float, float], tuple[float, float]]:
         """Target pose (4, 4), stiffness and damping of the rotational pull (see
-        :meth:`~wholehand.backends.base.PerturbableBackend.set_object_spring`).
+        :meth:`~wholehand.backends.base.PushesObject.set_object_spring`).
 
         Args:
             mass: object mass [kg]; inertia: (3, 3) about its centre of mass [kg*m^2].
@@ -118,8 +127,83 @@ class PerturbationProtocol:
         )
         return target, (self.lin_stiffness, self.rot_stiffness), damping
 
-    def load_force(self, stage: Stage, mass: float) -> FloatArray:
-        """(3,) external force on the centre of mass in a load stage, else zero [N], world axes."""
-        if stage.kind != "load":
+    def load_force(self, phase: Phase, mass: float) -> FloatArray:
+        """(3,) external force on the centre of mass in a load phase, else zero [N], world axes."""
+        if phase.kind != "load":
             return np.zeros(3)
-        return self.load_fraction * mass * defaults.GRAVITY * np.asarray(stage.direction)
+        return self.load_fraction * mass * defaults.GRAVITY * np.asarray(phase.direction)
+
+
+class ProtocolDriver(Observer):
+    """Plays a :class:`PerturbationProtocol` over the loop's backend.
+
+    The phase of a cycle at backend time ``t`` (from the start of the run) is the one whose
+    interval holds ``t + dt / 2``, so float rounding of the clock never shifts a boundary.
+    After each cycle's command the driver sets that phase's load force, or the rotational
+    spring during the pull; both are removed when the run ends. Run the loop for
+    :attr:`PerturbationProtocol.duration`.
+
+    Args:
+        protocol: the protocol.
+        obj: the object model (mass, inertia and centre of mass size the load and the spring).
+    """
+
+    def __init__(self, protocol: PerturbationProtocol, obj: ObjectModel) -> None:
+        self.protocol, self.obj = protocol, obj
+        self.phases = protocol.phases()
+        self._ends = np.cumsum([p.duration for p in self.phases])
+        self.phase_index = 0
+        """Phase of the latest cycle."""
+        self._backend: PushesObject | None = None
+        self._t0 = 0.0
+        self._spring_on = False
+        self._wMo0 = np.eye(4)
+
+    @property
+    def phase_names(self) -> list[str]:
+        return [p.name for p in self.phases]
+
+    def on_start(self, loop: ControlLoop) -> None:
+        backend = loop.backend
+        if not isinstance(backend, PushesObject):
+            raise ConfigError(
+                f"the perturbation protocol needs a backend that can push the object "
+                f"(PushesObject); {type(backend).__name__} cannot"
+            )
+        self._backend = backend
+        self._t0 = backend.time
+        self._half_dt = 0.5 * loop.dt
+        wMo = backend.observe().wMo
+        assert wMo is not None
+        self._wMo0 = wMo.copy()
+
+    def phase_at(self, t: float) -> int:
+        """Index of the phase at backend time ``t`` (the last one past the end)."""
+        i = int(np.searchsorted(self._ends, t - self._t0 + self._half_dt, side="right"))
+        return min(i, len(self.phases) - 1)
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        backend = self._backend
+        assert backend is not None
+        self.phase_index = self.phase_at(cycle.t)
+        phase = self.phases[self.phase_index]
+        rotating = phase.kind == "rotate"
+        if rotating and not self._spring_on:
+            obj = self.obj
+            backend.set_object_spring(
+                *self.protocol.spring(obj.mass, obj.inertia, obj.com, self._wMo0)
+            )
+        elif self._spring_on and not rotating:
+            backend.set_object_spring(None)
+        self._spring_on = rotating
+        backend.apply_object_wrench(self.protocol.load_force(phase, self.obj.mass), _NO_TORQUE)
+        return None
+
+    def on_end(self, loop: ControlLoop) -> None:
+        if self._backend is not None:
+            self._backend.set_object_spring(None)
+            self._backend.apply_object_wrench(np.zeros(3), np.zeros(3))
+        self._spring_on = False
+
+
+_NO_TORQUE = np.zeros(3)

@@ -1,30 +1,36 @@
-"""Run records: every control cycle as arrays, saved as npz and summarised per stage."""
+"""Run records: every control cycle as arrays, saved as npz and summarised per protocol phase.
+
+:class:`Recorder` is the loop observer that fills a :class:`RunRecord`.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from wholehand.allocation.base import AllocationStatus
+from wholehand.errors import ConfigError
+from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+
+if TYPE_CHECKING:
+    from wholehand.loop.grasp_loss import GraspLossMonitor
+    from wholehand.loop.protocol import ProtocolDriver
 
 FloatArray = npt.NDArray[np.float64]
-
-STATUS_CODES = {status: i for i, status in enumerate(AllocationStatus)}
-"""Allocation status -> small integer stored per cycle."""
 
 
 @dataclass
 class RunRecord:
     """Per-cycle arrays of one run (C cycles), plus its metadata.
 
-    Arrays: ``t`` (C,) [s]; ``stage`` (C,) stage index into ``stages``; ``n_contacts`` (C,);
-    ``residual_wrench`` (C, 6) [N, N*m]; ``tau`` (C, n_v) [N*m]; ``qp_time``, ``estimate_time``,
-    ``cycle_time`` (C,) [s]; ``status`` (C,) codes of :data:`STATUS_CODES`; ``held`` (C,) bool;
+    Arrays: ``t`` (C,) [s]; ``phase`` (C,) protocol phase index into ``phases``; ``stage`` (C,)
+    name of the loop stage that ran; ``n_contacts`` (C,); ``residual_wrench`` (C, 6) [N, N*m];
+    ``tau`` (C, n_v) commanded torques [N*m]; ``qp_time``, ``estimate_time``, ``cycle_time``
+    (C,) [s]; ``status`` (C,) the cycle's status by name; ``held`` (C,) bool;
     ``p_object`` (C, 3) object origin in the world [m]; ``r_object`` (C, 3) object orientation as a
     rotation vector [rad]; ``q`` (C, n_q) joint positions.
 
@@ -35,11 +41,12 @@ class RunRecord:
     """
 
     meta: dict[str, Any] = field(default_factory=dict)
-    stages: list[str] = field(default_factory=list)
+    phases: list[str] = field(default_factory=list)
+    """Names of the protocol phases (one, ``"run"``, without a protocol)."""
     rows: dict[str, list[Any]] = field(default_factory=dict)
 
     FIELDS = (
-        "t", "stage", "n_contacts", "residual_wrench", "tau", "qp_time", "estimate_time",
+        "t", "phase", "stage", "n_contacts", "residual_wrench", "tau", "qp_time", "estimate_time",
         "cycle_time", "status", "held", "p_object", "r_object", "q",
     )  # fmt: skip
     CONTACT_FIELDS = ("contact_p", "contact_n", "contact_f", "contact_link")
@@ -78,7 +85,7 @@ class RunRecord:
         np.savez_compressed(
             path,
             **self.arrays(),
-            stages=np.asarray(self.stages),
+            phases=np.asarray(self.phases),
             meta=np.asarray(json.dumps(self.meta, default=str)),
         )
         return path
@@ -88,8 +95,13 @@ class RunRecord:
         import json
 
         with np.load(path, allow_pickle=False) as data:
+            if "phases" not in data:
+                raise ConfigError(
+                    f"{path}: not a run record of this wholehand version (no 'phases'); "
+                    "record the run again with `wholehand run --save`"
+                )
             record = cls(
-                meta=json.loads(str(data["meta"])), stages=[str(s) for s in data["stages"]]
+                meta=json.loads(str(data["meta"])), phases=[str(s) for s in data["phases"]]
             )
             for key in cls.FIELDS:
                 record.rows[key] = list(data[key])
@@ -105,23 +117,23 @@ class RunRecord:
         held = self.arrays()["held"]
         return bool(held.size and held.all())
 
-    def stage_summary(self) -> list[dict[str, Any]]:
-        """Per stage: held or lost, contact count, residual wrench, object displacement."""
+    def phase_summary(self) -> list[dict[str, Any]]:
+        """Per phase: held or lost, contact count, residual wrench, object displacement."""
         a = self.arrays()
         out = []
         if a["t"].size == 0:
             return out
         p0, r0 = a["p_object"][0], pin.exp3(a["r_object"][0])
-        for i, name in enumerate(self.stages):
-            rows = np.flatnonzero(a["stage"] == i)
+        for i, name in enumerate(self.phases):
+            rows = np.flatnonzero(a["phase"] == i)
             if rows.size == 0:
-                out.append({"stage": name, "held": None})
+                out.append({"phase": name, "held": None})
                 continue
             last = rows[-1]
             rotation = pin.log3(pin.exp3(a["r_object"][last]) @ r0.T)
             out.append(
                 {
-                    "stage": name,
+                    "phase": name,
                     "held": bool(a["held"][rows].all()),
                     "contacts_mean": float(a["n_contacts"][rows].mean()),
                     "residual_force_N": float(
@@ -151,3 +163,69 @@ class RunRecord:
             if a["cycle_time"].size
             else float("nan"),
         }
+
+
+class Recorder(Observer):
+    """Fills a :class:`RunRecord` with one row per cycle: the true object pose and q, the stage's
+    contacts and allocation, the applied torque, the grasp-loss verdict.
+
+    Args:
+        loss: the grasp-loss monitor whose verdict is recorded (it must come before the
+            recorder among the loop's observers).
+        protocol: the protocol driver whose phase is recorded (None: one phase, ``"run"``).
+        meta: the record's metadata.
+    """
+
+    def __init__(
+        self,
+        loss: GraspLossMonitor,
+        protocol: ProtocolDriver | None = None,
+        meta: dict[str, Any] | None = None,
+    ) -> None:
+        self.loss, self.protocol = loss, protocol
+        phases = protocol.phase_names if protocol is not None else ["run"]
+        self.record = RunRecord(meta=dict(meta or {}), phases=phases)
+
+    def on_start(self, loop: ControlLoop) -> None:
+        self.record.meta.setdefault("control_rate", loop.rate)
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        out, truth = cycle.output, cycle.truth
+        contacts, allocation = out.contacts, out.allocation
+        q = _nan_unless(truth.q, (cycle.context.hand.nq,))
+        wMo = _nan_unless(truth.wMo, (4, 4))
+        self.record.append(
+            t=truth.stamp_q,
+            phase=self.protocol.phase_index if self.protocol is not None else 0,
+            stage=cycle.stage,
+            n_contacts=0 if contacts is None else len(contacts),
+            residual_wrench=np.zeros(6) if allocation is None else allocation.residual_wrench,
+            tau=cycle.command.tau,
+            qp_time=0.0 if allocation is None else allocation.solve_time,
+            estimate_time=out.estimate_time,
+            cycle_time=cycle.cycle_time,
+            status=out.status,
+            held=self.loss.held,
+            p_object=wMo[:3, 3].copy(),
+            r_object=pin.log3(wMo[:3, :3]) if np.isfinite(wMo).all() else np.full(3, np.nan),
+            q=q,
+            contact_p=_EMPTY3 if contacts is None else contacts.p_world,
+            contact_n=_EMPTY3 if contacts is None else contacts.n_world,
+            contact_f=_EMPTY3 if allocation is None else allocation.f_world,
+            contact_link=_EMPTY_LINK if contacts is None else contacts.link,
+        )
+        return None
+
+
+def _nan_unless(value: Any, shape: tuple[int, ...]) -> FloatArray:
+    """``value`` as floats if it has ``shape`` and is numeric, else NaN of that shape (a bad
+    observation is recorded as unknown, never as garbage of another shape)."""
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        return np.full(shape, np.nan)
+    return arr if arr.shape == shape else np.full(shape, np.nan)
+
+
+_EMPTY3 = np.zeros((0, 3))
+_EMPTY_LINK = np.zeros(0, dtype=np.intp)

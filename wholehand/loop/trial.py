@@ -1,10 +1,10 @@
-"""One perturbation trial of a stored grasp: build the scene, the controller, run the protocol."""
+"""One perturbation trial of a stored grasp: build the scene and the stage, run the protocol."""
 
 from __future__ import annotations
 
-import dataclasses
+import inspect
 import time
-from collections.abc import Callable
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -13,22 +13,34 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand import registry
-from wholehand.allocation.baselines import FixedAllocationBaseline
-from wholehand.backends.base import HandObjectState
-from wholehand.contacts.base import ContactSet
+from wholehand.allocation.base import HAND_KEYWORDS
+from wholehand.backends.base import Backend, HasGroundTruth, ReportsWarnings
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import Grasp, load_grasps
-from wholehand.loop.controller import CycleResult, ForceRegulationController
-from wholehand.loop.protocol import PerturbationProtocol
-from wholehand.loop.record import RunRecord
-from wholehand.loop.scheduler import CONTROL_RATE, run_protocol
+from wholehand.loop.control_loop import ControlLoop, Observer
+from wholehand.loop.filters import (
+    ConstantPoseError,
+    ObservationFilter,
+    PoseDropout,
+    PoseNoise,
+    PoseTracker,
+)
+from wholehand.loop.grasp_loss import GraspLossMonitor
+from wholehand.loop.protocol import PerturbationProtocol, ProtocolDriver
+from wholehand.loop.record import Recorder, RunRecord
+from wholehand.loop.regulation import ForceRegulation
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.objects import ObjectModel, load_object
 
 FloatArray = npt.NDArray[np.float64]
 
+CONTROL_RATE = 200.0
+"""Default control rate in simulation time [Hz]; the simulation steps finer in between."""
+
 POSE_ERROR_KEYS = ("rot_deg", "trans_mm", "seed")
 """Keys of :attr:`TrialSpec.pose_error`."""
+TRACKING_KEYS = ("rate_hz", "latency_s", "noise_mm", "noise_deg", "noise_seed", "dropouts")
+"""Keys of :attr:`TrialSpec.tracking`."""
 
 
 @dataclass(frozen=True)
@@ -49,7 +61,8 @@ class TrialSpec:
     seed: int = 0
     control_rate: float = CONTROL_RATE
     gravity: bool = False
-    backend: str = "mujoco"
+    backend: str | type = "mujoco"
+    """Backend plug-in: a registered name or a class."""
     estimator_params: dict[str, Any] = field(default_factory=dict)
     allocator_params: dict[str, Any] = field(default_factory=dict)
     backend_params: dict[str, Any] = field(default_factory=dict)
@@ -60,6 +73,14 @@ class TrialSpec:
     pose_error: dict[str, Any] = field(default_factory=dict)
     """Constant error of the object pose given to the controller (paper Sec. IV-B-2):
     ``{"rot_deg": R, "trans_mm": T, "seed": S}``, see :func:`pose_error_offset`. Empty: none."""
+    tracking: dict[str, Any] = field(default_factory=dict)
+    """How the object pose reaches the controller (:func:`tracking_filters`): ``rate_hz`` and
+    ``latency_s`` (a tracker, :class:`~wholehand.loop.filters.PoseTracker`), ``noise_mm``,
+    ``noise_deg`` and ``noise_seed`` (:class:`~wholehand.loop.filters.PoseNoise`), ``dropouts``
+    (``[[start_s, duration_s], ...]``). Empty: the exact pose every cycle."""
+    estimate_at: str = "object_stamp"
+    """Where contacts are estimated: ``"object_stamp"`` (at q(stamp_object), the paper's) or
+    ``"current"`` (:class:`~wholehand.loop.regulation.ForceRegulation`)."""
 
 
 def pose_error_offset(
@@ -105,23 +126,72 @@ def pose_error_offset(
     return offset
 
 
+def tracking_filters(
+    tracking: dict[str, Any], centre: npt.ArrayLike = (0.0, 0.0, 0.0)
+) -> list[ObservationFilter]:
+    """The observation filters of :attr:`TrialSpec.tracking`, in the order a tracker applies
+    them: frames at a rate with a latency, noise on each frame, dropouts.
+
+    Raises:
+        ConfigError: an unknown key or a bad value (named).
+    """
+    unknown = set(tracking) - set(TRACKING_KEYS)
+    if unknown:
+        raise ConfigError(f"tracking has unknown keys {sorted(unknown)}; use {list(TRACKING_KEYS)}")
+    out: list[ObservationFilter] = []
+    if "rate_hz" in tracking or "latency_s" in tracking:
+        rate = tracking.get("rate_hz")
+        out.append(
+            PoseTracker(
+                float(rate) if rate is not None else CONTROL_RATE,
+                float(tracking.get("latency_s", 0.0)),
+            )
+        )
+    if tracking.get("noise_mm", 0.0) or tracking.get("noise_deg", 0.0):
+        out.append(
+            PoseNoise(
+                float(tracking.get("noise_mm", 0.0)),
+                float(tracking.get("noise_deg", 0.0)),
+                int(tracking.get("noise_seed", 0)),
+                centre,
+            )
+        )
+    if tracking.get("dropouts"):
+        out.append(PoseDropout([tuple(d) for d in tracking["dropouts"]]))
+    return out
+
+
 @dataclass(frozen=True)
 class TrialSetup:
-    """A trial ready to run: the backend at the grasp, the controller, and what was measured."""
+    """A trial ready to run: the backend at the grasp, the regulation stage, the filters."""
 
-    backend: Any
-    controller: ForceRegulationController
+    hand: HandModel
+    obj: ObjectModel
+    backend: Backend
+    regulation: ForceRegulation
     grasp: Grasp
-    pose_offset: FloatArray | None
-    """(4, 4) constant pose error given to the controller, or None."""
+    filters: list[ObservationFilter]
+    """What the controller sees of the object: pose error, then the tracker's filters."""
     n_contacts_gt_init: int | None
-    """MuJoCo contacts at the initial state (None when the backend has no ground truth)."""
+    """Simulator contacts at the initial state (None when the backend has no ground truth)."""
+
+    def loop(self, observers: Sequence[Observer], rate: float = CONTROL_RATE) -> ControlLoop:
+        """A control loop of the trial's stage, filters and the given observers."""
+        return ControlLoop(
+            self.backend, self.hand, self.obj, self.regulation, rate=rate,
+            filters=self.filters, observers=observers,
+        )  # fmt: skip
 
 
 def set_up_trial(
     spec: TrialSpec, hand: HandModel | None = None, obj: ObjectModel | None = None
 ) -> TrialSetup:
-    """Backend at the stored grasp, the spec's plug-ins in a controller, baselines initialised."""
+    """Backend at the stored grasp and the spec's plug-ins in a force-regulation stage.
+
+    Raises:
+        ConfigError: a grasp index past the stored grasps, bad filter parameters, or an
+            allocator that needs ground truth over a backend without it.
+    """
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)
     grasps = load_grasps(spec.hand, spec.object, spec.grasp_type)
@@ -131,6 +201,11 @@ def set_up_trial(
             f"{spec.grasp_type} grasps for {spec.hand!r} (0..{len(grasps) - 1})"
         )
     grasp = grasps[spec.grasp]
+    filters: list[ObservationFilter] = []
+    offset = pose_error_offset(spec.pose_error, obj.com)
+    if offset is not None:
+        filters.append(ConstantPoseError(offset))
+    filters += tracking_filters(spec.tracking, obj.com)
     backend = registry.load(
         "backends",
         spec.backend,
@@ -144,12 +219,27 @@ def set_up_trial(
     estimator = registry.load(
         "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params
     )
-    allocator_params = {**_allocator_defaults(hand), **spec.allocator_params}
-    allocator = registry.load("allocators", spec.allocator, **allocator_params)
-    controller = ForceRegulationController(hand, obj, estimator, allocator)
-    pose_offset = pose_error_offset(spec.pose_error, obj.com)
-    n_contacts_gt = _ground_truth_init(backend, controller, pose_offset)
-    return TrialSetup(backend, controller, grasp, pose_offset, n_contacts_gt)
+    allocator = load_allocator(spec.allocator, hand, spec.allocator_params)
+    if allocator.needs_ground_truth and not isinstance(backend, HasGroundTruth):
+        raise ConfigError(
+            f"allocator {type(allocator).__name__} needs ground-truth contacts at "
+            f"initialisation; backend {type(backend).__name__} has no ground_truth_contacts()"
+        )
+    regulation = ForceRegulation(hand, obj, estimator, allocator, spec.estimate_at)  # type: ignore[arg-type]
+    n_gt = len(backend.ground_truth_contacts()) if isinstance(backend, HasGroundTruth) else None
+    return TrialSetup(hand, obj, backend, regulation, grasp, filters, n_gt)
+
+
+def load_allocator(name: str | type, hand: HandModel, params: dict[str, Any]) -> Any:
+    """An allocator plug-in built with the user's ``params`` and the hand's
+    :data:`~wholehand.allocation.base.HAND_KEYWORDS` that its constructor accepts."""
+    cls = registry.get_class("allocators", name)
+    hand_params = {"tau_max": hand.tau_max.copy(), "actuated_dofs": hand.actuated_dofs.copy()}
+    signature = inspect.signature(cls)
+    takes_any = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
+    accepted = {k: v for k, v in hand_params.items() if takes_any or k in signature.parameters}
+    assert set(hand_params) == set(HAND_KEYWORDS)
+    return registry.load("allocators", cls, **{**accepted, **params})
 
 
 def run_trial(
@@ -157,22 +247,29 @@ def run_trial(
     hand: HandModel | None = None,
     obj: ObjectModel | None = None,
     stop_on_loss: bool = True,
-    on_cycle: Callable[[int, HandObjectState, CycleResult], None] | None = None,
+    observers: Sequence[Observer] = (),
 ) -> RunRecord:
-    """Run the perturbation protocol on one stored grasp; the record's meta holds the spec.
+    """Run the perturbation protocol on one stored grasp; the record's meta holds the spec and
+    the loop's report (``meta["loop"]``: statuses, faults, stage errors with tracebacks).
 
-    ``on_cycle`` is passed to :func:`~wholehand.loop.scheduler.run_protocol`.
+    ``observers`` see every cycle after the protocol, the grasp-loss check and the recorder
+    (e.g. a live viewer).
     """
     started = time.perf_counter()
     trial = set_up_trial(spec, hand, obj)
-    backend = trial.backend
     protocol = PerturbationProtocol(
         theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params
     )
-    record = run_protocol(
-        backend, trial.controller, protocol, spec.control_rate, stop_on_loss, on_cycle=on_cycle,
-        pose_offset=trial.pose_offset,
+    driver = ProtocolDriver(protocol, trial.obj)
+    loss = GraspLossMonitor(trial.hand, trial.obj, stop_on_loss)
+    recorder = Recorder(
+        loss, driver, {"control_rate": spec.control_rate, "theta_deg": protocol.theta_deg,
+                       "seed": protocol.seed},
     )  # fmt: skip
+    loop = trial.loop([driver, loss, recorder, *observers], spec.control_rate)
+    report = loop.run(protocol.duration)
+    record = recorder.record
+    backend = trial.backend
     record.meta.update(
         {
             "spec": {k: getattr(v, "__name__", v) for k, v in spec.__dict__.items()},
@@ -180,56 +277,9 @@ def run_trial(
             "n_contacts_gt_init": trial.n_contacts_gt_init,
             "wall_time_s": time.perf_counter() - started,
             "sim_time_s": float(backend.time),
+            "loop": report.as_dict(),
             # MuJoCo's run-time warnings; bad_qacc means it diverged and reset the state.
-            "sim_warnings": backend.warnings() if hasattr(backend, "warnings") else {},
+            "sim_warnings": backend.warnings() if isinstance(backend, ReportsWarnings) else {},
         }
     )
     return record
-
-
-def _ground_truth_init(
-    backend: object,
-    controller: ForceRegulationController,
-    pose_offset: FloatArray | None = None,
-) -> int | None:
-    """Ground-truth contact count at the initial state (None when the backend has none), and
-    the one-off allocation of a non-adaptive baseline on those contacts (paper Sec. IV-A-1).
-
-    With a pose error (``pose_offset``, see :func:`pose_error_offset`) the baseline's contacts
-    are expressed in the true object frame and mapped back to the world with the perturbed pose
-    ``wMo_true @ pose_offset`` (paper Sec. IV-B-2), as is the centre of mass; the returned count
-    is unaffected.
-    """
-    ground_truth = getattr(backend, "ground_truth_contacts", None)
-    allocator = controller.allocator
-    if ground_truth is None:
-        if isinstance(allocator, FixedAllocationBaseline):
-            raise ConfigError(
-                f"allocator {type(allocator).__name__} needs ground-truth contacts at "
-                f"initialisation; backend {type(backend).__name__} has no ground_truth_contacts()"
-            )
-        return None
-    contacts = ground_truth().to_contact_set(controller.hand)
-    if isinstance(allocator, FixedAllocationBaseline):
-        state = backend.read_state()  # type: ignore[attr-defined]
-        controller.kinematics.update(state.q, state.wMb)
-        wMo = state.wMo
-        if pose_offset is not None:
-            wMo = state.wMo @ pose_offset
-            contacts = transform_contacts(contacts, wMo @ np.linalg.inv(state.wMo))
-        p_com = wMo[:3, :3] @ controller.obj.com + wMo[:3, 3]
-        allocator.initialise(contacts, controller.kinematics, p_com)
-    return len(contacts)
-
-
-def transform_contacts(contacts: ContactSet, M: FloatArray) -> ContactSet:
-    """The contact set moved rigidly by the world transform ``M`` (4, 4): points and normals."""
-    R, t = M[:3, :3], M[:3, 3]
-    return dataclasses.replace(
-        contacts, p_world=contacts.p_world @ R.T + t, n_world=contacts.n_world @ R.T
-    )
-
-
-def _allocator_defaults(hand: HandModel) -> dict[str, Any]:
-    """Hand-specific allocator parameters: per-joint torque limits and actuated dofs."""
-    return {"tau_max": hand.tau_max.copy(), "actuated_dofs": hand.actuated_dofs.copy()}

@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.errors import ConfigError
+from wholehand.loop.outcome import DIVERGED_PREFIX
 from wholehand.loop.trial import TrialSpec
 
 FloatArray = npt.NDArray[np.float64]
@@ -81,10 +82,6 @@ class Study(abc.ABC):
         if size not in SIZES:
             raise ConfigError(f"study size {size!r} is unknown; use one of {list(SIZES)}")
         return size
-
-
-DIVERGED_PREFIX = "simulation diverged"
-"""Start of the ``error`` of a row whose MuJoCo simulation diverged (the trial itself ran)."""
 
 
 def _grasp_rates(rows: list[dict[str, Any]], held: Any) -> FloatArray:

@@ -17,14 +17,19 @@ Two parts, each ``qp`` against ``qp_no_consistency``:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from wholehand.backends.base import HasGroundTruth
+from wholehand.backends.mujoco_scene import SimContacts
+from wholehand.errors import ConfigError
 from wholehand.grasps.store import stored_grasp_indices
-from wholehand.loop.trial import TrialSpec
+from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
     Study,
@@ -63,29 +68,46 @@ CONFIGS = {
 }
 
 
+class NetForceSampler(Observer):
+    """The resultant of the simulator's contact forces on the object: every cycle, and at the
+    end of the run (after the last step)."""
+
+    def __init__(self) -> None:
+        self.resultants: list[float] = []
+        self.final: SimContacts | None = None
+        self._backend: HasGroundTruth | None = None
+
+    def on_start(self, loop: ControlLoop) -> None:
+        if not isinstance(loop.backend, HasGroundTruth):
+            raise ConfigError("the net-force measurement needs a backend with ground truth")
+        self._backend = loop.backend
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        assert self._backend is not None
+        f = self._backend.ground_truth_contacts().f_world
+        self.resultants.append(float(np.linalg.norm(f.sum(0))))
+        return None
+
+    def on_end(self, loop: ControlLoop) -> None:
+        assert self._backend is not None
+        self.final = self._backend.ground_truth_contacts()
+
+
 def net_force_row(job: TrialJob) -> dict[str, Any]:
     """Hold ``job.spec``'s grasp for ``NET_FORCE_TIME`` without load, then measure the net
     ground-truth contact force on the object (the spec's protocol is replaced by a settle)."""
-    from wholehand.loop.protocol import PerturbationProtocol
-    from wholehand.loop.scheduler import run_protocol
-    from wholehand.loop.trial import set_up_trial
-    from wholehand.studies.runner import _model, record_row
+    from wholehand.studies.runner import model, record_row
 
-    spec = job.spec
-    hand, obj = _model("hand", spec.hand), _model("object", spec.object)
-    trial = set_up_trial(spec, hand, obj)
-    backend = trial.backend
-    protocol = PerturbationProtocol(theta_deg=0.0, settle_time=NET_FORCE_TIME, load_duration=0.0)
-    resultants: list[float] = []
-
-    def sample(_index: int, _state: Any, _cycle: Any) -> None:
-        resultants.append(float(np.linalg.norm(backend.ground_truth_contacts().f_world.sum(0))))
-
-    record = run_protocol(
-        backend, trial.controller, protocol, spec.control_rate, stop_on_loss=False,
-        on_cycle=sample,
-    )  # fmt: skip
-    gt = backend.ground_truth_contacts()
+    spec = dataclasses.replace(
+        job.spec,
+        theta_deg=0.0,
+        protocol_params={"settle_time": NET_FORCE_TIME, "load_duration": 0.0},
+    )
+    hand, obj = model("hand", spec.hand), model("object", spec.object)
+    sampler = NetForceSampler()
+    record = run_trial(spec, hand, obj, stop_on_loss=False, observers=[sampler])
+    gt = sampler.final
+    assert gt is not None
     net = gt.f_world.sum(axis=0)
     row = record_row(record)
     row.update({
@@ -95,7 +117,7 @@ def net_force_row(job: TrialJob) -> dict[str, Any]:
         "net_force_N": round(float(np.linalg.norm(net)), 6),
         "net_force_x": round(float(net[0]), 6), "net_force_y": round(float(net[1]), 6),
         "net_force_z": round(float(net[2]), 6),
-        "net_force_mean_N": round(float(np.mean(resultants)), 6),
+        "net_force_mean_N": round(float(np.mean(sampler.resultants)), 6),
         "displacement_mm": row["final_displacement_mm"],
         "normal_force_sum_N": round(float(gt.f_normal.sum()), 6),
     })  # fmt: skip

@@ -38,9 +38,10 @@ import numpy as np
 from wholehand import registry
 from wholehand.allocation.base import AllocationStatus
 from wholehand.errors import ConfigError
-from wholehand.loop.record import STATUS_CODES, RunRecord
+from wholehand.loop.outcome import outcome_of
+from wholehand.loop.record import RunRecord
 from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.studies.base import DIVERGED_PREFIX, Study, TrialJob
+from wholehand.studies.base import Study, TrialJob
 from wholehand.studies.executors import execute
 
 log = logging.getLogger(__name__)
@@ -66,7 +67,8 @@ _MODELS: dict[tuple[str, str], Any] = {}
 """Per-process cache of loaded hands and objects (worker processes run many trials)."""
 
 
-def _model(kind: str, name: str) -> Any:
+def model(kind: str, name: str) -> Any:
+    """A hand (``kind="hand"``) or object model by name, loaded once per process."""
     key = (kind, name)
     if key not in _MODELS:
         if kind == "hand":
@@ -94,37 +96,34 @@ def spec_columns(spec: TrialSpec) -> dict[str, Any]:
 
 
 def record_row(record: RunRecord) -> dict[str, Any]:
-    """Outcome and timing columns of one run record."""
+    """Outcome and timing columns of one run record (:func:`~wholehand.loop.outcome.outcome_of`).
+
+    The columns keep their names of earlier versions (``stages_total``, ``failure_stage``: the
+    protocol's phases), so committed study rows and ``--resume`` stay valid. A run in which a
+    stage raised gets ``failure_stage == "error"``: it is no result and is re-run on resume.
+    """
+    outcome = outcome_of(record)
     a = record.arrays()
-    n = int(a["t"].size)
-    stages = record.stages
-    reached = int(a["stage"].max()) + 1 if n else 0
-    lost = np.flatnonzero(~a["held"].astype(bool)) if n else np.zeros(0, dtype=int)
-    held = bool(n and lost.size == 0 and reached == len(stages))
-    failure = ""
-    if lost.size:
-        failure = stages[int(a["stage"][lost[0]])]
-    elif not held:
-        failure = "incomplete"
+    n = outcome.cycles
     status = a["status"]
-    hold_code = STATUS_CODES[AllocationStatus.HOLD]
-    ok_code = STATUS_CODES[AllocationStatus.OK]
-    p0 = a["p_object"][0] if n else np.zeros(3)
     cycle = a["cycle_time"]
+    stage_raised = bool(record.meta.get("loop", {}).get("n_errors", 0))
     return {
-        "held": held,
-        "stages_total": len(stages),
-        "stages_reached": reached,
-        "failure_stage": failure,
+        "held": outcome.held,
+        "stages_total": outcome.phases_total,
+        "stages_reached": outcome.phases_reached,
+        "failure_stage": "error" if stage_raised else outcome.failure_phase,
         "cycles": n,
         "contacts_mean": round(float(a["n_contacts"].mean()), 6) if n else float("nan"),
         "n_contacts_gt_init": record.meta.get("n_contacts_gt_init"),
-        "ok_fraction": round(float(np.mean(status == ok_code)), 6) if n else float("nan"),
-        "hold_fraction": round(float(np.mean(status == hold_code)), 6) if n else float("nan"),
-        "final_displacement_mm": round(float(1e3 * np.linalg.norm(a["p_object"][-1] - p0)), 6)
+        "ok_fraction": round(float(np.mean(status == AllocationStatus.OK.value)), 6)
         if n
         else float("nan"),
-        "error": _simulation_error(record),
+        "hold_fraction": round(float(np.mean(status == AllocationStatus.HOLD.value)), 6)
+        if n
+        else float("nan"),
+        "final_displacement_mm": round(outcome.final_displacement_mm, 6) if n else float("nan"),
+        "error": outcome.error,
         "wall_time_s": float(record.meta.get("wall_time_s", float("nan"))),
         "qp_p50_us": float(np.percentile(a["qp_time"], 50) * 1e6) if n else float("nan"),
         "cycle_mean_us": float(cycle.mean() * 1e6) if n else float("nan"),
@@ -132,15 +131,9 @@ def record_row(record: RunRecord) -> dict[str, Any]:
     }
 
 
-def _simulation_error(record: RunRecord) -> str:
-    """Why a trial says nothing about the controller ("" if it does): the simulation diverged."""
-    diverged = record.meta.get("sim_warnings", {}).get("bad_qacc", 0)
-    return f"{DIVERGED_PREFIX} (MuJoCo bad_qacc x{diverged})" if diverged else ""
-
-
 def _trial(job: TrialJob) -> dict[str, Any]:
     spec = job.spec
-    record = run_trial(spec, hand=_model("hand", spec.hand), obj=_model("object", spec.object))
+    record = run_trial(spec, hand=model("hand", spec.hand), obj=model("object", spec.object))
     return record_row(record)
 
 
@@ -181,7 +174,7 @@ def _warm_caches(jobs: list[TrialJob]) -> None:
         if key in seen:
             continue
         seen.add(key)
-        hand, obj = _model("hand", s.hand), _model("object", s.object)
+        hand, obj = model("hand", s.hand), model("object", s.object)
         registry.load("contact_estimators", s.estimator, hand=hand, obj=obj, **s.estimator_params)
 
 

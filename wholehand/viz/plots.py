@@ -1,6 +1,7 @@
 """Per-run PNG: contact count, residual wrench norms, joint torques and QP time over time.
 
-Stage boundaries are drawn as vertical lines labelled with the stage name on the top panel.
+Protocol phase boundaries are drawn as vertical lines labelled with the phase name on the top
+panel.
 """
 
 from __future__ import annotations
@@ -15,13 +16,13 @@ PANELS = ("contacts", "residual wrench", "joint torques", "QP time")
 """Panels of :func:`plot_run`, top to bottom."""
 
 
-def stage_boundaries(record: RunRecord) -> list[tuple[float, str]]:
-    """(start time [s], stage name) of every stage the record reached, in order."""
+def phase_boundaries(record: RunRecord) -> list[tuple[float, str]]:
+    """(start time [s], phase name) of every protocol phase the record reached, in order."""
     a = record.arrays()
     if a["t"].size == 0:
         return []
-    starts = np.r_[0, np.flatnonzero(np.diff(a["stage"])) + 1]
-    return [(float(a["t"][i]), record.stages[int(a["stage"][i])]) for i in starts]
+    starts = np.r_[0, np.flatnonzero(np.diff(a["phase"])) + 1]
+    return [(float(a["t"][i]), record.phases[int(a["phase"][i])]) for i in starts]
 
 
 def plot_run(record: RunRecord, path: str | Path, title: str | None = None) -> Path:
@@ -42,7 +43,7 @@ def plot_run(record: RunRecord, path: str | Path, title: str | None = None) -> P
         tau = a["tau"].reshape(t.size, -1)
         ax_tau.plot(t, tau, lw=0.6)
         ax_qp.plot(t, 1e6 * a["qp_time"], color="tab:red", lw=0.6)
-        for start, name in stage_boundaries(record):
+        for start, name in phase_boundaries(record):
             for ax in axes:
                 ax.axvline(start, color="0.6", lw=0.6, ls="--")
             ax_n.annotate(name, (start, 1.0), xycoords=("data", "axes fraction"), rotation=90,

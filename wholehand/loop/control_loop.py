@@ -1,0 +1,325 @@
+"""The control loop: observe, filter, run the active stage, apply, let observers see, advance.
+
+One loop serves simulation, the grasp generator and hardware. Each cycle:
+
+1. reads an :class:`~wholehand.loop.observation.Observation` from the backend and checks it;
+2. passes it through the observation filters (what the controller sees: pose error, noise,
+   latency and rate, dropouts);
+3. runs the active :class:`~wholehand.loop.stage.Stage` on a
+   :class:`~wholehand.loop.stage.CycleContext`;
+4. applies the stage's command, or the last feasible one;
+5. hands the :class:`Cycle` to every observer (protocol, grasp-loss check, recorder, viewer),
+   any of which may end the run;
+6. advances the backend to the start of the next period.
+
+Time comes from the backend's clock: the run ends once ``duration`` of backend time has passed,
+and on a wall-clock backend a cycle that computes past its period is an overrun, counted and
+recorded (:attr:`Cycle.overrun`), never silently absorbed.
+
+Nothing raises out of a cycle. An :class:`~wholehand.errors.ObservationError` gives status
+``bad_state`` with the reason logged; any other exception in a stage gives ``stage_error`` and is
+kept with its traceback in :attr:`ControlLoop.errors`. Either way the last feasible command stays
+applied. Errors of observers and of the backend itself are not caught: they are bugs of the set-up,
+not faults of a grasp.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import traceback
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wholehand.backends.base import Backend, HasGroundTruth
+from wholehand.contacts.base import ContactSet
+from wholehand.errors import ConfigError, ObservationError
+from wholehand.loop.command import Command
+from wholehand.loop.filters import ObservationFilter
+from wholehand.loop.observation import Observation, check_observation
+from wholehand.loop.stage import END, CycleContext, LoopStatus, Stage, StageOutput
+from wholehand.models.hand import HandModel
+from wholehand.models.kinematics import HandKinematics
+from wholehand.models.objects import ObjectModel
+
+log = logging.getLogger(__name__)
+
+MAX_KEPT_ERRORS = 20
+"""Stage exceptions kept with their traceback (later ones are counted only)."""
+
+
+@dataclass(frozen=True)
+class StageError:
+    """An unexpected exception inside a stage."""
+
+    t: float
+    """Backend time of the cycle [s]."""
+    stage: str
+    error: str
+    """``Type: message``."""
+    traceback: str
+
+
+@dataclass(frozen=True)
+class Cycle:
+    """Everything one cycle saw and did, for observers."""
+
+    index: int
+    """Cycle number since :meth:`ControlLoop.run` started."""
+    t: float
+    """Backend time at the start of the cycle [s]."""
+    truth: Observation
+    """The backend's observation, before the filters (simulation: the true state)."""
+    context: CycleContext
+    """What the stage saw."""
+    stage: str
+    """Name of the stage that ran."""
+    output: StageOutput
+    """The stage's output (its status, or the loop's when the cycle faulted)."""
+    command: Command
+    """The command actually applied (the last feasible one when ``output.command`` is None)."""
+    cycle_time: float
+    """Compute time from reading the observation to applying the command [s]."""
+    fault: str = ""
+    """Why the cycle faulted ("" when it did not)."""
+
+
+@dataclass
+class LoopReport:
+    """What a run of the loop did, for records and the CLI."""
+
+    cycles: int = 0
+    stopped_by: str = ""
+    """``"duration"``, ``"end"`` (a stage ended the run) or the observer's reason."""
+    status_counts: Counter[str] = field(default_factory=Counter)
+    """Cycles per status."""
+    faults: Counter[str] = field(default_factory=Counter)
+    """Faulted cycles per loop status (``bad_state``, ``stage_error``, ``no_pose``)."""
+    last_fault: str = ""
+    """Reason of the latest faulted cycle."""
+    overruns: int = 0
+    """Cycles that computed past their period (wall-clock backends)."""
+    max_overrun: float = 0.0
+    """Largest overrun [s]."""
+    errors: list[StageError] = field(default_factory=list)
+    """Stage exceptions, the first :data:`MAX_KEPT_ERRORS` with their tracebacks."""
+    n_errors: int = 0
+    """All stage exceptions, kept or not."""
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-serialisable summary (tracebacks of at most three errors)."""
+        return {
+            "cycles": self.cycles,
+            "stopped_by": self.stopped_by,
+            "status_counts": dict(self.status_counts),
+            "faults": dict(self.faults),
+            "last_fault": self.last_fault,
+            "overruns": self.overruns,
+            "max_overrun_s": self.max_overrun,
+            "n_errors": self.n_errors,
+            "errors": [e.__dict__ for e in self.errors[:3]],
+        }
+
+
+class Observer:
+    """Sees every cycle after its command is applied; may push the object or end the run."""
+
+    def on_start(self, loop: ControlLoop) -> None:
+        """Called once before the first cycle."""
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        """Called after the cycle's command is applied, before the backend advances. A
+        returned string ends the run at once (the backend does not advance); it is the
+        reason."""
+        return None
+
+    def on_end(self, loop: ControlLoop) -> None:
+        """Called once after the last cycle, also when the run stopped early."""
+
+
+class ControlLoop:
+    """Runs stages over a backend at a control rate, on the backend's clock.
+
+    Args:
+        backend: the robot or simulation.
+        hand: the hand model (kinematics, joint counts).
+        obj: the object model.
+        stages: the stages by name, or one stage.
+        first: the stage active at the start (default: the first one).
+        rate: control rate [Hz] (on the backend's clock).
+        filters: observation filters, applied in order to what the stages see.
+        observers: observers, called in order each cycle.
+        initial_command: applied until a stage produces one (default: zero torques).
+    """
+
+    def __init__(
+        self,
+        backend: Backend,
+        hand: HandModel,
+        obj: ObjectModel,
+        stages: Mapping[str, Stage] | Stage,
+        first: str | None = None,
+        rate: float = 200.0,
+        filters: Sequence[ObservationFilter] = (),
+        observers: Sequence[Observer] = (),
+        initial_command: Command | None = None,
+    ) -> None:
+        if not (isinstance(rate, int | float) and 0.0 < rate < np.inf):
+            raise ConfigError(f"ControlLoop: rate must be a finite number > 0 [Hz], got {rate!r}")
+        self.stages: dict[str, Stage] = (
+            {stages.name: stages} if isinstance(stages, Stage) else dict(stages)
+        )
+        if not self.stages:
+            raise ConfigError("ControlLoop: give at least one stage")
+        self.active = first if first is not None else next(iter(self.stages))
+        if self.active not in self.stages:
+            raise ConfigError(
+                f"ControlLoop: first stage {self.active!r} is not one of {sorted(self.stages)}"
+            )
+        self.backend, self.hand, self.obj = backend, hand, obj
+        self.rate = float(rate)
+        self.dt = 1.0 / self.rate
+        self.filters = list(filters)
+        self.observers = list(observers)
+        self.command = initial_command or Command.torques(np.zeros(hand.nv))
+        """The last feasible command (the one memory of it)."""
+        self.report = LoopReport()
+        self._kin_now = HandKinematics(hand)
+        self._kin_then = HandKinematics(hand)
+        self._started: set[str] = set()
+
+    # --------------------------------------------------------------------------------------------
+    def run(self, duration: float | None = None) -> LoopReport:
+        """Run until ``duration`` [s] of backend time has passed (None: until a stage ends the run
+        or an observer stops it). A cycle runs when at least half a period is left."""
+        if duration is not None and not (np.isfinite(duration) and duration >= 0.0):
+            raise ConfigError(f"ControlLoop.run: duration must be >= 0 [s], got {duration!r}")
+        backend = self.backend
+        t0 = backend.time
+        for observer in self.observers:
+            observer.on_start(self)
+        report = self.report
+        try:
+            while True:
+                t = backend.time
+                if duration is not None and t - t0 + 0.5 * self.dt >= duration:
+                    report.stopped_by = "duration"
+                    break
+                cycle = self._cycle(report.cycles, t)
+                report.cycles += 1
+                reason = None
+                for observer in self.observers:
+                    reason = observer.on_cycle(cycle) or reason
+                if reason is not None:
+                    report.stopped_by = reason
+                    break
+                next_stage = cycle.output.next
+                if next_stage == END:
+                    report.stopped_by = END
+                    break
+                if next_stage is not None:
+                    self._switch(next_stage, t)
+                self._advance(t + self.dt)
+        finally:
+            for observer in self.observers:
+                observer.on_end(self)
+        return report
+
+    def _switch(self, name: str, t: float) -> None:
+        if name not in self.stages:  # a bug of the stage: reported, and the stage stays
+            message = (
+                f"ConfigError: stage {self.active!r} switched to {name!r}, which is not one of "
+                f"{sorted(self.stages)}"
+            )
+            self.report.n_errors += 1
+            if len(self.report.errors) < MAX_KEPT_ERRORS:
+                self.report.errors.append(StageError(t, self.active, message, ""))
+            log.error("%s", message)
+            return
+        self.active = name
+        self._started.discard(name)
+
+    def _advance(self, t_next: float) -> None:
+        backend = self.backend
+        left = t_next - backend.time
+        if backend.clock == "wall" and left < 0.0:
+            self.report.overruns += 1
+            self.report.max_overrun = max(self.report.max_overrun, -left)
+        backend.step(max(left, 0.0))
+
+    # --------------------------------------------------------------------------------------------
+    def _cycle(self, index: int, t: float) -> Cycle:
+        started = time.perf_counter()
+        truth = self.backend.observe()
+        stage = self.stages[self.active]
+        obs = truth
+        fault = ""
+        context = CycleContext(t, self.dt, obs, self.hand, self.obj, self._kin_now, self._kin_then)
+        try:
+            check_observation(truth, self.hand.nq, self.hand.nv)
+            for f in self.filters:
+                obs = f.apply(obs, t)
+            context = CycleContext(
+                t, self.dt, obs, self.hand, self.obj, self._kin_now, self._kin_then,
+                self._ground_truth(truth, obs),
+            )  # fmt: skip
+            if obs.wMo is None:
+                output = StageOutput(None, LoopStatus.NO_POSE.value)
+                fault = "no object pose has arrived yet"
+            else:
+                if self.active not in self._started:
+                    self._started.add(self.active)
+                    stage.start(context)
+                output = stage.step(context)
+        except ObservationError as err:
+            output = StageOutput(None, LoopStatus.BAD_STATE.value)
+            fault = str(err)
+        except Exception as err:  # noqa: BLE001 - the loop never raises mid-grasp
+            output = StageOutput(None, LoopStatus.STAGE_ERROR.value)
+            fault = f"{type(err).__name__}: {err}"
+            self._keep_error(t, stage.name, fault)
+        if output.command is not None:
+            self.command = output.command
+        self.backend.apply(self.command)
+        report = self.report
+        report.status_counts[output.status] += 1
+        if fault:
+            report.faults[output.status] += 1
+            if fault != report.last_fault:
+                log.info("cycle at t = %.4f s: %s (%s)", t, output.status, fault)
+            report.last_fault = fault
+        return Cycle(
+            index, t, truth, context, stage.name, output, self.command,
+            time.perf_counter() - started, fault,
+        )  # fmt: skip
+
+    def _keep_error(self, t: float, stage: str, error: str) -> None:
+        report = self.report
+        report.n_errors += 1
+        if len(report.errors) < MAX_KEPT_ERRORS:
+            report.errors.append(StageError(t, stage, error, traceback.format_exc()))
+        if report.n_errors == 1:
+            log.error("stage %r raised at t = %.4f s: %s", stage, t, error)
+
+    def _ground_truth(
+        self, truth: Observation, seen: Observation
+    ) -> Callable[[], ContactSet] | None:
+        """The simulator's contacts, moved rigidly with the error between the true object pose
+        and the one the controller sees (so a baseline's one-off allocation uses the ground-truth
+        contacts where it believes the object is)."""
+        backend = self.backend
+        if not isinstance(backend, HasGroundTruth):
+            return None
+        hand = self.hand
+        M = None
+        if seen.wMo is not None and truth.wMo is not None and seen.wMo is not truth.wMo:
+            M = seen.wMo @ np.linalg.inv(truth.wMo)
+
+        def contacts() -> ContactSet:
+            found = backend.ground_truth_contacts().to_contact_set(hand)
+            return found if M is None else found.transformed(M)
+
+        return contacts

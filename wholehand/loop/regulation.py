@@ -1,0 +1,90 @@
+"""The paper's force regulation as a stage: contacts on every link -> QP -> joint torques.
+
+Each cycle, in two halves as the paper's hardware loop runs them (Sec. V-D):
+
+1. estimate the contacts at the object pose and the joint configuration it was measured at,
+   ``q(stamp_object)`` (``estimate_at="object_stamp"``, the paper's) or at the current q
+   (``estimate_at="current"``, for comparison);
+2. carry the contacts with their links to the current q (a no-op when both stamps agree), take
+   the point Jacobians there and allocate the forces; ``tau = J_act^T f``.
+
+With exact, current observations both halves run at one configuration and nothing is moved.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Literal
+
+import numpy as np
+
+from wholehand.allocation.base import Allocator
+from wholehand.contacts.base import ContactEstimator
+from wholehand.errors import ConfigError
+from wholehand.loop.command import Command
+from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.models.hand import HandModel
+from wholehand.models.objects import ObjectModel
+
+EstimateAt = Literal["object_stamp", "current"]
+ESTIMATE_AT: tuple[EstimateAt, ...] = ("object_stamp", "current")
+
+
+class ForceRegulation(Stage):
+    """Estimate contacts on every link, allocate forces, command joint torques.
+
+    Args:
+        hand: the hand model.
+        obj: the object model (its centre of mass is the reference point of the grasp matrix).
+        estimator: a contact-estimator plug-in instance.
+        allocator: an allocator plug-in instance.
+        estimate_at: ``"object_stamp"``: contacts at q(stamp_object) (paper); ``"current"``: at
+            the current q.
+        name: the stage's name.
+
+    Status: the allocation's (``ok``, ``empty``, ``infeasible``, ``hold``, ...). When the
+    allocation gives no torque the stage gives no command and the loop keeps the last feasible
+    one.
+    """
+
+    def __init__(
+        self,
+        hand: HandModel,
+        obj: ObjectModel,
+        estimator: ContactEstimator,
+        allocator: Allocator,
+        estimate_at: EstimateAt = "object_stamp",
+        name: str = "regulate",
+    ) -> None:
+        if estimate_at not in ESTIMATE_AT:
+            raise ConfigError(
+                f"ForceRegulation: estimate_at={estimate_at!r} is unknown; use one of "
+                f"{list(ESTIMATE_AT)}"
+            )
+        self.hand, self.obj = hand, obj
+        self.estimator, self.allocator = estimator, allocator
+        self.estimate_at = estimate_at
+        self.name = name
+        self._com_h = np.r_[np.asarray(obj.com, dtype=float), 1.0]
+
+    def start(self, context: CycleContext) -> None:
+        """Let the allocator prepare (baselines allocate once here)."""
+        self.allocator.start(context)
+
+    def step(self, context: CycleContext) -> StageOutput:
+        started = time.perf_counter()
+        obs = context.obs
+        wMo = obs.wMo
+        assert wMo is not None  # the loop runs no stage without a pose
+        now = context.kinematics
+        then = context.kinematics_object if self.estimate_at == "object_stamp" else now
+        contacts = self.estimator.estimate(then, wMo, stamp=obs.stamp_object)
+        if then is not now:
+            contacts = contacts.in_joint_frames(then).moved_to(now)
+        estimated = time.perf_counter()
+        J = now.point_jacobians(self.hand.link_joint[contacts.link], contacts.p_world)
+        allocation = self.allocator.allocate(contacts, J, (wMo @ self._com_h)[:3], now)
+        command = None if allocation.tau is None else Command.torques(allocation.tau)
+        return StageOutput(
+            command, allocation.status.value, contacts, allocation, estimated - started
+        )

@@ -465,9 +465,9 @@ def test_a_bad_observation_is_recorded_as_unknown_and_a_bad_switch_is_reported(a
     backend = FaultyBackend(grasp_backend(allegro, cube), {3: "short_q", 4: "nan_pose"})
     loss = GraspLossMonitor(allegro, cube)
     recorder = Recorder(loss)
-    ControlLoop(
-        backend, allegro, cube, regulation(allegro, cube), observers=[loss, recorder]
-    ).run(0.05)
+    ControlLoop(backend, allegro, cube, regulation(allegro, cube), observers=[loss, recorder]).run(
+        0.05
+    )
     a = recorder.record.arrays()
     assert a["q"].shape == (10, allegro.nq) and np.isnan(a["q"][3]).all()
     assert np.isnan(a["p_object"][4]).any() and np.isfinite(a["q"][4]).all()
@@ -481,3 +481,26 @@ def test_a_bad_observation_is_recorded_as_unknown_and_a_bad_switch_is_reported(a
 
     report = ControlLoop(grasp_backend(allegro, cube), allegro, cube, Wrong()).run(0.02)
     assert report.cycles == 4 and report.n_errors == 4 and "'nowhere'" in report.errors[0].error
+
+
+def test_no_pose_yet_keeps_the_last_command_and_a_pose_free_stage_runs(allegro, cube):
+    from wholehand.grasps.generate import ClosingStage
+    from wholehand.loop.filters import PoseDropout
+
+    seen = Last()
+    blind = [PoseDropout([(0.0, 0.02)])]
+    report = ControlLoop(
+        grasp_backend(allegro, cube), allegro, cube, regulation(allegro, cube),
+        filters=blind, observers=[seen],
+    ).run(0.05)  # fmt: skip
+    statuses = [c.output.status for c in seen.cycles]
+    assert statuses[:4] == ["no_pose"] * 4 and statuses[4] == "ok"
+    assert report.faults == {"no_pose": 4}
+    assert not any(c.command.tau.any() for c in seen.cycles[:4])
+    q = np.zeros(allegro.nq)
+    closing = ClosingStage(q, np.zeros(allegro.nv), np.zeros(allegro.nv, dtype=bool))
+    seen = Last()
+    ControlLoop(
+        grasp_backend(allegro, cube), allegro, cube, closing, filters=blind, observers=[seen]
+    ).run(0.02)
+    assert [c.output.status for c in seen.cycles] == ["closing"] * 4

@@ -204,7 +204,9 @@ def test_latency_run_estimates_at_the_pose_stamp_and_differs_from_current(allegr
     )
     spy = KinematicsSpy()
     at_stamp = run_trial(spec, allegro, observers=[spy])
-    assert spy.checked == len(at_stamp.arrays()["t"]) and max(spy.lags) > 0.033
+    a = at_stamp.arrays()
+    assert spy.checked == len(a["t"]) and max(spy.lags) > 0.033
+    np.testing.assert_allclose(a["t"] - a["stamp_object"], spy.lags)  # recorded pose age
     current = run_trial(TrialSpec(**{**spec.__dict__, "estimate_at": "current"}), allegro)
     exact = run_trial(TrialSpec(theta_deg=0.0, protocol_params=TINY), allegro)
     for rec in (at_stamp, current, exact):

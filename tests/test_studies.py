@@ -96,7 +96,8 @@ def test_record_row_names_the_failure_stage():
     extra["contact_link"] = np.zeros(0, dtype=int)
     for i, (stage, held) in enumerate([(0, True), (1, True), (1, False)]):
         values = {
-            **extra, "t": 0.005 * i, "phase": stage, "stage": "regulate", "n_contacts": 4 + i,
+            **extra, "t": 0.005 * i, "stamp_object": 0.005 * i, "phase": stage,
+            "stage": "regulate", "n_contacts": 4 + i,
             "residual_wrench": np.zeros(6), "tau": np.zeros(2), "qp_time": 1e-4,
             "estimate_time": 1e-4, "cycle_time": 2e-3,
             "status": "ok", "held": held,

@@ -77,7 +77,8 @@ def record(hand, obj) -> RunRecord:
     )
     for i in range(12):
         rec.append(
-            t=0.05 * i, phase=int(i >= 6), stage="regulate", n_contacts=len(rows),
+            t=0.05 * i, stamp_object=0.05 * i, phase=int(i >= 6), stage="regulate",
+            n_contacts=len(rows),
             residual_wrench=np.full(6, 1e-3 * i),
             tau=np.linspace(-0.1, 0.1, hand.nv), qp_time=1e-4, estimate_time=1e-4, cycle_time=5e-4,
             status="ok", held=True, p_object=wMo[:3, 3].copy(), r_object=pin.log3(wMo[:3, :3]),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import abc
 import enum
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -14,6 +14,7 @@ from wholehand.contacts.base import ContactSet
 
 if TYPE_CHECKING:
     from wholehand.loop.stage import CycleContext
+    from wholehand.models.hand import HandModel
     from wholehand.models.kinematics import HandKinematics
 
 FloatArray = npt.NDArray[np.float64]
@@ -64,10 +65,12 @@ class Allocation:
         return self.status is AllocationStatus.OK
 
 
-HAND_KEYWORDS = ("tau_max", "actuated_dofs")
-"""Constructor keywords the trial set-up derives from the hand and passes to an allocator whose
-constructor accepts them: ``tau_max`` ((n_v,) torque limit per joint [N*m], ``inf`` where none)
-and ``actuated_dofs`` ((n_v,) bool, True for the joints the allocator commands)."""
+def hand_keywords(hand: HandModel) -> dict[str, Any]:
+    """Constructor keywords the trial set-up derives from the hand and passes to an allocator
+    whose constructor accepts them: ``tau_max`` ((n_v,) torque limit per joint [N*m], ``inf``
+    where none) and ``actuated_dofs`` ((n_v,) bool, True for the joints the allocator
+    commands)."""
+    return {"tau_max": hand.tau_max.copy(), "actuated_dofs": hand.actuated_dofs.copy()}
 
 
 class Allocator(abc.ABC):
@@ -75,8 +78,8 @@ class Allocator(abc.ABC):
 
     Registered in the ``wholehand.allocators`` entry-point group. The contract:
 
-    - Construction: keyword arguments only: the user's parameters, plus those of
-      :data:`HAND_KEYWORDS` that the constructor accepts (by name, or through ``**params``).
+    - Construction: keyword arguments only: the user's parameters, plus those hand keywords
+      (:func:`hand_keywords`) that the constructor accepts (by name, or through ``**params``).
     - :meth:`start` (optional): called on the first cycle of force regulation with the cycle's
       context, e.g. to allocate once from ground-truth contacts. A class that needs them sets
       :attr:`needs_ground_truth`, and the set-up refuses a backend without them.

@@ -91,6 +91,7 @@ class ClosingStage(Stage):
     """
 
     name = "close"
+    needs_object_pose = False
 
     def __init__(
         self,

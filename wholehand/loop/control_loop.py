@@ -234,10 +234,7 @@ class ControlLoop:
                 f"ConfigError: stage {self.active!r} switched to {name!r}, which is not one of "
                 f"{sorted(self.stages)}"
             )
-            self.report.n_errors += 1
-            if len(self.report.errors) < MAX_KEPT_ERRORS:
-                self.report.errors.append(StageError(t, self.active, message, ""))
-            log.error("%s", message)
+            self._keep_error(t, self.active, message, "")
             return
         self.active = name
         self._started.discard(name)
@@ -266,7 +263,7 @@ class ControlLoop:
                 t, self.dt, obs, self.hand, self.obj, self._kin_now, self._kin_then,
                 self._ground_truth(truth, obs),
             )  # fmt: skip
-            if obs.wMo is None:
+            if obs.wMo is None and stage.needs_object_pose:
                 output = StageOutput(None, LoopStatus.NO_POSE.value)
                 fault = "no object pose has arrived yet"
             else:
@@ -280,7 +277,7 @@ class ControlLoop:
         except Exception as err:  # noqa: BLE001 - the loop never raises mid-grasp
             output = StageOutput(None, LoopStatus.STAGE_ERROR.value)
             fault = f"{type(err).__name__}: {err}"
-            self._keep_error(t, stage.name, fault)
+            self._keep_error(t, stage.name, fault, traceback.format_exc())
         if output.command is not None:
             self.command = output.command
         self.backend.apply(self.command)
@@ -296,11 +293,11 @@ class ControlLoop:
             time.perf_counter() - started, fault,
         )  # fmt: skip
 
-    def _keep_error(self, t: float, stage: str, error: str) -> None:
+    def _keep_error(self, t: float, stage: str, error: str, trace: str) -> None:
         report = self.report
         report.n_errors += 1
         if len(report.errors) < MAX_KEPT_ERRORS:
-            report.errors.append(StageError(t, stage, error, traceback.format_exc()))
+            report.errors.append(StageError(t, stage, error, trace))
         if report.n_errors == 1:
             log.error("stage %r raised at t = %.4f s: %s", stage, t, error)
 

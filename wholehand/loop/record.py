@@ -27,10 +27,12 @@ FloatArray = npt.NDArray[np.float64]
 class RunRecord:
     """Per-cycle arrays of one run (C cycles), plus its metadata.
 
-    Arrays: ``t`` (C,) [s]; ``phase`` (C,) protocol phase index into ``phases``; ``stage`` (C,)
-    name of the loop stage that ran; ``n_contacts`` (C,); ``residual_wrench`` (C, 6) [N, N*m];
-    ``tau`` (C, n_v) commanded torques [N*m]; ``qp_time``, ``estimate_time``, ``cycle_time``
-    (C,) [s]; ``status`` (C,) the cycle's status by name; ``held`` (C,) bool;
+    Arrays: ``t`` (C,) joint stamp [s]; ``stamp_object`` (C,) stamp of the object pose the
+    controller used [s] (older than ``t`` behind a tracker); ``phase`` (C,) protocol phase
+    index into ``phases``; ``stage`` (C,) name of the loop stage that ran; ``n_contacts`` (C,);
+    ``residual_wrench`` (C, 6) [N, N*m]; ``tau`` (C, n_v) commanded torques [N*m]; ``qp_time``,
+    ``estimate_time``, ``cycle_time`` (C,) [s]; ``status`` (C,) the cycle's status by name;
+    ``held`` (C,) bool;
     ``p_object`` (C, 3) object origin in the world [m]; ``r_object`` (C, 3) object orientation as a
     rotation vector [rad]; ``q`` (C, n_q) joint positions.
 
@@ -46,8 +48,8 @@ class RunRecord:
     rows: dict[str, list[Any]] = field(default_factory=dict)
 
     FIELDS = (
-        "t", "phase", "stage", "n_contacts", "residual_wrench", "tau", "qp_time", "estimate_time",
-        "cycle_time", "status", "held", "p_object", "r_object", "q",
+        "t", "stamp_object", "phase", "stage", "n_contacts", "residual_wrench", "tau", "qp_time",
+        "estimate_time", "cycle_time", "status", "held", "p_object", "r_object", "q",
     )  # fmt: skip
     CONTACT_FIELDS = ("contact_p", "contact_n", "contact_f", "contact_link")
     _CONTACT_SHAPES = {
@@ -196,6 +198,7 @@ class Recorder(Observer):
         wMo = _nan_unless(truth.wMo, (4, 4))
         self.record.append(
             t=truth.stamp_q,
+            stamp_object=cycle.context.obs.stamp_object,
             phase=self.protocol.phase_index if self.protocol is not None else 0,
             stage=cycle.stage,
             n_contacts=0 if contacts is None else len(contacts),

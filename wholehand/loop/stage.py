@@ -12,7 +12,7 @@ import enum
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from wholehand.loop.command import Command
 from wholehand.loop.observation import Observation
@@ -115,6 +115,9 @@ class Stage(abc.ABC):
 
     name: str = "stage"
     """Name of the stage in records and transitions."""
+    needs_object_pose: ClassVar[bool] = True
+    """Until a first object pose arrives, the loop runs no stage that needs one (status
+    ``no_pose``, last feasible command kept)."""
 
     def start(self, context: CycleContext) -> None:  # noqa: B027 - optional hook
         """Called on the first cycle the stage is active, before :meth:`step`."""

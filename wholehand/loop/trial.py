@@ -6,14 +6,14 @@ import inspect
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand import registry
-from wholehand.allocation.base import HAND_KEYWORDS
+from wholehand.allocation.base import hand_keywords
 from wholehand.backends.base import Backend, HasGroundTruth, ReportsWarnings
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import Grasp, load_grasps
@@ -28,7 +28,7 @@ from wholehand.loop.filters import (
 from wholehand.loop.grasp_loss import GraspLossMonitor
 from wholehand.loop.protocol import PerturbationProtocol, ProtocolDriver
 from wholehand.loop.record import Recorder, RunRecord
-from wholehand.loop.regulation import ForceRegulation
+from wholehand.loop.regulation import EstimateAt, ForceRegulation
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.objects import ObjectModel, load_object
 
@@ -225,20 +225,22 @@ def set_up_trial(
             f"allocator {type(allocator).__name__} needs ground-truth contacts at "
             f"initialisation; backend {type(backend).__name__} has no ground_truth_contacts()"
         )
-    regulation = ForceRegulation(hand, obj, estimator, allocator, spec.estimate_at)  # type: ignore[arg-type]
+    regulation = ForceRegulation(
+        hand, obj, estimator, allocator, cast(EstimateAt, spec.estimate_at)
+    )
     n_gt = len(backend.ground_truth_contacts()) if isinstance(backend, HasGroundTruth) else None
     return TrialSetup(hand, obj, backend, regulation, grasp, filters, n_gt)
 
 
 def load_allocator(name: str | type, hand: HandModel, params: dict[str, Any]) -> Any:
-    """An allocator plug-in built with the user's ``params`` and the hand's
-    :data:`~wholehand.allocation.base.HAND_KEYWORDS` that its constructor accepts."""
+    """An allocator plug-in built with the user's ``params`` and those of the hand's keywords
+    (:func:`~wholehand.allocation.base.hand_keywords`) that its constructor accepts."""
     cls = registry.get_class("allocators", name)
-    hand_params = {"tau_max": hand.tau_max.copy(), "actuated_dofs": hand.actuated_dofs.copy()}
     signature = inspect.signature(cls)
     takes_any = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
-    accepted = {k: v for k, v in hand_params.items() if takes_any or k in signature.parameters}
-    assert set(hand_params) == set(HAND_KEYWORDS)
+    accepted = {
+        k: v for k, v in hand_keywords(hand).items() if takes_any or k in signature.parameters
+    }
     return registry.load("allocators", cls, **{**accepted, **params})
 
 

@@ -218,3 +218,36 @@ def test_latency_run_estimates_at_the_pose_stamp_and_differs_from_current(allegr
         TrialSpec(theta_deg=0.0, protocol_params=TINY, tracking={"rate_hz": 200.0}), allegro
     )
     np.testing.assert_array_equal(same.arrays()["tau"], exact.arrays()["tau"])
+
+
+def test_the_compiled_check_agrees_with_check_pose():
+    """The fast path accepts exactly the poses :func:`check_pose` accepts."""
+    from wholehand.models.poses import check_pose
+
+    rng = np.random.default_rng(5)
+    cases = []
+    for _ in range(30):
+        M = _pose(int(rng.integers(1000)))
+        cases.append(M)
+        for scale in (1 + 1e-8, 1 + 1e-5):
+            S = M.copy()
+            S[:3, :3] *= scale
+            cases.append(S)
+        R = M.copy()
+        R[:3, 0] *= -1.0  # a reflection
+        cases.append(R)
+        L = M.copy()
+        L[3, 1] = 1e-9
+        cases.append(L)
+    for M in cases:
+        try:
+            check_pose(M)
+            expected = True
+        except ConfigError:
+            expected = False
+        try:
+            check_observation(_obs(wMo=M), 2, 2)
+            got = True
+        except ObservationError:
+            got = False
+        assert got == expected, M

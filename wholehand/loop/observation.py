@@ -10,8 +10,10 @@ simulation time); a hardware backend fills them from its messages.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
@@ -154,10 +156,70 @@ class Observation:
         )
 
 
+@numba.njit(cache=True, nogil=True)
+def _usable(
+    q: FloatArray, dq: FloatArray, wMb: FloatArray, wMo: FloatArray
+) -> bool:  # pragma: no cover - jit
+    """True when q and dq are finite and both (4, 4) poses are finite rigid transforms (the
+    tolerances of :func:`~wholehand.models.poses.check_pose`)."""
+    for x in q:
+        if not np.isfinite(x):
+            return False
+    for x in dq:
+        if not np.isfinite(x):
+            return False
+    for M in (wMb, wMo):
+        for i in range(4):
+            for j in range(4):
+                if not np.isfinite(M[i, j]):
+                    return False
+        for i in range(3):
+            for j in range(3):
+                dot = M[i, 0] * M[j, 0] + M[i, 1] * M[j, 1] + M[i, 2] * M[j, 2]
+                if abs(dot - (1.0 if i == j else 0.0)) > 1e-6:
+                    return False
+        det = (
+            M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+            - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0])
+        )
+        if det < 0.0:
+            return False
+        for j in range(3):
+            if abs(M[3, j]) > 1e-12:
+                return False
+        if abs(M[3, 3] - 1.0) > 1e-12:
+            return False
+    return True
+
+
+def _is_vector(x: object, n: int) -> bool:
+    return isinstance(x, np.ndarray) and x.dtype == np.float64 and x.shape == (n,)
+
+
+def _is_pose(x: object) -> bool:
+    return isinstance(x, np.ndarray) and x.dtype == np.float64 and x.shape == (4, 4)
+
+
 def check_observation(obs: Observation, n_q: int, n_v: int) -> None:
     """Raise :class:`ObservationError` naming the field at fault when ``obs`` is unusable: q or dq
     of the wrong shape or not finite, a base or object pose that is not a rigid transform, or a
-    stamp that is not finite."""
+    stamp that is not finite.
+
+    The common case, float arrays that pass, is one compiled check of a few microseconds; the
+    field-by-field checks below run only to name what is wrong.
+    """
+    wMb, wMo = obs.wMb, obs.wMo
+    if (
+        _is_vector(obs.q, n_q)
+        and _is_vector(obs.dq, n_v)
+        and _is_pose(wMb)
+        and (wMo is None or _is_pose(wMo))
+        and math.isfinite(obs.stamp_q)
+        and math.isfinite(obs.stamp_object)
+        and _usable(obs.q, obs.dq, wMb, wMb if wMo is None else wMo)
+    ):
+        return
     for name, value, n in (("q", obs.q, n_q), ("dq", obs.dq, n_v)):
         try:
             arr = np.asarray(value, dtype=float)
@@ -170,7 +232,7 @@ def check_observation(obs: Observation, n_q: int, n_v: int) -> None:
         if not np.isfinite(arr).all():
             raise ObservationError(f"observation {name} contains NaN or inf: {arr.tolist()}")
     for name, stamp in (("stamp_q", obs.stamp_q), ("stamp_object", obs.stamp_object)):
-        if not np.isfinite(stamp):
+        if not (isinstance(stamp, int | float) and math.isfinite(stamp)):
             raise ObservationError(f"observation {name} is not a finite time: {stamp!r}")
     poses = [("wMb (hand base pose)", obs.wMb)]
     if obs.wMo is not None:

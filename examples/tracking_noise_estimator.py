@@ -9,6 +9,10 @@ experiments; see docs/plugins.md to publish one), and compares noise levels:
     wMo_seen = wMo @ T_k,   T_k: rotation ~ N(0, sigma_rot) about a random axis through the
                             centre of mass, translation ~ N(0, sigma_trans) per axis, new each cycle
 
+(Without a plug-in, the loop's ``PoseNoise`` observation filter adds the same kind of noise to the
+pose every stage sees, once per tracker frame: ``wholehand run --pose-noise-mm 1 --pose-noise-deg
+1``. This script shows how an estimator of your own plugs in.)
+
 Run:  python examples/tracking_noise_estimator.py [--object 077_rubiks_cube] [--quick]
 """
 

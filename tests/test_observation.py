@@ -149,6 +149,10 @@ def test_constant_error_and_the_spec_builds_filters_in_order():
     assert tracking_filters({}) == []
     with pytest.raises(ConfigError, match="unknown keys"):
         tracking_filters({"rate": 30})
+    with pytest.raises(ConfigError, match="rate_hz must be a number"):
+        tracking_filters({"rate_hz": "fast"})
+    with pytest.raises(ConfigError, match="dropouts must be"):
+        tracking_filters({"dropouts": [1.0]})
 
 
 def test_contacts_carried_with_their_links_match_the_frames(allegro):

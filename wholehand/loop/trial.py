@@ -75,7 +75,8 @@ class TrialSpec:
     ``{"rot_deg": R, "trans_mm": T, "seed": S}``, see :func:`pose_error_offset`. Empty: none."""
     tracking: dict[str, Any] = field(default_factory=dict)
     """How the object pose reaches the controller (:func:`tracking_filters`): ``rate_hz`` and
-    ``latency_s`` (a tracker, :class:`~wholehand.loop.filters.PoseTracker`), ``noise_mm``,
+    ``latency_s`` (a tracker, :class:`~wholehand.loop.filters.PoseTracker`; rate 200 Hz if only
+    the latency is given), ``noise_mm``,
     ``noise_deg`` and ``noise_seed`` (:class:`~wholehand.loop.filters.PoseNoise`), ``dropouts``
     (``[[start_s, duration_s], ...]``). Empty: the exact pose every cycle."""
     estimate_at: str = "object_stamp"
@@ -138,26 +139,29 @@ def tracking_filters(
     unknown = set(tracking) - set(TRACKING_KEYS)
     if unknown:
         raise ConfigError(f"tracking has unknown keys {sorted(unknown)}; use {list(TRACKING_KEYS)}")
+
+    def number(key: str, default: float) -> float:
+        value = tracking.get(key, default)
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"tracking: {key} must be a number, got {value!r}") from None
+
     out: list[ObservationFilter] = []
     if "rate_hz" in tracking or "latency_s" in tracking:
-        rate = tracking.get("rate_hz")
-        out.append(
-            PoseTracker(
-                float(rate) if rate is not None else CONTROL_RATE,
-                float(tracking.get("latency_s", 0.0)),
-            )
-        )
-    if tracking.get("noise_mm", 0.0) or tracking.get("noise_deg", 0.0):
-        out.append(
-            PoseNoise(
-                float(tracking.get("noise_mm", 0.0)),
-                float(tracking.get("noise_deg", 0.0)),
-                int(tracking.get("noise_seed", 0)),
-                centre,
-            )
-        )
+        out.append(PoseTracker(number("rate_hz", CONTROL_RATE), number("latency_s", 0.0)))
+    noise_mm, noise_deg = number("noise_mm", 0.0), number("noise_deg", 0.0)
+    if noise_mm or noise_deg:
+        out.append(PoseNoise(noise_mm, noise_deg, int(number("noise_seed", 0)), centre))
     if tracking.get("dropouts"):
-        out.append(PoseDropout([tuple(d) for d in tracking["dropouts"]]))
+        try:
+            intervals = [(float(a), float(b)) for a, b in tracking["dropouts"]]
+        except (TypeError, ValueError):
+            raise ConfigError(
+                f"tracking: dropouts must be [[start_s, duration_s], ...], got "
+                f"{tracking['dropouts']!r}"
+            ) from None
+        out.append(PoseDropout(intervals))
     return out
 
 

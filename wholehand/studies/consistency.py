@@ -20,12 +20,11 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from wholehand.backends.base import HasGroundTruth
-from wholehand.backends.mujoco_scene import SimContacts
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
@@ -38,6 +37,9 @@ from wholehand.studies.base import (
     protocol_for,
     success_stats,
 )
+
+if TYPE_CHECKING:
+    from wholehand.backends.mujoco_scene import SimContacts
 
 METHODS = ("qp", "qp_no_consistency")
 GRASP_TYPES = ("power", "precision")

@@ -504,3 +504,46 @@ def test_no_pose_yet_keeps_the_last_command_and_a_pose_free_stage_runs(allegro, 
         grasp_backend(allegro, cube), allegro, cube, closing, filters=blind, observers=[seen]
     ).run(0.02)
     assert [c.output.status for c in seen.cycles] == ["closing"] * 4
+
+
+class GlitchBackend(FaultyBackend):
+    """MuJoCo with plausible-looking but impossible values on given cycles."""
+
+    def observe(self):
+        obs = self.sim.observe()
+        fault = self.faults.get(self.n)
+        self.n += 1
+        if fault is None:
+            return obs
+        q, wMo = obs.q.copy(), obs.wMo.copy()
+        if fault == "far":
+            wMo[:3, 3] += [10.0, 0.0, 0.0]
+        elif fault == "jump":
+            wMo[:3, 3] += [0.05, 0.0, 0.0]  # 5 cm in 5 ms
+        elif fault == "joint":
+            q[5] = 40.0
+        return Observation(q, obs.dq, obs.wMb, obs.stamp_q, wMo, obs.stamp_object, obs.history)
+
+
+def test_the_gate_refuses_a_glitch_and_accepts_a_sustained_change(allegro, cube):
+    from wholehand.loop.gate import GateLimits, ObservationGate
+
+    faults = {10: "far", 11: "jump", 12: "joint", **{i: "joint" for i in range(20, 26)}}
+    gate = ObservationGate(allegro, GateLimits(accept_after=4))
+    seen = Last()
+    backend = GlitchBackend(grasp_backend(allegro, cube), faults)
+    ControlLoop(backend, allegro, cube, regulation(allegro, cube), observers=[seen], gate=gate).run(
+        0.15
+    )
+    statuses = [c.output.status for c in seen.cycles]
+    for i in (10, 11, 12):
+        assert statuses[i] == "bad_state", i
+        np.testing.assert_array_equal(seen.cycles[i].command.tau, seen.cycles[9].command.tau)
+    assert "beyond 1.0 m" in seen.cycles[10].fault and "m/s" in seen.cycles[11].fault
+    assert "joint 'joint_" in seen.cycles[12].fault and "40.000" in seen.cycles[12].fault
+    assert statuses[13] == "ok"  # the glitches are over
+    # Six cycles of a joint at 40 rad: three refused, then accepted while it lasts.
+    assert statuses[20:23] == ["bad_state"] * 3 and statuses[23:26] == ["ok"] * 3
+    assert gate.accepted == {"joints": 1} and gate.refused["joints"] == 4
+    with pytest.raises(ConfigError, match="accept_after"):
+        GateLimits(accept_after=0)

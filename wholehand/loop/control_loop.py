@@ -2,7 +2,8 @@
 
 One loop serves simulation, the grasp generator and hardware. Each cycle:
 
-1. reads an :class:`~wholehand.loop.observation.Observation` from the backend and checks it;
+1. reads an :class:`~wholehand.loop.observation.Observation` from the backend and checks it
+   (well-formed, and plausible if a :class:`~wholehand.loop.gate.ObservationGate` is given);
 2. passes it through the observation filters (what the controller sees: pose error, noise,
    latency and rate, dropouts);
 3. runs the active :class:`~wholehand.loop.stage.Stage` on a
@@ -39,6 +40,7 @@ from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError, ObservationError
 from wholehand.loop.command import Command
 from wholehand.loop.filters import ObservationFilter
+from wholehand.loop.gate import ObservationGate
 from wholehand.loop.observation import Observation, check_observation
 from wholehand.loop.stage import END, CycleContext, LoopStatus, Stage, StageOutput
 from wholehand.models.hand import HandModel
@@ -153,6 +155,7 @@ class ControlLoop:
         filters: observation filters, applied in order to what the stages see.
         observers: observers, called in order each cycle.
         initial_command: applied until a stage produces one (default: zero torques).
+        gate: a plausibility gate applied to each observation before the filters (None: none).
     """
 
     def __init__(
@@ -166,6 +169,7 @@ class ControlLoop:
         filters: Sequence[ObservationFilter] = (),
         observers: Sequence[Observer] = (),
         initial_command: Command | None = None,
+        gate: ObservationGate | None = None,
     ) -> None:
         if not (isinstance(rate, int | float) and 0.0 < rate < np.inf):
             raise ConfigError(f"ControlLoop: rate must be a finite number > 0 [Hz], got {rate!r}")
@@ -184,6 +188,7 @@ class ControlLoop:
         self.dt = 1.0 / self.rate
         self.filters = list(filters)
         self.observers = list(observers)
+        self.gate = gate
         self.command = initial_command or Command.torques(np.zeros(hand.nv))
         """The last feasible command (the one memory of it)."""
         self.report = LoopReport()
@@ -257,6 +262,8 @@ class ControlLoop:
         context = CycleContext(t, self.dt, obs, self.hand, self.obj, self._kin_now, self._kin_then)
         try:
             check_observation(truth, self.hand.nq, self.hand.nv)
+            if self.gate is not None:
+                self.gate.check(truth)
             for f in self.filters:
                 obs = f.apply(obs, t)
             context = CycleContext(

@@ -1,0 +1,133 @@
+"""A plausibility gate on observations: a one-off glitch is refused, a sustained change accepted.
+
+A well-formed observation (finite, rigid poses) can still be impossible: a joint far outside its
+limits, an object that jumped farther than it can move in the time between two poses, an object
+outside the hand's workspace. The gate refuses such an observation with an
+:class:`~wholehand.errors.ObservationError` (the loop keeps the last feasible command, status
+``bad_state``), so one bad tracker frame never drives the hand. When the same check keeps failing
+for ``accept_after`` consecutive cycles the change is real (the object was moved, a joint
+re-calibrated): it is accepted, becomes the new reference, and is counted in
+:attr:`ObservationGate.accepted`.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from wholehand.errors import ConfigError, ObservationError
+from wholehand.loop.observation import Observation
+from wholehand.models.hand import HandModel
+
+
+@dataclass(frozen=True)
+class GateLimits:
+    """What the gate accepts."""
+
+    joint_margin: float = 0.2
+    """Allowed excursion beyond a joint's limits [rad or m] (MuJoCo's soft limits and pressed
+    fingers go a few mrad past them)."""
+    max_speed: float = 2.0
+    """Largest object speed between two poses [m/s]."""
+    max_angular_speed: float = 20.0
+    """Largest object angular speed between two poses [rad/s]."""
+    workspace_radius: float = 1.0
+    """Largest distance of the object origin from the hand base [m]."""
+    accept_after: int = 20
+    """Consecutive failures of one check after which the change is accepted (0.1 s at 200 Hz)."""
+
+    def __post_init__(self) -> None:
+        for name in ("joint_margin", "max_speed", "max_angular_speed", "workspace_radius"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and 0.0 <= value < np.inf):
+                raise ConfigError(f"GateLimits: {name} must be finite and >= 0, got {value!r}")
+        if int(self.accept_after) != self.accept_after or self.accept_after < 1:
+            raise ConfigError(
+                f"GateLimits: accept_after must be an integer >= 1, got {self.accept_after!r}"
+            )
+
+
+class ObservationGate:
+    """Refuses implausible observations until they persist (see the module docstring).
+
+    Args:
+        hand: the hand (joint limits).
+        limits: the thresholds.
+    """
+
+    def __init__(self, hand: HandModel, limits: GateLimits | None = None) -> None:
+        self.limits = limits or GateLimits()
+        self._lower = hand.q_lower - self.limits.joint_margin
+        self._upper = hand.q_upper + self.limits.joint_margin
+        self._names = list(hand.joint_names)
+        self._reference: tuple[float, np.ndarray] | None = None
+        self._failing: dict[str, int] = {}
+        self.refused: Counter[str] = Counter()
+        """Refused observations per check (``joints``, ``jump``, ``workspace``)."""
+        self.accepted: Counter[str] = Counter()
+        """Sustained changes accepted per check."""
+
+    def check(self, obs: Observation) -> None:
+        """Raise :class:`ObservationError` naming the implausible value, unless the same check
+        has failed ``accept_after`` times in a row (then accept it)."""
+        failures = {}
+        q = np.asarray(obs.q)
+        outside = np.flatnonzero((q < self._lower) | (q > self._upper))
+        if outside.size:
+            i = int(outside[0])
+            failures["joints"] = (
+                f"joint {self._names[i]!r} at {q[i]:.3f} is outside its limits "
+                f"[{self._lower[i] + self.limits.joint_margin:.3f}, "
+                f"{self._upper[i] - self.limits.joint_margin:.3f}] by more than "
+                f"{self.limits.joint_margin} (GateLimits.joint_margin)"
+            )
+        wMo = obs.wMo
+        if wMo is not None:
+            distance = float(np.linalg.norm(wMo[:3, 3] - obs.wMb[:3, 3]))
+            if distance > self.limits.workspace_radius:
+                failures["workspace"] = (
+                    f"object {distance:.3f} m from the hand base, beyond "
+                    f"{self.limits.workspace_radius} m (GateLimits.workspace_radius)"
+                )
+            jump = self._jump(obs.stamp_object, wMo)
+            if jump:
+                failures["jump"] = jump
+        for name in list(self._failing):
+            if name not in failures:
+                del self._failing[name]
+        refused = []
+        for name, reason in failures.items():
+            count = self._failing[name] = self._failing.get(name, 0) + 1
+            if count < self.limits.accept_after:
+                self.refused[name] += 1
+                refused.append(reason)
+            elif count == self.limits.accept_after:  # sustained: accepted while it lasts
+                self.accepted[name] += 1
+        if refused:
+            raise ObservationError("implausible observation: " + "; ".join(refused))
+        if wMo is not None:
+            self._reference = (obs.stamp_object, wMo)
+
+    def _jump(self, stamp: float, wMo: np.ndarray) -> str:
+        if self._reference is None:
+            return ""
+        stamp0, wMo0 = self._reference
+        dt = stamp - stamp0
+        if dt <= 0.0:
+            return ""
+        speed = float(np.linalg.norm(wMo[:3, 3] - wMo0[:3, 3])) / dt
+        turn = float(np.linalg.norm(pin.log3(wMo0[:3, :3].T @ wMo[:3, :3]))) / dt
+        if speed > self.limits.max_speed:
+            return (
+                f"object moved at {speed:.2f} m/s between poses {dt * 1e3:.1f} ms apart, above "
+                f"{self.limits.max_speed} m/s (GateLimits.max_speed)"
+            )
+        if turn > self.limits.max_angular_speed:
+            return (
+                f"object turned at {turn:.1f} rad/s between poses {dt * 1e3:.1f} ms apart, above "
+                f"{self.limits.max_angular_speed} rad/s (GateLimits.max_angular_speed)"
+            )
+        return ""

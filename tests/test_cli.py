@@ -55,6 +55,8 @@ def test_run_takes_grasp_type_and_backend_options(capsys):
         (["run", "--pose-rate", "0"], "--pose-rate 0.0 is invalid"),
         (["run", "--pose-dropout", "1"], "START:DURATION"),
         (["run", "--pose-noise-mm", "inf"], "--pose-noise-mm inf"),
+        (["run", "--rate", "1e-3"], "gives no cycle in phase 'settle'"),
+        (["run", "--seed", "-1"], "seed must be an integer >= 0, got -1"),
     ],
 )
 def test_bad_input_exits_with_a_clear_message(capsys, argv, message):

@@ -202,7 +202,9 @@ def convex_decomposition(
             with np.load(path, allow_pickle=False) as data:
                 arrays = {k: data[k] for k in ("vertices", "faces", "part_vertices", "part_faces")}
             return ConvexDecomposition(**arrays, key=key, source="shipped", params=full)
-    stored = cache.load_arrays(CACHE_KIND, key)
+    stored = cache.load_arrays(
+        CACHE_KIND, key, ("vertices", "faces", "part_vertices", "part_faces")
+    )
     if stored is not None:
         return ConvexDecomposition(**stored, key=key, source="cache", params=full)
 

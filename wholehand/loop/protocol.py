@@ -82,8 +82,27 @@ class PerturbationProtocol:
     axis: FloatArray = field(init=False)
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.seed, int | np.integer) and self.seed >= 0):
+            raise ConfigError(
+                f"PerturbationProtocol: seed must be an integer >= 0, got {self.seed!r}"
+            )
+        if not (np.isfinite(self.theta_deg) and self.theta_deg >= 0.0):
+            raise ConfigError(
+                f"PerturbationProtocol: theta_deg must be a finite angle >= 0 [deg], got "
+                f"{self.theta_deg!r}"
+            )
         axis = np.random.default_rng(self.seed).standard_normal(3)
         object.__setattr__(self, "axis", axis / np.linalg.norm(axis))
+
+    def check_rate(self, rate: float) -> None:
+        """Raise :class:`ConfigError` unless every phase with a duration gets a control cycle at
+        ``rate`` [Hz] (a phase shorter than half a period would be skipped silently)."""
+        for phase in self.phases():
+            if phase.duration > 0.0 and phase.duration * rate < 0.5:
+                raise ConfigError(
+                    f"control rate {rate} Hz gives no cycle in phase {phase.name!r} "
+                    f"({phase.duration} s); use at least {1.0 / phase.duration:g} Hz"
+                )
 
     def phases(self) -> list[Phase]:
         """The phases in order."""

@@ -262,10 +262,11 @@ def run_trial(
     (e.g. a live viewer).
     """
     started = time.perf_counter()
-    trial = set_up_trial(spec, hand, obj)
     protocol = PerturbationProtocol(
         theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params
     )
+    protocol.check_rate(spec.control_rate)
+    trial = set_up_trial(spec, hand, obj)
     driver = ProtocolDriver(protocol, trial.obj)
     loss = GraspLossMonitor(trial.hand, trial.obj, stop_on_loss)
     recorder = Recorder(

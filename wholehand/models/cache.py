@@ -3,18 +3,28 @@
 Entries are ``.npz`` files named by a SHA-256 content hash of everything the data depends on
 (file bytes and parameters), so a changed URDF, mesh or parameter can never hit a stale entry.
 The cache lives in ``$WHOLEHAND_CACHE`` if set, else ``~/.cache/wholehand``.
+
+The cache never stops a command: an entry that cannot be read (truncated, empty, not an npz,
+other arrays than expected) is reported and recomputed; a cache folder that cannot be created or
+written (read-only, a file in its place) is reported once and the data is computed without
+caching.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import tempfile
+import zipfile
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
 """Bumped whenever the layout or the algorithm behind a cached entry changes."""
@@ -43,28 +53,70 @@ def content_hash(*parts: bytes | str | Path | dict[str, Any] | float | int) -> s
     return h.hexdigest()
 
 
-def load_arrays(kind: str, key: str) -> dict[str, np.ndarray] | None:
-    """The arrays stored under ``kind``/``key``, or None on a miss or an unreadable entry."""
-    path = cache_dir() / kind / f"{key}.npz"
-    if not path.exists():
+_UNREADABLE = (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError)
+"""What reading a damaged ``.npz`` raises (numpy, zipfile and the file system)."""
+
+_warned_folders: set[str] = set()
+
+
+def _folder_unusable(err: OSError) -> None:
+    where = os.environ.get("WHOLEHAND_CACHE") or "~/.cache/wholehand"
+    if where not in _warned_folders:
+        _warned_folders.add(where)
+        log.warning(
+            "the wholehand cache %s cannot be used (%s); computing without it: set "
+            "WHOLEHAND_CACHE to a writable folder",
+            where, err,
+        )  # fmt: skip
+
+
+def load_arrays(
+    kind: str, key: str, names: Iterable[str] | None = None
+) -> dict[str, np.ndarray] | None:
+    """The arrays stored under ``kind``/``key``, or None on a miss; an entry that cannot be read,
+    or (when ``names`` is given) that holds other arrays than ``names``, is reported and treated
+    as a miss (the caller recomputes and overwrites it)."""
+    try:
+        path = cache_dir() / kind / f"{key}.npz"
+    except OSError as err:
+        _folder_unusable(err)
+        return None
+    if not path.is_file():
         return None
     try:
         with np.load(path, allow_pickle=False) as data:
-            return {name: data[name] for name in data.files}
-    except (OSError, ValueError):
-        return None  # a truncated or corrupt entry is recomputed
+            arrays = {name: data[name] for name in data.files}
+    except _UNREADABLE as err:
+        log.warning("cache entry %s is unreadable (%s: %s); recomputing it", path,
+                    type(err).__name__, err)  # fmt: skip
+        return None
+    if names is not None and set(arrays) != set(names):
+        log.warning(
+            "cache entry %s holds arrays %s, expected %s; recomputing it",
+            path, sorted(arrays), sorted(names),
+        )  # fmt: skip
+        return None
+    return arrays
 
 
-def save_arrays(kind: str, key: str, arrays: dict[str, np.ndarray]) -> Path:
-    """Store arrays under ``kind``/``key`` atomically (safe with parallel writers)."""
-    folder = cache_dir() / kind
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{key}.npz"
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp.npz")
+def save_arrays(kind: str, key: str, arrays: dict[str, np.ndarray]) -> Path | None:
+    """Store arrays under ``kind``/``key`` atomically (safe with parallel writers); None when the
+    cache cannot be written (reported once)."""
+    try:
+        folder = cache_dir() / kind
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{key}.npz"
+        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp.npz")
+    except OSError as err:
+        _folder_unusable(err)
+        return None
     os.close(fd)
     try:
         np.savez_compressed(tmp, **arrays)
         os.replace(tmp, path)
+    except OSError as err:
+        _folder_unusable(err)
+        return None
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)

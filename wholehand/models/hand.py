@@ -7,6 +7,7 @@ placements) is all a cycle needs to move every sample.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 import xml.etree.ElementTree as ET
@@ -264,7 +265,9 @@ class HandModel:
 
     def _load_or_sample(self) -> SurfaceSamples:
         key = self._cache_key()
-        stored = cache.load_arrays("link_samples", key)
+        stored = cache.load_arrays(
+            "link_samples", key, [f.name for f in dataclasses.fields(SurfaceSamples)]
+        )
         if stored is not None:
             self.samples_from_cache = True
             return SurfaceSamples(**stored)

@@ -353,7 +353,7 @@ class SignedDistanceGrid:
             SDF_ALGORITHM, vertices.tobytes(), faces.tobytes(), spacing, padding, exact_band
         )
         if use_cache:
-            hit = cache.load_arrays("sdf", key)
+            hit = cache.load_arrays("sdf", key, ("origin", "spacing", "values"))
             if hit is not None:
                 try:
                     return cls.from_arrays(hit)

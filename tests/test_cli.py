@@ -30,6 +30,7 @@ def test_run_prints_phases_and_timings(capsys):
     assert main(["run", "--theta", "0", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["held"] is True and summary["faults"] == {}
+    assert summary["unbalanced_cycles"] == 0
     assert [s["phase"] for s in summary["phases"]][:2] == ["settle", "load +x"]
     assert summary["timing"]["cycles"] == 1300
     assert summary["timing"]["qp_p50_us"] > 0

@@ -547,3 +547,51 @@ def test_the_gate_refuses_a_glitch_and_accepts_a_sustained_change(allegro, cube)
     assert gate.accepted == {"joints": 1} and gate.refused["joints"] == 4
     with pytest.raises(ConfigError, match="accept_after"):
         GateLimits(accept_after=0)
+
+
+class Shouting(Stage):
+    """Commands ten times the limit on every joint, or a torque of the wrong length."""
+
+    name = "shouting"
+
+    def __init__(self, wrong_length_on=()):
+        self.n, self.wrong = 0, set(wrong_length_on)
+
+    def step(self, context):
+        self.n += 1
+        nv = context.hand.nv
+        tau = np.full(nv - 1 if self.n in self.wrong else nv, 10.0)
+        return StageOutput(Command.torques(tau), "ok")
+
+
+def test_every_command_is_clamped_and_a_malformed_one_is_a_stage_error(allegro, cube):
+    backend = grasp_backend(allegro, cube)
+    seen = Last()
+    loop = ControlLoop(backend, allegro, cube, Shouting({3}), observers=[seen])
+    report = loop.run(0.025)
+    limit = np.where(allegro.actuated_dofs, allegro.tau_max, 0.0)
+    for c in seen.cycles:
+        assert np.all(np.abs(c.command.tau) <= limit)
+    np.testing.assert_array_equal(seen.cycles[0].command.tau, limit)
+    assert np.all(np.abs(backend.applied_torques()) <= limit + 1e-12)
+    assert report.clamped == 4 and report.max_excess == pytest.approx(10.0 - limit.min())
+    assert seen.cycles[2].output.status == "stage_error" and "shape (15,)" in seen.cycles[2].fault
+    np.testing.assert_array_equal(seen.cycles[2].command.tau, seen.cycles[1].command.tau)
+
+
+def test_an_ok_allocation_that_does_not_balance_is_reported(allegro, cube):
+    from wholehand.allocation.base import is_balanced
+
+    assert is_balanced(np.zeros(6), 3) and not is_balanced(np.zeros(6), 0)
+    assert not is_balanced([2e-3, 0, 0, 0, 0, 0], 3) and not is_balanced([0, 0, 0, 0, 2e-4, 0], 3)
+    held = run_trial(TrialSpec(object=OBJECT, theta_deg=0.0, protocol_params=TINY), allegro)
+    assert outcome_of(held).unbalanced_cycles == 0
+    # A squeeze the joints cannot make: the QP's best is feasible (ok) but leaves a residual.
+    spec = TrialSpec(
+        object=OBJECT, theta_deg=0.0, protocol_params=TINY, allocator_params={"f_n_min": 1e6}
+    )
+    record = run_trial(spec, allegro, stop_on_loss=False)
+    outcome, a = outcome_of(record), record.arrays()
+    ok = a["status"] == "ok"
+    assert ok.any() and outcome.unbalanced_cycles == ok.sum()
+    assert np.all(np.abs(a["tau"]) <= allegro.tau_max)  # and never beyond the limits

@@ -36,6 +36,13 @@ EPS_MARGIN: float = 0.5
 SVD_TOL: float = 1e-6
 """Singular-value tolerance that decides rank(J_act) [-]."""
 
+BALANCE_TOL_FORCE: float = 1e-3
+"""Largest residual force of an allocation that balances the object [N] (not in the paper: the
+QP minimises the residual, and a held grasp's is below 1e-6 N)."""
+
+BALANCE_TOL_TORQUE: float = 1e-4
+"""Largest residual torque of an allocation that balances the object [N*m]."""
+
 # --- Perturbation protocol (Sec. IV-A, Fig. 2) -------------------------------------------------
 LOAD_FRACTION_OF_WEIGHT: float = 0.1
 """Load-test force as a fraction of the object weight m*g [-]."""

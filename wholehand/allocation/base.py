@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from wholehand import defaults
 from wholehand.contacts.base import ContactSet
 
 if TYPE_CHECKING:
@@ -63,6 +64,24 @@ class Allocation:
     def ok(self) -> bool:
         """True when this cycle produced a fresh, feasible torque."""
         return self.status is AllocationStatus.OK
+
+    @property
+    def balanced(self) -> bool:
+        """True when the allocated forces balance the object: at least one contact, residual
+        force and torque within :data:`~wholehand.defaults.BALANCE_TOL_FORCE` and
+        :data:`~wholehand.defaults.BALANCE_TOL_TORQUE`. An ``ok`` allocation need not balance
+        (the QP minimises the residual under the torque limits and the minimum squeeze)."""
+        return is_balanced(self.residual_wrench, len(self.f_world))
+
+
+def is_balanced(residual_wrench: npt.ArrayLike, n_contacts: int) -> bool:
+    """See :attr:`Allocation.balanced` (for a recorded residual (6,) [N, N*m])."""
+    w = np.asarray(residual_wrench, dtype=float)
+    return bool(
+        n_contacts > 0
+        and np.linalg.norm(w[:3]) <= defaults.BALANCE_TOL_FORCE
+        and np.linalg.norm(w[3:]) <= defaults.BALANCE_TOL_TORQUE
+    )
 
 
 def hand_keywords(hand: HandModel) -> dict[str, Any]:

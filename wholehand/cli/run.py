@@ -215,6 +215,8 @@ def summarise(record: RunRecord) -> dict[str, object]:
         "error": outcome.error,
         "phases": record.phase_summary(),
         "faults": loop.get("faults", {}),
+        "unbalanced_cycles": outcome.unbalanced_cycles,
+        "clamped_cycles": loop.get("clamped", 0),
         "last_fault": loop.get("last_fault", ""),
         "timing": {
             **record.timing_summary(),
@@ -259,6 +261,13 @@ def print_summary(summary: dict[str, object]) -> None:
         f"{t['cycles']} cycles, {t['sim_time_s']:.2f} s simulated "
         f"in {t['wall_time_s']:.1f} s wall time"
     )
+    if summary["unbalanced_cycles"]:
+        print(
+            f"unbalanced: {summary['unbalanced_cycles']} cycles with status ok whose forces do "
+            "not balance the object (residual above the tolerance of wholehand/defaults.py)"
+        )
+    if summary["clamped_cycles"]:
+        print(f"clamped: {summary['clamped_cycles']} commands exceeded a torque limit")
     if summary["faults"]:
         counts = ", ".join(f"{n} {status}" for status, n in summary["faults"].items())
         print(f"faulted cycles: {counts} (last: {summary['last_fault']})")

@@ -8,7 +8,8 @@ One loop serves simulation, the grasp generator and hardware. Each cycle:
    latency and rate, dropouts);
 3. runs the active :class:`~wholehand.loop.stage.Stage` on a
    :class:`~wholehand.loop.stage.CycleContext`;
-4. applies the stage's command, or the last feasible one;
+4. applies the stage's command, its torques clamped to the joints' limits, or the last
+   feasible one;
 5. hands the :class:`Cycle` to every observer (protocol, grasp-loss check, recorder, viewer),
    any of which may end the run;
 6. advances the backend to the start of the next period.
@@ -26,6 +27,7 @@ not faults of a grasp.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 import traceback
@@ -102,6 +104,10 @@ class LoopReport:
     """Faulted cycles per loop status (``bad_state``, ``stage_error``, ``no_pose``)."""
     last_fault: str = ""
     """Reason of the latest faulted cycle."""
+    clamped: int = 0
+    """Cycles whose commanded torque exceeded a joint's limit and was clamped to it."""
+    max_excess: float = 0.0
+    """Largest excess over a limit before clamping [N*m]."""
     overruns: int = 0
     """Cycles that computed past their period (wall-clock backends)."""
     max_overrun: float = 0.0
@@ -119,6 +125,8 @@ class LoopReport:
             "status_counts": dict(self.status_counts),
             "faults": dict(self.faults),
             "last_fault": self.last_fault,
+            "clamped": self.clamped,
+            "max_excess_Nm": self.max_excess,
             "overruns": self.overruns,
             "max_overrun_s": self.max_overrun,
             "n_errors": self.n_errors,
@@ -192,6 +200,7 @@ class ControlLoop:
         self.command = initial_command or Command.torques(np.zeros(hand.nv))
         """The last feasible command (the one memory of it)."""
         self.report = LoopReport()
+        self._tau_max = np.where(hand.actuated_dofs, hand.tau_max, 0.0)
         self._kin_now = HandKinematics(hand)
         self._kin_then = HandKinematics(hand)
         self._started: set[str] = set()
@@ -278,6 +287,8 @@ class ControlLoop:
                     self._started.add(self.active)
                     stage.start(context)
                 output = stage.step(context)
+                if output.command is not None:
+                    output = dataclasses.replace(output, command=self._checked(output.command))
         except ObservationError as err:
             output = StageOutput(None, LoopStatus.BAD_STATE.value)
             fault = str(err)
@@ -299,6 +310,27 @@ class ControlLoop:
             index, t, truth, context, stage.name, output, self.command,
             time.perf_counter() - started, fault,
         )  # fmt: skip
+
+    def _checked(self, command: Command) -> Command:
+        """The command with its torques within the hand's limits (0 on joints without a
+        motor); the excess is counted, never sent.
+
+        Raises:
+            ConfigError: torques of the wrong shape or not finite (a bug of the stage).
+        """
+        tau, limit = command.tau, self._tau_max
+        if tau.shape != limit.shape or not np.isfinite(tau).all():
+            raise ConfigError(
+                f"stage {self.active!r} commanded torques of shape {tau.shape} "
+                f"{'' if tau.shape != limit.shape else 'with NaN or inf '}; the hand needs "
+                f"({limit.shape[0]},) finite values [N*m]"
+            )
+        excess = float(np.max(np.abs(tau) - limit))
+        if excess <= 0.0:
+            return command
+        self.report.clamped += 1
+        self.report.max_excess = max(self.report.max_excess, excess)
+        return Command(np.clip(tau, -limit, limit), command.targets)
 
     def _keep_error(self, t: float, stage: str, error: str, trace: str) -> None:
         report = self.report

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wholehand.allocation.base import AllocationStatus, is_balanced
 from wholehand.loop.record import RunRecord
 
 DIVERGED_PREFIX = "simulation diverged"
@@ -32,6 +33,9 @@ class RunOutcome:
     error: str
     """Why the run says nothing about the controller ("" if it does): the simulation diverged,
     or a stage raised (see ``meta["loop"]["errors"]``)."""
+    unbalanced_cycles: int
+    """Cycles with a fresh allocation (status ``ok``) whose forces do not balance the object
+    (:attr:`~wholehand.allocation.base.Allocation.balanced`)."""
 
 
 def outcome_of(record: RunRecord) -> RunOutcome:
@@ -48,7 +52,11 @@ def outcome_of(record: RunRecord) -> RunOutcome:
     elif not held:
         failure = "incomplete"
     moved = float(1e3 * np.linalg.norm(a["p_object"][-1] - a["p_object"][0])) if n else np.nan
-    return RunOutcome(held, len(phases), reached, failure, n, moved, _error(record))
+    fresh = np.flatnonzero(a["status"] == AllocationStatus.OK.value) if n else []
+    unbalanced = sum(
+        not is_balanced(a["residual_wrench"][i], int(a["n_contacts"][i])) for i in fresh
+    )
+    return RunOutcome(held, len(phases), reached, failure, n, moved, _error(record), unbalanced)
 
 
 def _error(record: RunRecord) -> str:

@@ -11,6 +11,7 @@ import pytest
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
 from wholehand.backends import Backend
+from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
 from wholehand.loop.command import Command, JointTargets
@@ -595,3 +596,41 @@ def test_an_ok_allocation_that_does_not_balance_is_reported(allegro, cube):
     ok = a["status"] == "ok"
     assert ok.any() and outcome.unbalanced_cycles == ok.sum()
     assert np.all(np.abs(a["tau"]) <= allegro.tau_max)  # and never beyond the limits
+
+
+class FlatNormals:
+    """The paper's estimator, with every third contact's normal zeroed or NaN (as an SDF gives
+    inside a thin object)."""
+
+    def __init__(self, inner):
+        self.inner, self.seen = inner, []
+
+    def estimate(self, kinematics, wMo, stamp=0.0):
+        c = self.inner.estimate(kinematics, wMo, stamp)
+        n = c.n_world.copy()
+        n[::3] = 0.0
+        n[1::6] = np.nan
+        return ContactSet(
+            c.p_world, n, c.link, c.distance, c.link_actuated, c.link_fingertip, c.stamp
+        )
+
+
+class SpyAllocator(Allocator):
+    def __init__(self, inner):
+        self.inner, self.normals = inner, []
+
+    def allocate(self, contacts, J_world, p_com_world, kinematics=None):
+        self.normals.append(contacts.n_world.copy())
+        return self.inner.allocate(contacts, J_world, p_com_world, kinematics)
+
+
+def test_degenerate_normals_never_reach_the_allocator(allegro, cube):
+    stage = regulation(allegro, cube)
+    stage.estimator = FlatNormals(stage.estimator)
+    stage.allocator = spy = SpyAllocator(stage.allocator)
+    seen = Last()
+    ControlLoop(grasp_backend(allegro, cube), allegro, cube, stage, observers=[seen]).run(0.1)
+    assert stage.degenerate_normals > 0 and spy.normals
+    for n in spy.normals:
+        np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
+    assert {c.output.status for c in seen.cycles} == {"ok"}

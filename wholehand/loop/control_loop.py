@@ -15,14 +15,14 @@ One loop serves simulation, the grasp generator and hardware. Each cycle:
 6. advances the backend to the start of the next period.
 
 Time comes from the backend's clock: the run ends once ``duration`` of backend time has passed,
-and on a wall-clock backend a cycle that computes past its period is an overrun, counted and
-recorded (:attr:`Cycle.overrun`), never silently absorbed.
+and on a wall-clock backend a cycle that computes past its period is an overrun, counted with its
+size in the :class:`LoopReport`, never silently absorbed.
 
 Nothing raises out of a cycle. An :class:`~wholehand.errors.ObservationError` gives status
 ``bad_state`` with the reason logged; any other exception in a stage gives ``stage_error`` and is
-kept with its traceback in :attr:`ControlLoop.errors`. Either way the last feasible command stays
-applied. Errors of observers and of the backend itself are not caught: they are bugs of the set-up,
-not faults of a grasp.
+kept with its traceback in the report (``loop.report.errors``). Either way the last feasible
+command stays applied. Errors of observers and of the backend itself are not caught: they are
+bugs of the set-up, not faults of a grasp.
 """
 
 from __future__ import annotations

@@ -26,6 +26,9 @@ from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
 
+UNIT_TOL = 1e-3
+"""Largest deviation of a contact normal's squared length from 1 that counts as a unit vector."""
+
 EstimateAt = Literal["object_stamp", "current"]
 ESTIMATE_AT: tuple[EstimateAt, ...] = ("object_stamp", "current")
 
@@ -45,6 +48,10 @@ class ForceRegulation(Stage):
     Status: the allocation's (``ok``, ``empty``, ``infeasible``, ``hold``, ...). When the
     allocation gives no torque the stage gives no command and the loop keeps the last feasible
     one.
+
+    A contact whose normal is not a unit vector (an SDF gradient that vanishes inside a thin
+    object, NaN) never reaches the allocator: it is dropped and counted in
+    :attr:`degenerate_normals`, so it cannot count toward the minimum squeeze.
     """
 
     def __init__(
@@ -66,6 +73,8 @@ class ForceRegulation(Stage):
         self.estimate_at = estimate_at
         self.name = name
         self._com_h = np.r_[np.asarray(obj.com, dtype=float), 1.0]
+        self.degenerate_normals = 0
+        """Contacts dropped because their normal was not a unit vector."""
 
     def start(self, context: CycleContext) -> None:
         """Let the allocator prepare (baselines allocate once here)."""
@@ -79,6 +88,11 @@ class ForceRegulation(Stage):
         now = context.kinematics
         then = context.kinematics_object if self.estimate_at == "object_stamp" else now
         contacts = self.estimator.estimate(then, wMo, stamp=obs.stamp_object)
+        n = contacts.n_world
+        unit = np.abs(np.einsum("ij,ij->i", n, n) - 1.0) < UNIT_TOL  # False for NaN
+        if not unit.all():
+            self.degenerate_normals += int((~unit).sum())
+            contacts = contacts.select(unit)
         if then is not now:
             contacts = contacts.in_joint_frames(then).moved_to(now)
         estimated = time.perf_counter()

@@ -285,6 +285,7 @@ def run_trial(
             "wall_time_s": time.perf_counter() - started,
             "sim_time_s": float(backend.time),
             "loop": report.as_dict(),
+            "degenerate_normals": trial.regulation.degenerate_normals,
             # MuJoCo's run-time warnings; bad_qacc means it diverged and reset the state.
             "sim_warnings": backend.warnings() if isinstance(backend, ReportsWarnings) else {},
         }

@@ -81,6 +81,7 @@ class PoseNoise(ObservationFilter):
         self._rng = np.random.default_rng(seed)
         self._stamp: float | None = None
         self._offset = np.eye(4)
+        self._shift = np.zeros(3)
 
     def apply(self, obs: Observation, t: float) -> Observation:
         if obs.wMo is None:

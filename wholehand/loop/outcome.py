@@ -52,7 +52,7 @@ def outcome_of(record: RunRecord) -> RunOutcome:
     elif not held:
         failure = "incomplete"
     moved = float(1e3 * np.linalg.norm(a["p_object"][-1] - a["p_object"][0])) if n else np.nan
-    fresh = np.flatnonzero(a["status"] == AllocationStatus.OK.value) if n else []
+    fresh = np.flatnonzero(a["status"] == AllocationStatus.OK.value) if n else np.zeros(0, int)
     unbalanced = sum(
         not is_balanced(a["residual_wrench"][i], int(a["n_contacts"][i])) for i in fresh
     )

@@ -122,7 +122,7 @@ class RunRecord:
     def phase_summary(self) -> list[dict[str, Any]]:
         """Per phase: held or lost, contact count, residual wrench, object displacement."""
         a = self.arrays()
-        out = []
+        out: list[dict[str, Any]] = []
         if a["t"].size == 0:
             return out
         p0, r0 = a["p_object"][0], pin.exp3(a["r_object"][0])

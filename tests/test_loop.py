@@ -177,7 +177,7 @@ def test_protocol_phases_follow_the_clock(allegro, cube):
 
 
 class FaultyBackend(Backend):
-    """MuJoCo, with given cycles' observations corrupted."""
+    """MuJoCo, with given cycles' observations corrupted or made impossible."""
 
     def __init__(self, sim, faults):
         self.sim, self.faults, self.n = sim, faults, 0
@@ -197,6 +197,12 @@ class FaultyBackend(Backend):
             wMb = 2.0 * wMb
         elif fault == "short_q":
             q = q[:-1]
+        elif fault == "far":  # well-formed but impossible, for the plausibility gate
+            wMo[:3, 3] += [10.0, 0.0, 0.0]
+        elif fault == "jump":
+            wMo[:3, 3] += [0.05, 0.0, 0.0]  # 5 cm in 5 ms
+        elif fault == "joint":
+            q[5] = 40.0
         return Observation(q, obs.dq, wMb, obs.stamp_q, wMo, obs.stamp_object, obs.history)
 
     def apply(self, command):
@@ -507,32 +513,13 @@ def test_no_pose_yet_keeps_the_last_command_and_a_pose_free_stage_runs(allegro, 
     assert [c.output.status for c in seen.cycles] == ["closing"] * 4
 
 
-class GlitchBackend(FaultyBackend):
-    """MuJoCo with plausible-looking but impossible values on given cycles."""
-
-    def observe(self):
-        obs = self.sim.observe()
-        fault = self.faults.get(self.n)
-        self.n += 1
-        if fault is None:
-            return obs
-        q, wMo = obs.q.copy(), obs.wMo.copy()
-        if fault == "far":
-            wMo[:3, 3] += [10.0, 0.0, 0.0]
-        elif fault == "jump":
-            wMo[:3, 3] += [0.05, 0.0, 0.0]  # 5 cm in 5 ms
-        elif fault == "joint":
-            q[5] = 40.0
-        return Observation(q, obs.dq, obs.wMb, obs.stamp_q, wMo, obs.stamp_object, obs.history)
-
-
 def test_the_gate_refuses_a_glitch_and_accepts_a_sustained_change(allegro, cube):
     from wholehand.loop.gate import GateLimits, ObservationGate
 
     faults = {10: "far", 11: "jump", 12: "joint", **{i: "joint" for i in range(20, 26)}}
     gate = ObservationGate(allegro, GateLimits(accept_after=4))
     seen = Last()
-    backend = GlitchBackend(grasp_backend(allegro, cube), faults)
+    backend = FaultyBackend(grasp_backend(allegro, cube), faults)
     ControlLoop(backend, allegro, cube, regulation(allegro, cube), observers=[seen], gate=gate).run(
         0.15
     )

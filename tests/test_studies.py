@@ -8,6 +8,9 @@ import json
 import operator
 import os
 import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -405,3 +408,50 @@ def test_cli_resume_and_limit_reach_run_study(tmp_path, monkeypatch, capsys):
     assert main(argv) == 130  # interrupted: not a success for a shell script
     assert (calls[1]["resume"], calls[1]["limit"]) == (False, None)
     assert '"complete": false' in capsys.readouterr().out
+
+
+_ORPHAN_SCRIPT = """
+import os, sys, time
+from wholehand.studies.base import TrialJob
+from wholehand.loop.trial import TrialSpec
+from wholehand.studies.executors import execute
+
+def slow(job):
+    with open(os.path.join(sys.argv[1], f"worker-{os.getpid()}"), "w"):
+        pass
+    time.sleep(120)
+    return {}
+
+if __name__ == "__main__":
+    jobs = [TrialJob(i, TrialSpec()) for i in range(2)]
+    execute(jobs, slow, executor="process", workers=2, progress=False)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"  # a zombie is dead
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads process states from /proc")
+def test_pool_workers_die_with_a_killed_parent(tmp_path):
+    script = tmp_path / "study.py"
+    script.write_text(_ORPHAN_SCRIPT)
+    parent = subprocess.Popen([sys.executable, str(script), str(tmp_path)])
+    deadline = time.monotonic() + 60
+    while len(list(tmp_path.glob("worker-*"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    workers = [int(p.name.split("-")[1]) for p in tmp_path.glob("worker-*")]
+    assert len(workers) == 2 and all(_alive(w) for w in workers)
+    parent.kill()  # SIGKILL: no handler, no clean-up in the parent
+    parent.wait()
+    deadline = time.monotonic() + 10
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    orphans = [w for w in workers if _alive(w)]
+    for w in orphans:  # leave nothing behind, even when the test fails
+        os.kill(w, signal.SIGKILL)
+    assert not orphans

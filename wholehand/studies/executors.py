@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from typing import Any
@@ -22,6 +24,22 @@ _SINGLE_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREAD
 
 ResultCallback = Callable[[int, dict[str, Any]], None]
 """``on_result(index, row)``: called in the calling process as each job finishes."""
+
+
+PARENT_POLL = 0.5
+"""How often a pool worker checks that the process that started it is alive [s]."""
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Pool-worker initializer: exit as soon as the parent is gone (killed, even by SIGKILL),
+    so no worker outlives the study that started it or keeps its pipes open."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="wholehand-parent-watch", daemon=True).start()
 
 
 def default_workers() -> int:
@@ -101,7 +119,12 @@ def _execute_pool(
     os.environ.update({k: "1" for k in _SINGLE_THREAD_ENV})  # inherited by the workers
     try:
         ctx = multiprocessing.get_context("spawn")  # no fork of a process with solver threads
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx)
+        pool = ProcessPoolExecutor(
+            max_workers=min(workers, len(jobs)),
+            mp_context=ctx,
+            initializer=_die_with_parent,
+            initargs=(os.getpid(),),
+        )
         futures: dict[Future[dict[str, Any]], int] = {}
         delivered: set[int] = set()
         try:

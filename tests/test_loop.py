@@ -570,8 +570,9 @@ def test_every_command_is_clamped_and_a_malformed_one_is_a_stage_error(allegro, 
 def test_an_ok_allocation_that_does_not_balance_is_reported(allegro, cube):
     from wholehand.allocation.base import is_balanced
 
-    assert is_balanced(np.zeros(6), 3) and not is_balanced(np.zeros(6), 0)
-    assert not is_balanced([2e-3, 0, 0, 0, 0, 0], 3) and not is_balanced([0, 0, 0, 0, 2e-4, 0], 3)
+    f = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
+    assert is_balanced(np.zeros(6), f) and not is_balanced(np.zeros(6), np.zeros((2, 3)))
+    assert not is_balanced([2e-3, 0, 0, 0, 0, 0], f) and not is_balanced([0, 0, 0, 0, 2e-4, 0], f)
     held = run_trial(TrialSpec(object=OBJECT, theta_deg=0.0, protocol_params=TINY), allegro)
     assert outcome_of(held).unbalanced_cycles == 0
     # A squeeze the joints cannot make: the QP's best is feasible (ok) but leaves a residual.

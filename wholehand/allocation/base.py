@@ -67,18 +67,20 @@ class Allocation:
 
     @property
     def balanced(self) -> bool:
-        """True when the allocated forces balance the object: at least one contact, residual
-        force and torque within :data:`~wholehand.defaults.BALANCE_TOL_FORCE` and
+        """True when the allocated forces balance the object: some contact force is non-zero,
+        and the residual force and torque are within
+        :data:`~wholehand.defaults.BALANCE_TOL_FORCE` and
         :data:`~wholehand.defaults.BALANCE_TOL_TORQUE`. An ``ok`` allocation need not balance
         (the QP minimises the residual under the torque limits and the minimum squeeze)."""
-        return is_balanced(self.residual_wrench, len(self.f_world))
+        return is_balanced(self.residual_wrench, self.f_world)
 
 
-def is_balanced(residual_wrench: npt.ArrayLike, n_contacts: int) -> bool:
-    """See :attr:`Allocation.balanced` (for a recorded residual (6,) [N, N*m])."""
+def is_balanced(residual_wrench: npt.ArrayLike, f_world: npt.ArrayLike) -> bool:
+    """See :attr:`Allocation.balanced` (for a recorded residual (6,) [N, N*m] and contact
+    forces (N, 3) [N])."""
     w = np.asarray(residual_wrench, dtype=float)
     return bool(
-        n_contacts > 0
+        np.abs(np.asarray(f_world, dtype=float)).sum() > 0.0
         and np.linalg.norm(w[:3]) <= defaults.BALANCE_TOL_FORCE
         and np.linalg.norm(w[3:]) <= defaults.BALANCE_TOL_TORQUE
     )

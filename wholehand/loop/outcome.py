@@ -53,9 +53,8 @@ def outcome_of(record: RunRecord) -> RunOutcome:
         failure = "incomplete"
     moved = float(1e3 * np.linalg.norm(a["p_object"][-1] - a["p_object"][0])) if n else np.nan
     fresh = np.flatnonzero(a["status"] == AllocationStatus.OK.value) if n else np.zeros(0, int)
-    unbalanced = sum(
-        not is_balanced(a["residual_wrench"][i], int(a["n_contacts"][i])) for i in fresh
-    )
+    forces = record.rows.get("contact_f", [])
+    unbalanced = sum(not is_balanced(a["residual_wrench"][i], forces[i]) for i in fresh)
     return RunOutcome(held, len(phases), reached, failure, n, moved, _error(record), unbalanced)
 
 

@@ -320,9 +320,9 @@ class ControlLoop:
         """
         tau, limit = command.tau, self._tau_max
         if tau.shape != limit.shape or not np.isfinite(tau).all():
+            what = f"of shape {tau.shape}" if tau.shape != limit.shape else "with NaN or inf"
             raise ConfigError(
-                f"stage {self.active!r} commanded torques of shape {tau.shape} "
-                f"{'' if tau.shape != limit.shape else 'with NaN or inf '}; the hand needs "
+                f"stage {self.active!r} commanded torques {what}; the hand needs "
                 f"({limit.shape[0]},) finite values [N*m]"
             )
         excess = float(np.max(np.abs(tau) - limit))
@@ -350,12 +350,11 @@ class ControlLoop:
         if not isinstance(backend, HasGroundTruth):
             return None
         hand = self.hand
-        M = None
-        if seen.wMo is not None and truth.wMo is not None and seen.wMo is not truth.wMo:
-            M = seen.wMo @ np.linalg.inv(truth.wMo)
 
-        def contacts() -> ContactSet:
+        def contacts() -> ContactSet:  # the error transform only when asked (rarely: at start)
             found = backend.ground_truth_contacts().to_contact_set(hand)
-            return found if M is None else found.transformed(M)
+            if seen.wMo is None or truth.wMo is None or seen.wMo is truth.wMo:
+                return found
+            return found.transformed(seen.wMo @ np.linalg.inv(truth.wMo))
 
         return contacts

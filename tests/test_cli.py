@@ -58,12 +58,53 @@ def test_run_takes_grasp_type_and_backend_options(capsys):
         (["run", "--pose-noise-mm", "inf"], "--pose-noise-mm inf"),
         (["run", "--rate", "1e-3"], "gives no cycle in phase 'settle'"),
         (["run", "--seed", "-1"], "seed must be an integer >= 0, got -1"),
+        (["run", "--grasps", "no_such.json"], "no_such.json: cannot read the object"),
     ],
 )
 def test_bad_input_exits_with_a_clear_message(capsys, argv, message):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("wholehand: error:") and message in err
+
+
+def test_verbose_goes_before_or_after_the_subcommand(capsys):
+    for argv in (["-v", "info"], ["info", "-v"]):
+        assert main(argv) == 0
+        assert "points_per_link" in json.loads(capsys.readouterr().out)["hand"]
+    assert main(["info"]) == 0
+    assert "points_per_link" not in json.loads(capsys.readouterr().out)["hand"]
+
+
+def test_run_finds_a_users_hand_and_its_grasps_by_a_relative_path(tmp_path, monkeypatch, capsys):
+    """A hand folder of the user's own (here the Allegro's hand.toml copied) keeps its grasps in
+    grasps/ beside hand.toml; ``--grasps FILE`` takes a grasp file from anywhere, its object
+    with it."""
+    import shutil
+
+    from wholehand.grasps.store import grasp_file
+    from wholehand.models.hand_config import shipped_hands_dir
+
+    folder = tmp_path / "hands" / "mine"
+    folder.mkdir(parents=True)
+    shutil.copy(shipped_hands_dir() / "allegro_right" / "hand.toml", folder)
+    (folder / "grasps").mkdir()
+    shutil.copy(grasp_file("allegro_right", "065-f_cups"), folder / "grasps")
+    monkeypatch.chdir(tmp_path)
+    argv = ["run", "--theta", "0", "--json", "--hand", "hands/mine", "--object", "065-f_cups"]
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["held"] is True
+    assert (
+        main(["run", "--theta", "0", "--json", "--grasps", "hands/mine/grasps/065-f_cups.json"])
+        == 0
+    )
+    spec = json.loads(capsys.readouterr().out)["spec"]
+    assert spec["object"] == "065-f_cups"
+    assert spec["grasp_file"] == str(folder / "grasps" / "065-f_cups.json")
+    argv = ["run", "--grasps", "hands/mine/grasps/065-f_cups.json", "--object", "077_rubiks_cube"]
+    assert main(argv) == 2
+    assert (
+        "holds grasps of '065-f_cups', not of --object '077_rubiks_cube'" in capsys.readouterr().err
+    )
 
 
 def test_run_takes_the_tracking_filters(capsys):

@@ -60,7 +60,7 @@ def test_round_trip_and_bad_files(tmp_path, allegro):
     path.write_text(json.dumps(raw))
     with pytest.raises(ConfigError, match="oMb"):
         load_grasps(path)
-    with pytest.raises(ConfigError, match="no grasp file.*shipped grasp files"):
+    with pytest.raises(ConfigError, match="no grasp file.*exist for.*077_rubiks_cube"):
         load_grasps("allegro_right", "no_object")
     partial = Grasp(0, np.eye(4), {"joint_0.0": 0.0})
     with pytest.raises(ConfigError, match="no angle for joints"):
@@ -115,7 +115,8 @@ def test_objects_with_grasps_lists_the_shipped_files():
     assert power == sorted(power) and set(PAPER_OBJECTS) <= set(power)
     assert all(grasp_file("allegro_right", name).is_file() for name in power)
     assert objects_with_grasps("allegro_right", "precision") == sorted(PAPER_OBJECTS)
-    assert objects_with_grasps("no_hand") == []
+    with pytest.raises(ConfigError, match="no hand named 'no_hand'"):
+        objects_with_grasps("no_hand")
 
 
 def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
@@ -134,7 +135,9 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
     def fake(hand, obj, count, seed, max_candidates, progress, style):
         seen.append(obj.name)
         found = [Grasp(0, np.eye(4), dict.fromkeys(hand.joint_names, 0.0))]
-        return (found if obj.name == names[0] else []), {"candidates_tried": 3, "seed": seed}
+        rejected = {"the pre-shape penetrates the object": 2 if obj.name == names[0] else 3}
+        info = {"candidates_tried": 3, "seed": seed, "rejected": rejected}
+        return (found if obj.name == names[0] else []), info
 
     monkeypatch.setattr(generate, "generate_grasps", fake)
     assert main(["grasps", "generate", "--object", "all", "--out", str(tmp_path)]) == 0
@@ -142,3 +145,31 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
     assert seen == names
     assert [p.name for p in tmp_path.iterdir()] == ["077_rubiks_cube.json"]
     assert "1 of 2 objects yield power grasps" in out and "none for: 065-f_cups" in out
+    assert "Rejected because:\n     3  the pre-shape penetrates the object" in out
+
+
+def test_a_users_hand_keeps_its_grasps_in_its_own_folder(tmp_path, monkeypatch):
+    """Shipped hands read objects/grasps/<name>/; a user's hand folder its grasps/ folder,
+    whether its path is written absolute or relative."""
+    from toy_hand import write_toy_hand
+
+    from wholehand.grasps.store import grasps_dir, hand_grasps_dir
+
+    assert hand_grasps_dir("allegro_right") == grasps_dir() / "allegro_right"
+    folder = write_toy_hand(tmp_path / "hands" / "toy")
+    monkeypatch.chdir(tmp_path)
+    for written in (folder, "hands/toy", "hands/toy/hand.toml"):
+        assert hand_grasps_dir(written) == folder / "grasps"
+    assert grasp_file("hands/toy", "box", "precision") == folder / "grasps/precision/box.json"
+    grasp = Grasp(0, np.eye(4), {"f1_j1": 0.1}, contacts=3)
+    save_grasps(grasp_file("hands/toy", "box"), "toy", "box", [grasp], {})
+    assert objects_with_grasps(folder) == ["box"]
+    assert load_grasps("hands/toy", "box")[0].q == {"f1_j1": 0.1}
+
+
+def test_every_rejected_candidate_has_a_reason(allegro):
+    """A 30 cm box cannot be grasped by the Allegro: each candidate is rejected with a reason."""
+    grasps, info = generate_grasps(allegro, load_object("box:0.3x0.3x0.3"), 1, max_candidates=3)
+    assert grasps == [] and info["candidates_tried"] == 3
+    assert sum(info["rejected"].values()) == 3
+    assert all(isinstance(reason, str) and reason for reason in info["rejected"])

@@ -10,7 +10,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     grasps = sub.add_parser("grasps", help="generate or list stored grasps")
     gsub = grasps.add_subparsers(dest="grasps", required=True)
     p = gsub.add_parser("generate", help="generate grasps in MuJoCo (seeded)")
-    p.add_argument("--hand", default="allegro_right")
+    p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
     p.add_argument(
         "--type",
         default="power",
@@ -26,7 +26,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-candidates", type=int, default=400)
     p.add_argument(
-        "--out", default=None, help="folder for <object>.json; default: the shipped grasps"
+        "--out",
+        default=None,
+        help="folder for <object>.json; default: the hand's grasp folder (grasps/ beside a "
+        "user's hand.toml, the shipped grasps for a shipped hand)",
     )
     p.set_defaults(func=_cmd_generate)
     p = gsub.add_parser("list", help="list the shipped grasp files")
@@ -36,11 +39,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _cmd_generate(args: argparse.Namespace) -> int:
     from wholehand.backends.convex import ship_decompositions
     from wholehand.grasps.generate import generate_grasps
-    from wholehand.grasps.store import grasp_file, save_grasps
+    from wholehand.grasps.store import grasp_file, grasps_dir, hand_grasps_dir, save_grasps
     from wholehand.models.hand import load_hand
     from wholehand.models.objects import PAPER_OBJECTS, available_objects, load_object
 
     hand = load_hand(args.hand)
+    shipped_hand = hand_grasps_dir(args.hand).is_relative_to(grasps_dir())
     ycb = available_objects()
     names = args.object or list(PAPER_OBJECTS)
     if "all" in names:
@@ -51,17 +55,21 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         grasps, info = generate_grasps(
             hand, obj, args.count, args.seed, args.max_candidates, progress=True, style=args.type
         )
+        rejected = info["rejected"]
         if not grasps:
             without.append(obj.name)
             print(
                 f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
-                "nothing written (raise --max-candidates or adjust the style in hand.toml)"
+                "nothing written (raise --max-candidates or adjust the style in hand.toml). "
+                f"Rejected because:\n{_reasons(rejected)}"
             )
             continue
-        default = grasp_file(hand.name, obj.name, args.type)
+        default = grasp_file(args.hand, obj.name, args.type)
         path = Path(args.out) / default.name if args.out else default
         path = save_grasps(path, hand.name, obj.name, grasps, info)
-        if not args.out and obj.name in ycb:
+        if args.verbose and rejected:
+            print(f"{obj.name}: candidates rejected because:\n{_reasons(rejected)}")
+        if not args.out and shipped_hand and obj.name in ycb:
             # A shipped grasp was made on this decomposition: ship it, so that MuJoCo
             # reproduces the grasp without running CoACD again (cached, so no extra cost here).
             ship_decompositions([obj.name])
@@ -73,6 +81,10 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         if without:
             print(f"none for: {', '.join(without)}")
     return 0
+
+
+def _reasons(rejected: dict[str, int]) -> str:
+    return "\n".join(f"  {n:4d}  {reason}" for reason, n in rejected.items())
 
 
 def _cmd_list(args: argparse.Namespace) -> int:

@@ -85,7 +85,21 @@ def build_parser() -> argparse.ArgumentParser:
     grasps_cli.add_parser(sub)
     bench_cli.add_parser(sub)
     view_cli.add_parser(sub)
+    _verbose_everywhere(parser)
     return parser
+
+
+def _verbose_everywhere(parser: argparse.ArgumentParser) -> None:
+    """Accept ``-v`` after any subcommand too (``wholehand info -v`` as well as
+    ``wholehand -v info``); SUPPRESS keeps a subcommand from resetting the top-level flag."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for subparser in action.choices.values():
+                subparser.add_argument(
+                    "-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                    help="log progress details",
+                )  # fmt: skip
+                _verbose_everywhere(subparser)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -27,9 +27,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "pull by theta about a random axis, and the load test again; prints per-stage results "
         "and timings.",
     )
-    p.add_argument("--hand", default="allegro_right")
-    p.add_argument("--object", default="077_rubiks_cube")
+    p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
+    p.add_argument(
+        "--object", default=None, help="object (default: 077_rubiks_cube, or the --grasps file's)"
+    )
     p.add_argument("--grasp", type=int, default=0, help="index into the object's grasp file")
+    p.add_argument(
+        "--grasps",
+        default=None,
+        metavar="FILE",
+        help="take the grasp from this grasp file (default: the hand's stored grasps)",
+    )
     p.add_argument(
         "--grasp-type", default="power", help="grasp file: power (default) or e.g. precision"
     )
@@ -127,11 +135,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
     est_params = {
         k: v for k, v in {"k": args.k, "d_thresh": args.d_thresh}.items() if v is not None
     }
+    obj = args.object or "077_rubiks_cube"
+    if args.grasps:
+        from wholehand.grasps.store import grasp_file_object
+
+        obj = grasp_file_object(args.grasps)
+        if args.object and args.object != obj:
+            raise ConfigError(
+                f"--grasps {args.grasps} holds grasps of {obj!r}, not of --object {args.object!r}"
+            )
     spec = TrialSpec(
         hand=args.hand,
-        object=args.object,
+        object=obj,
         grasp=args.grasp,
         grasp_type=args.grasp_type,
+        grasp_file=str(Path(args.grasps).resolve()) if args.grasps else "",
         estimator=args.estimator,
         allocator=args.allocator,
         theta_deg=args.theta,

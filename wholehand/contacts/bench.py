@@ -10,10 +10,11 @@ import numpy.typing as npt
 import trimesh
 
 from wholehand import registry
-from wholehand.grasps.generate import palm_face_in_base
+from wholehand.grasps.generate import style_arrays
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.palm import palm_frame
 from wholehand.models.poses import inverse, pose_from_xyz_rpy
 from wholehand.timing import percentiles_us, time_calls
 
@@ -25,13 +26,14 @@ def grasp_like_states(
 ) -> tuple[FloatArray, FloatArray]:
     """Seeded (q, wMo) pairs with the object resting against the palm and the fingers half closed.
 
-    The object is placed on the palm side of the palm link (see
-    :func:`~wholehand.grasps.generate.palm_face_in_base`)
-    at a random gap of 0-5 mm, tilted by up to 15 deg; joints are drawn between 30% and 70% of
-    their range. Returns q (count, n_q) and wMo (count, 4, 4).
+    The object is placed in front of the palm face (see :mod:`wholehand.models.palm`, at the
+    power pre-shape) at a random gap of 0-5 mm, tilted by up to 15 deg about the palm axes;
+    joints are drawn between 30% and 70% of their range. Returns q (count, n_q) and wMo
+    (count, 4, 4).
     """
     rng = np.random.default_rng(seed)
-    face_x, centre = palm_face_in_base(hand)
+    q_pre, tau_close, _ = style_arrays(hand, hand.config.grasp_styles["power"])
+    palm = palm_frame(hand, q_pre, tau_close)
     lo, hi = obj.mesh.bounds
     q = hand.q_lower + rng.uniform(0.3, 0.7, (count, hand.nq)) * (hand.q_upper - hand.q_lower)
     wMo = np.empty((count, 4, 4))
@@ -40,8 +42,11 @@ def grasp_like_states(
         R = pose_from_xyz_rpy([0, 0, 0], rpy)[:3, :3]
         # Lowest x of the rotated object's bounding-box corners touches the palm face plus a gap.
         corners = np.array(np.meshgrid(*zip(lo, hi, strict=True))).reshape(3, -1).T @ R.T
-        x = face_x - corners[:, 0].min() + rng.uniform(0.0, 0.005)
-        wMo[i] = hand.wMb @ pose_from_xyz_rpy([x, *centre[1:]], rpy)
+        x = palm.face - corners[:, 0].min() + rng.uniform(0.0, 0.005)
+        bMo = np.eye(4)
+        bMo[:3, :3] = palm.bRp @ R
+        bMo[:3, 3] = palm.bRp @ np.array([x, *palm.centre[1:]])
+        wMo[i] = hand.wMb @ bMo
     return q, wMo
 
 

@@ -25,6 +25,7 @@ The hand base pose in the object frame and the joint angles after settling are s
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable
 
 import numpy as np
@@ -39,8 +40,10 @@ from wholehand.loop.control_loop import ControlLoop
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
+from wholehand.models.hand_config import GraspStyle
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
+from wholehand.models.palm import palm_frame
 from wholehand.models.poses import inverse
 
 FloatArray = npt.NDArray[np.float64]
@@ -64,17 +67,20 @@ PD_GAINS = (2.0, 0.05)
 """PD gains holding the non-closing joints at the pre-shape: [N*m/rad], [N*m*s/rad]."""
 
 
-def palm_face_in_base(hand: HandModel) -> tuple[float, FloatArray]:
-    """Where an object can rest against the palm, in the hand base frame.
-
-    Returns the largest x of the palm link's surface samples [m] (its palm-side face, for hands
-    built like the Allegro, whose fingers flex toward +x) and the (3,) centre of their bounding
-    box [m]. The palm is the root link, so the joint configuration does not matter.
-    """
-    rows = hand.samples.link == hand.link_index(hand.palm_link)
-    p_joint, joint = hand.samples.p_joint[rows], hand.samples.joint[rows]
-    pts = HandKinematics(hand).transform_points(p_joint, joint, inverse(hand.wMb))
-    return float(pts[:, 0].max()), 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+def style_arrays(
+    hand: HandModel, style: GraspStyle
+) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]:
+    """A grasp style's pre-shape q (n_q,) [rad] (other joints 0, clipped to their limits), its
+    closing torques (n_v,) [N*m] and which joints close (n_v,) bool."""
+    q_pre = np.clip(np.zeros(hand.nq), hand.q_lower, hand.q_upper)
+    tau_close = np.zeros(hand.nv)
+    closing = np.zeros(hand.nv, dtype=bool)
+    for name, value in style.preshape.items():
+        q_pre[hand.model.joints[hand.model.getJointId(name)].idx_q] = value
+    for name, value in style.close_torque.items():
+        i = hand.model.joints[hand.model.getJointId(name)].idx_v
+        tau_close[i], closing[i] = value, True
+    return q_pre, tau_close, closing
 
 
 class ClosingStage(Stage):
@@ -143,29 +149,25 @@ class GraspGenerator:
                 f"{cfg.path}: {table} close_torque is empty; the grasp generator needs the "
                 "closing torque of each flexion joint"
             )
-        self.q_pre = np.clip(np.zeros(hand.nq), hand.q_lower, hand.q_upper)
-        self.tau_close = np.zeros(hand.nv)
-        self.closing = np.zeros(hand.nv, dtype=bool)
-        for name, value in self.style.preshape.items():
-            self.q_pre[hand.model.joints[hand.model.getJointId(name)].idx_q] = value
-        for name, value in self.style.close_torque.items():
-            i = hand.model.joints[hand.model.getJointId(name)].idx_v
-            self.tau_close[i], self.closing[i] = value, True
+        self.q_pre, self.tau_close, self.closing = style_arrays(hand, self.style)
         self.backend = registry.load("backends", backend, hand=hand, obj=obj, q_init=self.q_pre)
         self.kin = HandKinematics(hand)
         self.loss = GraspLossCheck(hand, obj)
         self.thumb = cfg.thumb
-        # Candidate poses are built in the hand base frame, then mounted with hand.wMb.
-        self._palm_face, self._palm_centre = palm_face_in_base(hand)
+        # Candidate poses are built along the palm's axes, then mounted with hand.wMb.
+        self.palm = palm_frame(hand, self.q_pre, self.tau_close)
         self._finger_centre = (
             self._distal_centre(self.style.fingers) if self.style.fingers else None
         )
         self.candidates_tried = 0
         """Candidates tried by the last :meth:`generate`."""
+        self.rejections: Counter[str] = Counter()
+        """Why candidates of the last :meth:`generate` were rejected: reason -> count."""
 
     def _distal_centre(self, fingers: tuple[str, ...]) -> FloatArray:
-        """(3,) mean origin of the fingers' distal links half-way closed, base frame [m]: each
-        closing joint half-way from the pre-shape to its limit in the closing direction."""
+        """(3,) mean origin of the fingers' distal links half-way closed, along the palm axes
+        [m]: each closing joint half-way from the pre-shape to its limit in the closing
+        direction."""
         hand, q = self.hand, self.q_pre.copy()
         for name, torque in self.style.close_torque.items():
             joint = hand.model.joints[hand.model.getJointId(name)]
@@ -173,27 +175,36 @@ class GraspGenerator:
             q[joint.idx_q] = 0.5 * (q[joint.idx_q] + limit)
         self.kin.update(q, np.eye(4))
         links = [self.hand.config.fingers[f][-1] for f in fingers]
-        return np.mean([self.kin.frame_pose(link)[:3, 3] for link in links], axis=0)
+        centre = np.mean([self.kin.frame_pose(link)[:3, 3] for link in links], axis=0)
+        return self.palm.to_palm(centre)
 
     def candidate_pose(self, rng: np.random.Generator) -> FloatArray:
-        """(4, 4) a seeded object pose in front of the palm."""
+        """(4, 4) a seeded object pose in front of the palm, in the world.
+
+        In the palm frame (:mod:`wholehand.models.palm`): a random orientation; the object's
+        lowest point along the palm normal at the style's gap from the palm face; for power
+        grasps its centre within 1 cm of the middle of the palm across and 0-4 cm below the
+        top of the palm; for a style that names its fingers, centred (+- 1 cm) on their
+        half-closed distal links.
+        """
         R = Rotation.random(random_state=rng).as_matrix()
         verts = np.asarray(self.obj.mesh.vertices) @ R.T
-        wMo = np.eye(4)
-        wMo[:3, :3] = R
-        x = self._palm_face - verts[:, 0].min() + rng.uniform(*self.style.palm_gap)
+        palm = self.palm
+        x = palm.face - verts[:, 0].min() + rng.uniform(*self.style.palm_gap)
         centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
         if self._finger_centre is None:
-            y = self._palm_centre[1] - centre[1] + rng.uniform(-0.01, 0.01)
-            z = rng.uniform(-0.04, 0.0) - centre[2]
+            y = palm.centre[1] - centre[1] + rng.uniform(-0.01, 0.01)
+            z = palm.top + rng.uniform(-0.04, 0.0) - centre[2]
         else:
             y, z = (
                 self._finger_centre[1:]
                 - centre[1:]
                 + rng.uniform(-PRECISION_JITTER, PRECISION_JITTER, 2)
             )
-        wMo[:3, 3] = [x, y, z]
-        return self.hand.wMb @ wMo
+        bMo = np.eye(4)
+        bMo[:3, :3] = palm.bRp @ R
+        bMo[:3, 3] = palm.bRp @ np.array([x, y, z])
+        return self.hand.wMb @ bMo
 
     def _fingers_touching(self) -> set[str]:
         """Fingers touching the object; the palm and other unassigned links count as ``""``."""
@@ -223,17 +234,24 @@ class GraspGenerator:
             return True
         return stage.closed or (stage.cycles % stage.check_every == 0 and until())
 
+    def _reject(self, reason: str) -> None:
+        """Count a rejected candidate's reason; None, the rejected candidate's result."""
+        self.rejections[reason] += 1
+
     def try_candidate(self, index: int, seed: int) -> Grasp | None:
-        """One candidate; the grasp, or None when it is rejected."""
+        """One candidate; the grasp, or None when it is rejected (the reason is counted in
+        :attr:`rejections`)."""
         rng = np.random.default_rng([seed, index])
         wMo = self.candidate_pose(rng)
         b = self.backend
         b.reset(self.q_pre, wMo)
         if np.any(b.ground_truth_contacts().distance < -0.001):
-            return None  # the pre-shape penetrates the object
+            return self._reject("the pre-shape penetrates the object")
         self._hold(wMo)
         if not self._run(CLOSE_TIMEOUT, lambda: self._grasped(self._fingers_touching())):
-            return None
+            return self._reject(
+                f"the required fingers did not all touch within {CLOSE_TIMEOUT:g} s of closing"
+            )
         self._run(CLOSE_EXTRA)
         before = b.observe().wMo
         b.set_object_spring(None)
@@ -243,12 +261,14 @@ class GraspGenerator:
         moved = float(np.linalg.norm(state.wMo[:3, 3] - before[:3, 3]))
         touching = self._fingers_touching()
         fingers = touching - {""}
-        if (
-            moved > MAX_SETTLE_MOTION
-            or not self._grasped(touching)
-            or not self.loss.held(self.kin, state.wMo)
-        ):
-            return None
+        if moved > MAX_SETTLE_MOTION:
+            return self._reject(
+                f"the object moved more than {1e3 * MAX_SETTLE_MOTION:g} mm when released"
+            )
+        if not self._grasped(touching):
+            return self._reject("a required finger let go after release (or another link touched)")
+        if not self.loss.held(self.kin, state.wMo):
+            return self._reject("the grasp-loss criterion fails after release")
         hand = self.hand
         q = {
             name: float(state.q[hand.model.joints[hand.model.getJointId(name)].idx_q])
@@ -276,6 +296,7 @@ class GraspGenerator:
         grasps: list[Grasp] = []
         bar = tqdm(total=count, desc=f"grasps {self.obj.name}", disable=not progress)
         self.candidates_tried = 0
+        self.rejections.clear()
         for index in range(max_candidates):
             self.candidates_tried = index + 1
             grasp = self.try_candidate(index, seed)
@@ -308,6 +329,7 @@ def generate_grasps(
         "method": f"{style} pre-shape, closing torques with the object held, settle released "
         "(wholehand/grasps/generate.py)",
         "candidates_tried": generator.candidates_tried,
+        "rejected": dict(generator.rejections.most_common()),
         "wall_time_s": round(time.perf_counter() - started, 1),
     }
     return grasps, info

@@ -75,14 +75,27 @@ def grasps_dir() -> Path:
     return Path(wholehand_objects.__file__).parent / "grasps"
 
 
-def grasp_file(hand: str, obj: str, style: str = "power") -> Path:
-    """The shipped file of a hand's grasps of an object: ``<hand>/<object>.json`` for power
-    grasps, ``<hand>/<style>/<object>.json`` for another grasp style (e.g. ``precision``)."""
+def hand_grasps_dir(hand: str | Path) -> Path:
+    """Where a hand's grasp files live: ``objects/grasps/<name>/`` for a shipped hand, the
+    folder ``grasps/`` beside the hand.toml of any other (a user's hand keeps its grasps with
+    it, wherever it is and however its path is written)."""
+    from wholehand.models.hand_config import resolve_hand_config, shipped_hands_dir
+
+    folder = resolve_hand_config(hand).resolve().parent
+    if folder.parent == shipped_hands_dir().resolve():
+        return grasps_dir() / folder.name
+    return folder / "grasps"
+
+
+def grasp_file(hand: str | Path, obj: str, style: str = "power") -> Path:
+    """The file of a hand's grasps of an object: ``<object>.json`` for power grasps,
+    ``<style>/<object>.json`` for another grasp style (e.g. ``precision``), in
+    :func:`hand_grasps_dir`. ``hand`` is a shipped hand's name or a hand folder."""
     return _style_dir(hand, style) / f"{obj}.json"
 
 
-def _style_dir(hand: str, style: str) -> Path:
-    folder = grasps_dir() / hand
+def _style_dir(hand: str | Path, style: str) -> Path:
+    folder = hand_grasps_dir(hand)
     return folder if style == "power" else folder / style
 
 
@@ -92,15 +105,15 @@ def shipped_grasp_files() -> list[Path]:
     return sorted([*root.glob("*/*.json"), *root.glob("*/*/*.json")])
 
 
-def objects_with_grasps(hand: str, style: str = "power") -> list[str]:
-    """Names of the objects that have a shipped grasp file of ``hand`` and ``style``, sorted."""
+def objects_with_grasps(hand: str | Path, style: str = "power") -> list[str]:
+    """Names of the objects that have a grasp file of ``hand`` and ``style``, sorted."""
     return sorted(p.stem for p in _style_dir(hand, style).glob("*.json"))
 
 
 def stored_grasp_indices(
-    hand: str, obj: str, style: str = "power", wanted: tuple[int, ...] | None = None
+    hand: str | Path, obj: str, style: str = "power", wanted: tuple[int, ...] | None = None
 ) -> list[int]:
-    """Indices of the shipped grasps of ``(hand, obj, style)`` among ``wanted`` (None: all);
+    """Indices of the stored grasps of ``(hand, obj, style)`` among ``wanted`` (None: all);
     empty when there is no such file."""
     if not grasp_file(hand, obj, style).is_file():
         return []
@@ -111,13 +124,17 @@ def stored_grasp_indices(
 def load_grasps(
     path_or_hand: str | Path, obj: str | None = None, style: str = "power"
 ) -> list[Grasp]:
-    """Grasps from a file path, or the shipped ones for ``(hand name, object name, style)``."""
-    path = Path(path_or_hand) if obj is None else grasp_file(str(path_or_hand), obj, style)
+    """Grasps from a file path, or the stored ones for ``(hand, object name, style)`` (a
+    shipped hand's name or a hand folder, see :func:`grasp_file`)."""
+    path = Path(path_or_hand) if obj is None else grasp_file(path_or_hand, obj, style)
     if not path.is_file():
-        shipped = [p.relative_to(grasps_dir()).as_posix() for p in shipped_grasp_files()]
+        if obj is None:
+            raise ConfigError(f"no grasp file {path}; check the path")
+        stored = sorted(p.stem for p in path.parent.glob("*.json"))
         raise ConfigError(
-            f"no grasp file {path}; shipped grasp files: {shipped}. Generate some with "
-            "`wholehand grasps generate --hand HAND --object OBJECT [--type STYLE]`"
+            f"no grasp file {path}: {style} grasps of this hand exist for {stored or 'no object'}. "
+            f"Generate some with `wholehand grasps generate --hand {path_or_hand} --object {obj}"
+            f"{'' if style == 'power' else f' --type {style}'}`"
         )
     try:
         raw = json.loads(path.read_text())
@@ -149,6 +166,19 @@ def load_grasps(
     if not grasps:
         raise ConfigError(f"{path}: holds no grasps")
     return grasps
+
+
+def grasp_file_object(path: str | Path) -> str:
+    """The object a grasp file holds grasps of (its ``object`` field)."""
+    path = Path(path)
+    try:
+        raw = json.loads(path.read_text())
+        return str(raw["object"])
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as err:
+        raise ConfigError(
+            f"{path}: cannot read the object of this grasp file ({err}); it must be a "
+            f"{FORMAT} JSON file with an 'object' field"
+        ) from err
 
 
 def save_grasps(

@@ -53,6 +53,9 @@ class TrialSpec:
     """Index into the stored grasps of (hand, object, grasp_type)."""
     grasp_type: str = "power"
     """Grasp style of the stored grasp file: ``power`` or e.g. ``precision``."""
+    grasp_file: str = ""
+    """A grasp file to take the grasp from instead (:mod:`wholehand.grasps.store`); empty: the
+    hand's stored grasps of the object and style."""
     estimator: str | type = "mesh_sdf"
     """Contact-estimator plug-in: a registered name or a class."""
     allocator: str | type = "qp"
@@ -198,11 +201,15 @@ def set_up_trial(
     """
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)
-    grasps = load_grasps(spec.hand, spec.object, spec.grasp_type)
+    if spec.grasp_file:
+        grasps, source = load_grasps(spec.grasp_file), spec.grasp_file
+    else:
+        grasps = load_grasps(spec.hand, spec.object, spec.grasp_type)
+        source = f"the stored {spec.grasp_type} grasps of {spec.object!r} for {spec.hand!r}"
     if not 0 <= spec.grasp < len(grasps):
         raise ConfigError(
-            f"grasp {spec.grasp} does not exist: {spec.object!r} has {len(grasps)} stored "
-            f"{spec.grasp_type} grasps for {spec.hand!r} (0..{len(grasps) - 1})"
+            f"grasp {spec.grasp} does not exist: {source} holds {len(grasps)} grasps "
+            f"(0..{len(grasps) - 1})"
         )
     grasp = grasps[spec.grasp]
     filters: list[ObservationFilter] = []

@@ -1,0 +1,57 @@
+"""The palm frame derived from a hand model (the grasp generator's placement frame)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from toy_hand import write_toy_hand
+
+from wholehand.errors import ConfigError
+from wholehand.grasps.generate import style_arrays
+from wholehand.models.hand import load_hand
+from wholehand.models.palm import palm_frame
+from wholehand.models.poses import pose_from_xyz_rpy
+
+
+def _power_palm(hand):
+    q, tau, _ = style_arrays(hand, hand.config.grasp_styles["power"])
+    return palm_frame(hand, q, tau)
+
+
+def test_the_palm_frame_of_a_hand_whose_root_is_elsewhere(tmp_path):
+    """The toy palm hangs from its root by a known transform: the palm frame is that rotation,
+    and the face, top and middle are the palm link's planes x = 0, z = 0 and y = 0 seen from
+    the root."""
+    xyz, rpy = (0.01, 0.02, 0.03), (0.3, -0.5, 1.2)
+    hand = load_hand(write_toy_hand(tmp_path / "toy", palm_xyz=xyz, palm_rpy=rpy))
+    bMpalm = pose_from_xyz_rpy(xyz, rpy)
+    palm = _power_palm(hand)
+    np.testing.assert_allclose(palm.bRp, bMpalm[:3, :3], atol=1e-8)
+    along = bMpalm[:3, :3].T @ bMpalm[:3, 3]  # the palm link's origin along the palm axes
+    assert palm.face == pytest.approx(along[0], abs=1e-8)
+    assert palm.centre[1] == pytest.approx(along[1], abs=1e-8)
+    assert palm.top == pytest.approx(along[2], abs=1e-8)
+    assert palm.centre[2] == pytest.approx(along[2] - 0.04, abs=1e-8)
+    np.testing.assert_allclose(palm.to_palm(bMpalm[:3, 3]), along, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("name", "face", "top"),
+    [("allegro_right", 0.0111, 0.0), ("robotis_hx5_d20_right", 0.021, 0.1224)],
+)
+def test_shipped_hands_close_toward_x_with_fingers_along_z(name, face, top):
+    """Both shipped hands point their fingers along +z of their root and flex them toward +x
+    (read off their URDFs); the Allegro's root sits at its knuckles, the HX5-D20's at the wrist."""
+    palm = _power_palm(load_hand(name))
+    np.testing.assert_array_equal(palm.bRp, np.eye(3))
+    assert palm.face == pytest.approx(face, abs=1e-4)
+    assert palm.top == pytest.approx(top, abs=1e-4)
+
+
+def test_closing_torques_that_move_no_fingertip_are_named(tmp_path):
+    hand = load_hand(write_toy_hand(tmp_path / "toy"))
+    q, tau, _ = style_arrays(hand, hand.config.grasp_styles["power"])
+    tau[:] = 0.0
+    tau[hand.joint_names.index("t_j1")] = 0.1  # only the thumb closes
+    with pytest.raises(ConfigError, match="do not move the tips of the fingers.*f1_2"):
+        palm_frame(hand, q, tau)

@@ -1,0 +1,94 @@
+"""A small hand with known geometry, written as a user would write one (URDF + hand.toml).
+
+In the palm link's frame: the palm is a box whose face is the plane x = 0 (x points out of the
+palm) and whose top edge is z = 0; two fingers of two links each start on that edge at
+y = +-0.025 and point along +z, their joints turning about +y (positive angles close them
+toward +x); a one-link thumb sticks out along +x at z = -0.07 and closes toward +z (axis -y).
+The palm hangs from a root link through a fixed joint (``palm_xyz``, ``palm_rpy``), or through a
+revolute wrist joint about the root's x axis (``wrist=True``); ``forearm=True`` adds a large box
+below the palm on the root.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+INERTIAL = """<inertial><mass value="{m}"/>
+      <inertia ixx="{i}" iyy="{i}" izz="{i}" ixy="0" ixz="0" iyz="0"/></inertial>"""
+
+
+def _link(name: str, size: tuple[float, float, float] | None, xyz: tuple[float, ...] = (0, 0, 0),
+          mass: float = 0.02) -> str:  # fmt: skip
+    geometry = (
+        ""
+        if size is None
+        else f'<collision><origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}"/>'
+        f'<geometry><box size="{size[0]} {size[1]} {size[2]}"/></geometry></collision>'
+    )
+    return f'<link name="{name}">{geometry}{INERTIAL.format(m=mass, i=mass * 1e-4)}</link>\n'
+
+
+def _joint(name: str, parent: str, child: str, xyz: tuple[float, ...], axis: str = "0 1 0",
+           kind: str = "revolute", rpy: tuple[float, ...] = (0, 0, 0), lower: float = -0.2,
+           upper: float = 1.6) -> str:  # fmt: skip
+    limit = "" if kind == "fixed" else (
+        f'<axis xyz="{axis}"/><limit lower="{lower}" upper="{upper}" effort="1" velocity="5"/>'
+    )  # fmt: skip
+    return (
+        f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+        f'<origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}" rpy="{rpy[0]} {rpy[1]} {rpy[2]}"/>'
+        f"{limit}</joint>\n"
+    )
+
+
+def toy_urdf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), wrist=False, forearm=False):
+    body = _link("root", None, mass=0.1)
+    if wrist:
+        body += _joint("wrist", "root", "palm", palm_xyz, "1 0 0", rpy=palm_rpy, lower=-1, upper=1)
+    else:
+        body += _joint("root_to_palm", "root", "palm", palm_xyz, kind="fixed", rpy=palm_rpy)
+    body += _link("palm", (0.02, 0.08, 0.08), (-0.01, 0.0, -0.04), mass=0.1)
+    if forearm:
+        body += _joint("root_to_forearm", "root", "forearm", (-0.01, 0, -0.14), kind="fixed")
+        body += _link("forearm", (0.04, 0.06, 0.12), mass=0.3)
+    for k, y in (("1", 0.025), ("2", -0.025)):
+        body += _joint(f"f{k}_j1", "palm", f"f{k}_1", (0.0, y, 0.0))
+        body += _link(f"f{k}_1", (0.015, 0.015, 0.04), (0.0, 0.0, 0.02))
+        body += _joint(f"f{k}_j2", f"f{k}_1", f"f{k}_2", (0.0, 0.0, 0.04))
+        body += _link(f"f{k}_2", (0.015, 0.015, 0.03), (0.0, 0.0, 0.015))
+    body += _joint("t_j1", "palm", "t_1", (0.0, 0.0, -0.07), axis="0 -1 0")
+    body += _link("t_1", (0.06, 0.015, 0.015), (0.03, 0.0, 0.0))
+    return f'<?xml version="1.0"?>\n<robot name="toy">\n{body}</robot>\n'
+
+
+TOML = """\
+name = "toy"
+urdf = "toy.urdf"
+palm_link = "palm"
+thumb = "thumb"
+fingertip_links = ["f1_2", "f2_2", "t_1"]
+{top}
+[fingers]
+index = ["f1_1", "f1_2"]
+middle = ["f2_1", "f2_2"]
+thumb = ["t_1"]
+
+[grasping]
+close_torque = {{ f1_j1 = 0.1, f1_j2 = 0.05, f2_j1 = 0.1, f2_j2 = 0.05, t_j1 = 0.1 }}
+{tables}
+"""
+
+
+def write_toy_hand(folder: Path, top: str = "", tables: str = "", **urdf: object) -> Path:
+    """Write ``toy.urdf`` and ``hand.toml`` into ``folder`` (made if needed); return it.
+
+    ``top`` adds top-level keys to hand.toml, ``tables`` adds tables at its end; ``urdf``
+    keywords go to :func:`toy_urdf`.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "toy.urdf").write_text(toy_urdf(**urdf))  # type: ignore[arg-type]
+    (folder / "hand.toml").write_text(
+        TOML.format(top=textwrap.dedent(top), tables=textwrap.dedent(tables))
+    )
+    return folder

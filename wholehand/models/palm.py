@@ -1,0 +1,103 @@
+"""The palm frame of a hand, derived from its model: where an object can rest against the palm.
+
+A hand's root frame is wherever its URDF puts it (the Allegro's at the knuckles, the HX5-D20's
+at the wrist), so anything that places an object in front of the palm works in this frame
+instead:
+
+- x, the palm normal: the direction the tips of the non-thumb fingers move when their closing
+  torques are applied at the pre-shape (out of the palm face, toward the grasped object);
+- z, the finger direction: from the fingers' first links to their distal links, made normal
+  to x;
+- y = z x x.
+
+Along those axes the palm link's surface samples give the palm face (largest x), the top of the
+palm (largest z, toward the fingers) and the centre of their bounding box.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.errors import ConfigError
+from wholehand.models.hand import HandModel
+from wholehand.models.kinematics import HandKinematics
+
+FloatArray = npt.NDArray[np.float64]
+
+AXIS_DECIMALS = 9
+"""The axes are rounded to this many decimals before they are made orthonormal, so that a frame
+aligned with the root frame (up to rounding in the Jacobians) is exactly the root frame, and the
+grasps made in it are the same on every platform."""
+
+
+@dataclass(frozen=True)
+class PalmFrame:
+    """Palm axes and extents in the hand base frame ``b`` (the URDF root)."""
+
+    bRp: FloatArray
+    """(3, 3) columns: palm normal x, across the palm y, finger direction z, base frame."""
+    face: float
+    """Largest coordinate of the palm surface along x (the palm face) [m]."""
+    top: float
+    """Largest coordinate of the palm surface along z (where the fingers start) [m]."""
+    centre: FloatArray
+    """(3,) centre of the palm surface's bounding box along the palm axes [m]."""
+
+    def to_palm(self, p_base: FloatArray) -> FloatArray:
+        """Points (..., 3) from base coordinates to coordinates along the palm axes [m]."""
+        return np.asarray(p_base) @ self.bRp
+
+
+def _unit(v: FloatArray) -> FloatArray:
+    return v / np.linalg.norm(v)
+
+
+def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFrame:
+    """The palm frame of ``hand`` at the pre-shape ``q`` (n_q,) [rad] with closing torques
+    ``tau_close`` (n_v,) [N*m] (the grasp style's; non-closing joints 0).
+
+    Raises:
+        ConfigError: the hand names no finger besides the thumb, or the closing torques do not
+            move those fingers' tips.
+    """
+    cfg = hand.config
+    fingers = [links for name, links in cfg.fingers.items() if name != cfg.thumb]
+    if not fingers:
+        raise ConfigError(
+            f"{cfg.path}: [fingers] names no finger besides the thumb, so the palm's direction "
+            "cannot be found; list each finger's links, base to tip"
+        )
+    kin = HandKinematics(hand)
+    kin.update(q, np.eye(4))
+    roots = np.array([kin.frame_pose(links[0])[:3, 3] for links in fingers])
+    tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in fingers])
+    tip_joint = np.array([hand.link_joint[hand.link_index(links[-1])] for links in fingers])
+    tip_velocity = kin.point_jacobians(tip_joint, tips) @ tau_close  # (F, 3), base frame
+    closing = tip_velocity.sum(axis=0)
+    if np.linalg.norm(closing) < 1e-9:
+        raise ConfigError(
+            f"{cfg.path}: the closing torques of [grasping] do not move the tips of the fingers "
+            f"{[links[-1] for links in fingers]}; give their flexion joints a close_torque"
+        )
+    normal = _unit(np.round(_unit(closing), AXIS_DECIMALS))
+    along = np.round(_unit(tips.mean(axis=0) - roots.mean(axis=0)), AXIS_DECIMALS)
+    along = along - (along @ normal) * normal
+    if np.linalg.norm(along) < 1e-6:
+        raise ConfigError(
+            f"{cfg.path}: the fingers close along their own length at the pre-shape; open them "
+            "in [grasping] preshape so that they point away from the palm"
+        )
+    along = _unit(along)
+    bRp = np.column_stack([normal, np.cross(along, normal), along])
+    rows = hand.samples.link == hand.link_index(hand.palm_link)
+    palm = kin.transform_points(hand.samples.p_joint[rows], hand.samples.joint[rows], np.eye(4))
+    p = palm @ bRp
+    return PalmFrame(
+        bRp=bRp,
+        face=float(p[:, 0].max()),
+        top=float(p[:, 2].max()),
+        centre=0.5 * (p.min(axis=0) + p.max(axis=0)),
+    )

@@ -6,7 +6,7 @@ y = +-0.025 and point along +z, their joints turning about +y (positive angles c
 toward +x); a one-link thumb sticks out along +x at z = -0.07 and closes toward +z (axis -y).
 The palm hangs from a root link through a fixed joint (``palm_xyz``, ``palm_rpy``), or through a
 revolute wrist joint about the root's x axis (``wrist=True``); ``forearm=True`` adds a large box
-below the palm on the root.
+below the palm on the root; ``knuckle=True`` a second palm box buried inside the first.
 """
 
 from __future__ import annotations
@@ -18,14 +18,16 @@ INERTIAL = """<inertial><mass value="{m}"/>
       <inertia ixx="{i}" iyy="{i}" izz="{i}" ixy="0" ixz="0" iyz="0"/></inertial>"""
 
 
-def _link(name: str, size: tuple[float, float, float] | None, xyz: tuple[float, ...] = (0, 0, 0),
-          mass: float = 0.02) -> str:  # fmt: skip
-    geometry = (
-        ""
-        if size is None
-        else f'<collision><origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}"/>'
+def _box(size: tuple[float, ...], xyz: tuple[float, ...]) -> str:
+    return (
+        f'<collision><origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}"/>'
         f'<geometry><box size="{size[0]} {size[1]} {size[2]}"/></geometry></collision>'
     )
+
+
+def _link(name: str, size: tuple[float, float, float] | None, xyz: tuple[float, ...] = (0, 0, 0),
+          mass: float = 0.02, extra: str = "") -> str:  # fmt: skip
+    geometry = ("" if size is None else _box(size, xyz)) + extra
     return f'<link name="{name}">{geometry}{INERTIAL.format(m=mass, i=mass * 1e-4)}</link>\n'
 
 
@@ -42,13 +44,20 @@ def _joint(name: str, parent: str, child: str, xyz: tuple[float, ...], axis: str
     )
 
 
-def toy_urdf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), wrist=False, forearm=False):
+KNUCKLE = ((0.01, 0.06, 0.02), (-0.01, 0.0, -0.04))
+"""Size and centre of the ``knuckle=True`` box, palm frame [m]: 5 mm or more inside the palm."""
+
+
+def toy_urdf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), wrist=False, forearm=False,
+             knuckle=False):  # fmt: skip
     body = _link("root", None, mass=0.1)
     if wrist:
         body += _joint("wrist", "root", "palm", palm_xyz, "1 0 0", rpy=palm_rpy, lower=-1, upper=1)
     else:
         body += _joint("root_to_palm", "root", "palm", palm_xyz, kind="fixed", rpy=palm_rpy)
-    body += _link("palm", (0.02, 0.08, 0.08), (-0.01, 0.0, -0.04), mass=0.1)
+    body += _link(
+        "palm", (0.02, 0.08, 0.08), (-0.01, 0.0, -0.04), 0.1, _box(*KNUCKLE) if knuckle else ""
+    )
     if forearm:
         body += _joint("root_to_forearm", "root", "forearm", (-0.01, 0, -0.14), kind="fixed")
         body += _link("forearm", (0.04, 0.06, 0.12), mass=0.3)

@@ -249,6 +249,28 @@ def _check_hand(hand: HandModel) -> None:
         raise ConfigError(f"{hand.config.path}: hand {hand.name!r} has no actuated joint")
 
 
+def _weld_locked_joints(spec: mujoco.MjSpec, hand: HandModel) -> None:
+    """Replace each locked joint by a fixed offset of its body at the locked value, as the
+    hand model does: rotate the body about a hinge's axis, or shift it along a slide's."""
+    for name, value in hand.config.locked_joints.items():
+        joint = spec.joint(name)
+        if joint is None:
+            raise AssetError(f"{hand.config.urdf_path}: locked joint {name!r} has no MuJoCo joint")
+        body, axis = joint.parent, np.asarray(joint.axis, dtype=float)
+        axis = axis / np.linalg.norm(axis)
+        quat = np.asarray(body.quat, dtype=float)
+        if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
+            turn, turned = np.zeros(4), np.zeros(4)
+            mujoco.mju_axisAngle2Quat(turn, axis, float(value))
+            mujoco.mju_mulQuat(turned, quat, turn)
+            body.quat = turned.tolist()
+        else:  # slide: the axis is in the body frame
+            shift = np.zeros(3)
+            mujoco.mju_rotVecQuat(shift, axis * float(value), quat)
+            body.pos = (np.asarray(body.pos, dtype=float) + shift).tolist()
+        spec.delete(joint)
+
+
 def _edit_hand(
     spec: mujoco.MjSpec, hand: HandModel, wMb: FloatArray, opts: SceneOptions, mu: float
 ) -> None:
@@ -262,6 +284,7 @@ def _edit_hand(
     _set_pose(base, wMb)
     if opts.base == "mocap":
         base.mocap = True
+    _weld_locked_joints(spec, hand)
     for joint in spec.joints:
         joint.damping = [hand.config.damping, 0.0, 0.0]  # linear viscous damping only
         joint.armature = hand.config.armature

@@ -23,6 +23,7 @@ from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import cache
 from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
+from wholehand.models.outer_surface import find_buried_samples
 from wholehand.models.poses import pose_from_xyz_rpy
 from wholehand.models.surface import link_mesh_in_joint_frame, sample_link_surface
 
@@ -123,10 +124,13 @@ class HandModel:
         seed: int = 0,
     ) -> None:
         self.config = config
-        self.model = self._build_model()
-        self._check_joint_types()
-        self.collision_model = self._build_geometry(pin.GeometryType.COLLISION, "collision")
-        self.visual_model = self._build_geometry(pin.GeometryType.VISUAL, "visual")
+        full = self._build_model()
+        self._check_joint_types(full)
+        collision = self._build_geometry(full, pin.GeometryType.COLLISION, "collision")
+        visual = self._build_geometry(full, pin.GeometryType.VISUAL, "visual")
+        self.model, self.collision_model, self.visual_model = self._lock_joints(
+            full, collision, visual
+        )
         self._build_link_table()
         self._build_joint_tables()
         self.wMb = pose_from_xyz_rpy(config.mount_xyz, config.mount_rpy)
@@ -150,22 +154,24 @@ class HandModel:
                 "well-formed XML with one root link"
             ) from err
 
-    def _check_joint_types(self) -> None:
-        for jid in range(1, self.model.njoints):
-            kind = self.model.joints[jid].shortname()
+    def _check_joint_types(self, model: pin.Model) -> None:
+        for jid in range(1, model.njoints):
+            kind = model.joints[jid].shortname()
             if kind not in SUPPORTED_JOINTS:
                 raise ConfigError(
-                    f"{self.config.urdf_path}: joint {self.model.names[jid]!r} has type {kind}, "
+                    f"{self.config.urdf_path}: joint {model.names[jid]!r} has type {kind}, "
                     "which a hand model does not support; use revolute (with limits) or "
                     "prismatic joints, and fixed joints for rigid attachments"
                 )
 
-    def _build_geometry(self, kind: pin.GeometryType, surface: str) -> pin.GeometryModel:
+    def _build_geometry(
+        self, model: pin.Model, kind: pin.GeometryType, surface: str
+    ) -> pin.GeometryModel:
         cfg = self.config
         _check_meshes(cfg, surface)
         try:
             return pin.buildGeomFromUrdf(
-                self.model,
+                model,
                 str(cfg.urdf_path),
                 kind,
                 package_dirs=[str(d) for d in cfg.package_dirs],
@@ -174,6 +180,36 @@ class HandModel:
             raise AssetError(
                 f"{cfg.urdf_path}: cannot build the {surface} geometry: {err}"
             ) from err
+
+    def _lock_joints(
+        self, model: pin.Model, collision: pin.GeometryModel, visual: pin.GeometryModel
+    ) -> tuple[pin.Model, pin.GeometryModel, pin.GeometryModel]:
+        """The model with the locked joints of hand.toml turned into fixed joints at their
+        values (Pinocchio's reduced model), and its geometry."""
+        cfg = self.config
+        if not cfg.locked_joints:
+            return model, collision, visual
+        moving = [model.names[j] for j in range(1, model.njoints)]
+        q_ref = pin.neutral(model)
+        ids = []
+        for name, value in cfg.locked_joints.items():
+            if name not in moving:
+                raise ConfigError(
+                    f"{cfg.path}: locked joint {name!r} is not a moving joint of "
+                    f"{cfg.urdf_path.name}; valid joints: {moving}"
+                )
+            jid = model.getJointId(name)
+            i = model.joints[jid].idx_q
+            low, high = model.lowerPositionLimit[i], model.upperPositionLimit[i]
+            if not low <= value <= high:
+                raise ConfigError(
+                    f"{cfg.path}: [joints] locked.{name} = {value} is outside the joint's "
+                    f"limits [{low:g}, {high:g}] in {cfg.urdf_path.name}"
+                )
+            q_ref[i] = value
+            ids.append(jid)
+        reduced, (coll, vis) = pin.buildReducedModel(model, [collision, visual], ids, q_ref)
+        return reduced, coll, vis
 
     def _frame_id(self, link: str, what: str) -> int:
         if not self.model.existFrame(link, pin.FrameType.BODY):
@@ -192,9 +228,12 @@ class HandModel:
     def _build_link_table(self) -> None:
         cfg = self.config
         sampled = self.collision_model if cfg.sample_surface == "collision" else self.visual_model
+        for link in cfg.excluded_links:
+            self._frame_id(link, "excluded link")
         by_frame: dict[int, list[pin.GeometryObject]] = {}
         for obj in sampled.geometryObjects:
-            by_frame.setdefault(obj.parentFrame, []).append(obj)
+            if self.model.frames[obj.parentFrame].name not in cfg.excluded_links:
+                by_frame.setdefault(obj.parentFrame, []).append(obj)
         self._link_geometry = by_frame
         frames = sorted(by_frame)
         self.link_names = [self.model.frames[f].name for f in frames]
@@ -210,6 +249,11 @@ class HandModel:
         named += [(n, f"link of finger {f!r}") for f, links in cfg.fingers.items() for n in links]
         for link, what in named:
             self._frame_id(link, what)
+            if link in cfg.excluded_links:
+                raise ConfigError(
+                    f"{cfg.path}: {what} {link!r} is also in excluded_links; a link cannot be "
+                    "both a contact link and excluded"
+                )
             if link not in self.link_names:
                 raise ConfigError(
                     f"{cfg.path}: {what} {link!r} has no {cfg.sample_surface} geometry in "
@@ -227,6 +271,11 @@ class HandModel:
         styles = cfg.grasp_styles.values()
         grasp_joints = [j for st in styles for j in (*st.preshape, *st.close_torque)]
         for name in [*actuated, *cfg.torque_limits, *grasp_joints]:
+            if name in cfg.locked_joints:
+                raise ConfigError(
+                    f"{cfg.path}: joint {name!r} is locked ([joints] locked), so it cannot be "
+                    "actuated, have a torque limit or take part in a grasp style; remove it there"
+                )
             if name not in moving:
                 raise ConfigError(
                     f"{cfg.path}: joint {name!r} is not a moving joint of "
@@ -259,9 +308,12 @@ class HandModel:
     def _cache_key(self) -> str:
         cfg = self.config
         meshes = sorted(set(_check_meshes(cfg, cfg.sample_surface)))
-        return cache.content_hash(
-            cfg.urdf_path, *meshes, self.sample_params, {"links": self.link_names}
-        )
+        shape = {
+            "links": self.link_names,
+            "locked": cfg.locked_joints,
+            "outer_surface_only": cfg.outer_surface_only,
+        }
+        return cache.content_hash(cfg.urdf_path, *meshes, self.sample_params, shape)
 
     def _load_or_sample(self) -> SurfaceSamples:
         key = self._cache_key()
@@ -297,12 +349,25 @@ class HandModel:
             n.append(normals)
             link.append(np.full(len(pts), i, dtype=np.intp))
             joint.append(np.full(len(pts), self.link_joint[i], dtype=np.intp))
-        return SurfaceSamples(
+        samples = SurfaceSamples(
             p_joint=np.concatenate(p),
             n_joint=np.concatenate(n),
             link=np.concatenate(link),
             joint=np.concatenate(joint),
         )
+        if not self.config.outer_surface_only:
+            return samples
+        found = find_buried_samples(
+            self.model, self.collision_model, samples.p_joint, samples.joint,
+            self.sample_params["seed"],
+        )  # fmt: skip
+        if found.skipped_shapes:
+            log.warning(
+                "%s: outer_surface_only skips %d collision shapes that are not closed surfaces: %s",
+                self.config.path, len(found.skipped_shapes), found.skipped_shapes,
+            )  # fmt: skip
+        keep = ~found.buried
+        return SurfaceSamples(**{k: v[keep] for k, v in samples.__dict__.items()})
 
     def link_mesh(self, link: int | str):
         """Mesh of one link's sampled surface, in its parent-joint frame [m]."""

@@ -10,10 +10,13 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     sample_surface = "collision"                # or "visual"
     thumb = "thumb"                             # key of [fingers] that is the thumb
     fingertip_links = ["index_tip", ...]        # distal links
+    excluded_links = ["forearm"]                # never contact candidates (still simulated)
+    outer_surface_only = false                  # drop samples buried in other collision shapes
     [fingers]                                   # finger name -> links, base to tip
     index = ["index_1", "index_2", "index_tip"]
     [joints]
     actuated = ["j1", ...]                      # default: every moving joint
+    locked = { wrist = 0.0 }                    # held at this value [rad or m]: not in the model
     torque_limit = { default = 0.2, j1 = 0.5 }
     [simulation]
     damping = 0.05                              # N*m*s/rad
@@ -91,7 +94,7 @@ class HandConfig:
     thumb: str | None
     fingertip_links: tuple[str, ...]
     actuated_joints: tuple[str, ...] | None
-    """None means every moving joint of the URDF."""
+    """None means every moving joint of the URDF (locked joints excepted)."""
     torque_limit_default: float
     torque_limits: dict[str, float]
     damping: float
@@ -101,6 +104,13 @@ class HandConfig:
     its sub-tables (``[grasping.precision]``)."""
     mount_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    locked_joints: dict[str, float] = field(default_factory=dict)
+    """Joints held at a fixed value [rad or m] (e.g. a wrist): the hand model treats them as
+    fixed joints at that value, and the MuJoCo scene welds them there."""
+    excluded_links: tuple[str, ...] = ()
+    """Links that are never contact candidates (e.g. a forearm); they are still simulated."""
+    outer_surface_only: bool = False
+    """Drop surface samples buried inside another collision shape of the hand."""
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -157,7 +167,8 @@ def parse_hand_config(path: str | Path) -> HandConfig:
 
     known = {
         "name", "urdf", "palm_link", "passive_links", "sample_surface", "thumb",
-        "fingertip_links", "fingers", "joints", "simulation", "mount", "grasping",
+        "fingertip_links", "excluded_links", "outer_surface_only", "fingers", "joints",
+        "simulation", "mount", "grasping",
     }  # fmt: skip
     unknown = sorted(set(raw) - known)
     if unknown:
@@ -194,7 +205,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         raise ConfigError(f"{path}: thumb = {thumb!r} is not a key of [fingers] {sorted(fingers)}")
 
     sub_keys = {
-        "joints": {"actuated", "torque_limit"},
+        "joints": {"actuated", "locked", "torque_limit"},
         "simulation": {"damping", "armature"},
         "mount": {"xyz", "rpy"},
         "grasping": {"preshape", "close_torque", *_GRASP_SUBSTYLES},
@@ -222,6 +233,10 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         if j != "default"
     }
     grasp_styles = _grasp_styles(raw.get("grasping", {}), fingers, thumb, path)
+    locked = _joint_numbers(joints.get("locked", {}), "[joints] locked", path)
+    outer = raw.get("outer_surface_only", False)
+    if not isinstance(outer, bool):
+        raise ConfigError(f"{path}: outer_surface_only must be true or false, got {outer!r}")
     sim = raw.get("simulation", {})
     mount = raw.get("mount", {})
     xyz = tuple(float(v) for v in mount.get("xyz", (0.0, 0.0, 0.0)))
@@ -241,6 +256,9 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         thumb=thumb,
         fingertip_links=_str_list(raw, "fingertip_links", path, []),
         actuated_joints=_str_list(joints, "actuated", path),
+        locked_joints=locked,
+        excluded_links=_str_list(raw, "excluded_links", path, []),
+        outer_surface_only=outer,
         torque_limit_default=default_limit,
         torque_limits=limits,
         damping=_number(sim.get("damping", 0.05), "simulation.damping", path),

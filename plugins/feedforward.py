@@ -41,7 +41,7 @@ class FeedforwardBaseline(FixedAllocationBaseline):
         allocation: Allocation,
         kinematics: HandKinematics,
     ) -> None:
-        n_v = J_gt.shape[2] if J_gt.ndim == 3 else kinematics.model.nv
+        n_v = J_gt.shape[2] if J_gt.ndim == 3 else kinematics.hand.n_actuation
         tau = (
             np.einsum("nak,na->k", J_gt, allocation.f_world) if len(contacts_gt) else np.zeros(n_v)
         )

@@ -86,11 +86,11 @@ class ImpedanceBaseline(FixedAllocationBaseline):
     def command(self, kinematics: HandKinematics) -> FloatArray:
         """``sum_i J_i(q)^T k (x*_i - x_i(q))`` at the configuration of ``kinematics`` [N*m]."""
         kin = kinematics
-        n_v = kin.model.nv
+        n_v = kin.hand.n_actuation
         if self.joint.size == 0:
             return np.zeros(n_v)
         x, f = self.spring_forces(kin)
-        J = kin.point_jacobians(self.joint, x)
+        J = kin.actuation_jacobians(self.joint, x)
         tau = np.einsum("nak,na->k", J, f)
         tau[~self.actuated_mask(n_v)] = 0.0
         return tau

@@ -33,14 +33,14 @@ def _link(name: str, size: tuple[float, float, float] | None, xyz: tuple[float, 
 
 def _joint(name: str, parent: str, child: str, xyz: tuple[float, ...], axis: str = "0 1 0",
            kind: str = "revolute", rpy: tuple[float, ...] = (0, 0, 0), lower: float = -0.2,
-           upper: float = 1.6) -> str:  # fmt: skip
+           upper: float = 1.6, inner: str = "") -> str:  # fmt: skip
     limit = "" if kind == "fixed" else (
         f'<axis xyz="{axis}"/><limit lower="{lower}" upper="{upper}" effort="1" velocity="5"/>'
     )  # fmt: skip
     return (
         f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
         f'<origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}" rpy="{rpy[0]} {rpy[1]} {rpy[2]}"/>'
-        f"{limit}</joint>\n"
+        f"{limit}{inner}</joint>\n"
     )
 
 
@@ -48,8 +48,12 @@ KNUCKLE = ((0.01, 0.06, 0.02), (-0.01, 0.0, -0.04))
 """Size and centre of the ``knuckle=True`` box, palm frame [m]: 5 mm or more inside the palm."""
 
 
+MIMIC = (0.8, 0.1)
+"""``mimic=True``: each finger's second joint follows its first, ``q2 = 0.8 q1 + 0.1`` [rad]."""
+
+
 def toy_urdf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), wrist=False, forearm=False,
-             knuckle=False):  # fmt: skip
+             knuckle=False, mimic=False):  # fmt: skip
     body = _link("root", None, mass=0.1)
     if wrist:
         body += _joint("wrist", "root", "palm", palm_xyz, "1 0 0", rpy=palm_rpy, lower=-1, upper=1)
@@ -64,7 +68,8 @@ def toy_urdf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), wrist=False, fo
     for k, y in (("1", 0.025), ("2", -0.025)):
         body += _joint(f"f{k}_j1", "palm", f"f{k}_1", (0.0, y, 0.0))
         body += _link(f"f{k}_1", (0.015, 0.015, 0.04), (0.0, 0.0, 0.02))
-        body += _joint(f"f{k}_j2", f"f{k}_1", f"f{k}_2", (0.0, 0.0, 0.04))
+        tag = f'<mimic joint="f{k}_j1" multiplier="{MIMIC[0]}" offset="{MIMIC[1]}"/>'
+        body += _joint(f"f{k}_j2", f"f{k}_1", f"f{k}_2", (0.0, 0.0, 0.04), inner=tag * mimic)
         body += _link(f"f{k}_2", (0.015, 0.015, 0.03), (0.0, 0.0, 0.015))
     body += _joint("t_j1", "palm", "t_1", (0.0, 0.0, -0.07), axis="0 -1 0")
     body += _link("t_1", (0.06, 0.015, 0.015), (0.03, 0.0, 0.0))
@@ -84,7 +89,7 @@ middle = ["f2_1", "f2_2"]
 thumb = ["t_1"]
 
 [grasping]
-close_torque = {{ f1_j1 = 0.1, f1_j2 = 0.05, f2_j1 = 0.1, f2_j2 = 0.05, t_j1 = 0.1 }}
+close_torque = {{ {close} }}
 {tables}
 """
 
@@ -97,7 +102,10 @@ def write_toy_hand(folder: Path, top: str = "", tables: str = "", **urdf: object
     """
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "toy.urdf").write_text(toy_urdf(**urdf))  # type: ignore[arg-type]
+    close = "f1_j1 = 0.1, f2_j1 = 0.1, t_j1 = 0.1"
+    if not urdf.get("mimic"):  # the second joints close too when they have motors of their own
+        close += ", f1_j2 = 0.05, f2_j2 = 0.05"
     (folder / "hand.toml").write_text(
-        TOML.format(top=textwrap.dedent(top), tables=textwrap.dedent(tables))
+        TOML.format(top=textwrap.dedent(top), tables=textwrap.dedent(tables), close=close)
     )
     return folder

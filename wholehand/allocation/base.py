@@ -88,9 +88,15 @@ def is_balanced(residual_wrench: npt.ArrayLike, f_world: npt.ArrayLike) -> bool:
 
 def hand_keywords(hand: HandModel) -> dict[str, Any]:
     """Constructor keywords the trial set-up derives from the hand and passes to an allocator
-    whose constructor accepts them: ``tau_max`` ((n_v,) torque limit per joint [N*m], ``inf``
-    where none) and ``actuated_dofs`` ((n_v,) bool, True for the joints the allocator
-    commands)."""
+    whose constructor accepts them: ``tau_max`` (torque limit per coordinate [N*m], ``inf``
+    where none) and ``actuated_dofs`` (bool, True for the coordinates the allocator commands),
+    both (n_actuation,): per joint, or per actuator for a coupled hand (the Jacobians are then
+    ``J C``, see :meth:`~wholehand.models.kinematics.HandKinematics.actuation_jacobians`)."""
+    if hand.coupled:
+        return {
+            "tau_max": hand.tau_max[hand.actuated_dofs].copy(),
+            "actuated_dofs": np.ones(hand.n_actuation, dtype=bool),
+        }
     return {"tau_max": hand.tau_max.copy(), "actuated_dofs": hand.actuated_dofs.copy()}
 
 
@@ -129,7 +135,9 @@ class Allocator(abc.ABC):
         Args:
             contacts: The contacts of this cycle (N of them).
             J_world: (N, 3, n_v) point Jacobians of the hand at the contact points: linear
-                velocity of each contact point, world axes, per joint velocity.
+                velocity of each contact point, world axes, per joint velocity (per actuator
+                velocity for a coupled hand: ``n_v`` is then the number of actuators, and the
+                torques are actuator torques).
             p_com_world: (3,) object centre of mass in the world [m].
             kinematics: the hand at the configuration of ``J_world`` (the loop always passes
                 it; only laws that depend on the configuration read it). Read it during the

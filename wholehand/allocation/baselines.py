@@ -89,7 +89,7 @@ class FixedAllocationBaseline(Allocator):
             baseline applies zero forces: it has nothing else to hold.
         """
         hand = kinematics.hand
-        J = kinematics.point_jacobians(hand.link_joint[contacts_gt.link], contacts_gt.p_world)
+        J = kinematics.actuation_jacobians(hand.link_joint[contacts_gt.link], contacts_gt.p_world)
         self.allocator.reset()
         allocation = self.allocator.allocate(contacts_gt, J, np.asarray(p_com_world, dtype=float))
         if not allocation.ok:
@@ -97,7 +97,7 @@ class FixedAllocationBaseline(Allocator):
             allocation = Allocation(
                 f_local=np.zeros((n, 3)),
                 f_world=np.zeros((n, 3)),
-                tau=np.zeros(kinematics.model.nv),
+                tau=np.zeros(hand.n_actuation),
                 residual_wrench=np.zeros(6),
                 status=allocation.status,
                 solve_time=allocation.solve_time,
@@ -119,8 +119,8 @@ class FixedAllocationBaseline(Allocator):
 
     @abc.abstractmethod
     def command(self, kinematics: HandKinematics) -> FloatArray:
-        """(n_v,) joint torques of this cycle [N*m], from the stored allocation and the current
-        configuration ``kinematics``."""
+        """(n_actuation,) torques of this cycle [N*m] (per joint, or per actuator for a coupled
+        hand), from the stored allocation and the current configuration ``kinematics``."""
 
     # --------------------------------------------------------------------------------------------
     @property

@@ -9,7 +9,11 @@ edited in the spec:
 - every joint gets the damping and armature of ``[simulation]`` in hand.toml (the URDF's own
   ``<dynamics>`` damping and friction are dropped) and keeps its URDF position limits;
 - every actuated joint gets a ``motor`` actuator, ctrl = force = torque [N*m], with ``ctrlrange``
-  and ``forcerange`` +-``hand.tau_max``.
+  and ``forcerange`` +-``hand.tau_max``;
+- URDF ``<mimic>`` couplings are joint equality constraints (MuJoCo's URDF importer makes them),
+  as stiff as the contacts (``solref``); the followers have no actuator, so an actuator torque
+  drives the leader and its followers together;
+- locked joints of hand.toml are removed and their bodies fixed at the locked value.
 
 The object is a body named ``"object"`` with a free joint. Its body frame IS the object frame of
 :class:`~wholehand.models.objects.ObjectModel` (the canonical mesh frame): mass, centre of mass and
@@ -303,6 +307,8 @@ def _edit_hand(
         geom.priority = 0
         geom.margin = 0.0
         geom.gap = 0.0
+    for equality in spec.equalities:  # URDF <mimic> couplings, imported as joint equalities
+        equality.solref = list(opts.solref)
     for dof in np.flatnonzero(hand.actuated_dofs):
         name = hand.joint_names[int(dof)]
         tau = float(hand.tau_max[int(dof)])

@@ -70,8 +70,9 @@ PD_GAINS = (2.0, 0.05)
 def style_arrays(
     hand: HandModel, style: GraspStyle
 ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]:
-    """A grasp style's pre-shape q (n_q,) [rad] (other joints 0, clipped to their limits), its
-    closing torques (n_v,) [N*m] and which joints close (n_v,) bool."""
+    """A grasp style's pre-shape q (n_q,) [rad] (other joints 0, clipped to their limits,
+    coupled joints set from their leaders), its closing torques (n_v,) [N*m] and which joints
+    close (n_v,) bool."""
     q_pre = np.clip(np.zeros(hand.nq), hand.q_lower, hand.q_upper)
     tau_close = np.zeros(hand.nv)
     closing = np.zeros(hand.nv, dtype=bool)
@@ -80,7 +81,7 @@ def style_arrays(
     for name, value in style.close_torque.items():
         i = hand.model.joints[hand.model.getJointId(name)].idx_v
         tau_close[i], closing[i] = value, True
-    return q_pre, tau_close, closing
+    return hand.couple(q_pre), tau_close, closing
 
 
 class ClosingStage(Stage):

@@ -6,7 +6,8 @@ Each cycle, in two halves as the paper's hardware loop runs them (Sec. V-D):
    ``q(stamp_object)`` (``estimate_at="object_stamp"``, the paper's) or at the current q
    (``estimate_at="current"``, for comparison);
 2. carry the contacts with their links to the current q (a no-op when both stamps agree), take
-   the point Jacobians there and allocate the forces; ``tau = J_act^T f``.
+   the point Jacobians there and allocate the forces; ``tau = J_act^T f`` (per actuator,
+   ``C^T J_act^T f``, for a hand with coupled joints: :mod:`wholehand.models.coupling`).
 
 With exact, current observations both halves run at one configuration and nothing is moved.
 """
@@ -96,9 +97,10 @@ class ForceRegulation(Stage):
         if then is not now:
             contacts = contacts.in_joint_frames(then).moved_to(now)
         estimated = time.perf_counter()
-        J = now.point_jacobians(self.hand.link_joint[contacts.link], contacts.p_world)
+        J = now.actuation_jacobians(self.hand.link_joint[contacts.link], contacts.p_world)
         allocation = self.allocator.allocate(contacts, J, (wMo @ self._com_h)[:3], now)
-        command = None if allocation.tau is None else Command.torques(allocation.tau)
+        tau = allocation.tau
+        command = None if tau is None else Command.torques(self.hand.joint_torques(tau))
         return StageOutput(
             command, allocation.status.value, contacts, allocation, estimated - started
         )

@@ -22,6 +22,7 @@ import pinocchio as pin
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import cache
+from wholehand.models.coupling import Mimic, coupling_matrix, resolve_chains, urdf_mimics
 from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
 from wholehand.models.outer_surface import find_buried_samples
 from wholehand.models.poses import pose_from_xyz_rpy
@@ -264,10 +265,31 @@ class HandModel:
         finger_of = {link: f for f, links in cfg.fingers.items() for link in links}
         self.link_finger = [finger_of.get(n, "") for n in self.link_names]
 
+    def _couplings(self, moving: list[str]) -> dict[str, Mimic]:
+        """The URDF's ``<mimic>`` couplings among the model's joints, chains resolved."""
+        cfg = self.config
+        mimics = urdf_mimics(cfg.urdf_path)
+        locked = cfg.locked_joints
+        for follower, m in list(mimics.items()):
+            if (follower in locked) != (m.leader in locked):
+                raise ConfigError(
+                    f"{cfg.path}: joint {follower!r} mimics {m.leader!r} and only one of them is "
+                    "locked; lock both ([joints] locked) or neither"
+                )
+            if follower in locked:
+                del mimics[follower]
+        return resolve_chains(mimics, moving, cfg.urdf_path)
+
     def _build_joint_tables(self) -> None:
         cfg, model = self.config, self.model
         moving = [model.names[j] for j in range(1, model.njoints)]
-        actuated = list(cfg.actuated_joints) if cfg.actuated_joints is not None else moving
+        self.mimics = self._couplings(moving)
+        """Coupled joints: follower -> :class:`~wholehand.models.coupling.Mimic` (its leader)."""
+        actuated = (
+            list(cfg.actuated_joints)
+            if cfg.actuated_joints is not None
+            else [j for j in moving if j not in self.mimics]
+        )
         styles = cfg.grasp_styles.values()
         grasp_joints = [j for st in styles for j in (*st.preshape, *st.close_torque)]
         for name in [*actuated, *cfg.torque_limits, *grasp_joints]:
@@ -281,6 +303,15 @@ class HandModel:
                     f"{cfg.path}: joint {name!r} is not a moving joint of "
                     f"{cfg.urdf_path.name}; valid joints: {moving}"
                 )
+        motored = [*actuated, *cfg.torque_limits, *(j for st in styles for j in st.close_torque)]
+        for name in motored:
+            if name in self.mimics:
+                leader = self.mimics[name].leader
+                raise ConfigError(
+                    f"{cfg.path}: joint {name!r} follows {leader!r} (URDF <mimic>): it has no "
+                    f"motor of its own; name {leader!r} instead (in [joints] actuated, "
+                    "torque_limit or a close_torque)"
+                )
         self.joint_names = moving
         self.actuated_dofs = np.zeros(model.nv, dtype=bool)
         self.tau_max = np.zeros(model.nv)
@@ -288,13 +319,18 @@ class HandModel:
             idx = model.joints[model.getJointId(name)].idx_v
             self.actuated_dofs[idx] = True
             self.tau_max[idx] = cfg.torque_limits.get(name, cfg.torque_limit_default)
-        # A link is actuated when some actuated joint moves it and it is not declared passive.
+        idx_v = [model.joints[model.getJointId(n)].idx_v for n in moving]
+        actuators = [moving[idx_v.index(int(i))] for i in np.flatnonzero(self.actuated_dofs)]
+        self.coupling, self.coupling_offset = coupling_matrix(moving, idx_v, actuators, self.mimics)
+        """``C`` (n_v, n_a) and ``d`` (n_v,) of ``q = C q_act + d``; actuators in the order of
+        ``np.flatnonzero(actuated_dofs)``."""
+        # A link is actuated when some driven joint (actuated, or following an actuated one)
+        # moves it and it is not declared passive.
+        driven = np.any(self.coupling != 0.0, axis=1)
         moved_by_actuated = []
         for jid in self.link_joint:
             support = [j for j in model.supports[int(jid)] if j > 0]
-            moved_by_actuated.append(
-                any(self.actuated_dofs[model.joints[j].idx_v] for j in support)
-            )
+            moved_by_actuated.append(any(driven[model.joints[j].idx_v] for j in support))
         self.link_actuated = np.array(
             [
                 m and n not in cfg.passive_links
@@ -397,12 +433,44 @@ class HandModel:
                 f"valid links: {self.link_names}"
             ) from None
 
+    @property
+    def coupled(self) -> bool:
+        """True when some joint follows another (URDF ``<mimic>``)."""
+        return bool(self.mimics)
+
+    @property
+    def n_actuation(self) -> int:
+        """Number of coordinates allocators work in: the actuators (n_a) of a coupled hand,
+        every joint (n_v) otherwise (non-actuated ones masked by ``actuated_dofs``)."""
+        return int(self.coupling.shape[1]) if self.coupled else self.nv
+
+    def couple(self, q: npt.ArrayLike) -> FloatArray:
+        """(n_q,) ``q`` with every follower joint set from its leader (``multiplier * q_leader
+        + offset``); other joints unchanged."""
+        q = np.array(q, dtype=float)
+        model = self.model
+        for follower, m in self.mimics.items():
+            i = model.joints[model.getJointId(follower)].idx_q
+            q[i] = m.multiplier * q[model.joints[model.getJointId(m.leader)].idx_q] + m.offset
+        return q
+
+    def joint_torques(self, tau_actuation: FloatArray) -> FloatArray:
+        """(n_v,) joint torques [N*m] from an allocator's (n_actuation,) torques: for a coupled
+        hand each actuator's torque goes to its own joint (its followers get theirs through the
+        coupling), otherwise the torques are already per joint."""
+        if not self.coupled:
+            return tau_actuation
+        tau = np.zeros(self.nv)
+        tau[self.actuated_dofs] = tau_actuation
+        return tau
+
     def neutral(self) -> FloatArray:
-        """(n_q,) a configuration inside the joint limits (their midpoint where finite)."""
+        """(n_q,) a configuration inside the joint limits (their midpoint where finite), with
+        coupled joints set from their leaders."""
         q = pin.neutral(self.model)
         finite = np.isfinite(self.q_lower) & np.isfinite(self.q_upper)
         q[finite] = 0.5 * (self.q_lower[finite] + self.q_upper[finite])
-        return q
+        return self.couple(q)
 
     def summary(self) -> dict[str, object]:
         """Key facts about the hand, JSON-serialisable."""
@@ -413,6 +481,8 @@ class HandModel:
             "nq": self.nq,
             "nv": self.nv,
             "actuated_dofs": int(self.actuated_dofs.sum()),
+            "coupled_joints": {f: m.leader for f, m in self.mimics.items()},
+            "locked_joints": dict(self.config.locked_joints),
             "links_with_geometry": len(self.link_names),
             "actuated_links": int(self.link_actuated.sum()),
             "fingertip_links": int(self.link_fingertip.sum()),

@@ -122,3 +122,15 @@ class HandKinematics:
         v[:, 2] = J[2] + wx * py - wy * px
         v *= self._support[joint][:, None, :]
         return np.einsum("ab,nbk->nak", wRb, v)
+
+    def actuation_jacobians(self, joint: IntArray, p_world: FloatArray) -> FloatArray:
+        """Point Jacobians in the coordinates allocators work in (see
+        :attr:`~wholehand.models.hand.HandModel.n_actuation`).
+
+        Returns:
+            (N, 3, n_actuation): for a coupled hand ``J C``, the velocity of each point per
+            actuator velocity (``C`` of :mod:`wholehand.models.coupling`); otherwise
+            :meth:`point_jacobians` unchanged.
+        """
+        J = self.point_jacobians(joint, p_world)
+        return J @ self.hand.coupling if self.hand.coupled else J

@@ -75,6 +75,8 @@ def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFra
     roots = np.array([kin.frame_pose(links[0])[:3, 3] for links in fingers])
     tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in fingers])
     tip_joint = np.array([hand.link_joint[hand.link_index(links[-1])] for links in fingers])
+    if hand.coupled:  # the closing torques drive the actuators, followers move with them
+        tau_close = hand.coupling @ (hand.coupling.T @ tau_close)
     tip_velocity = kin.point_jacobians(tip_joint, tips) @ tau_close  # (F, 3), base frame
     closing = tip_velocity.sum(axis=0)
     if np.linalg.norm(closing) < 1e-9:

@@ -76,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from wholehand.cli import bench as bench_cli
     from wholehand.cli import grasps as grasps_cli
+    from wholehand.cli import hand as hand_cli
     from wholehand.cli import run as run_cli
     from wholehand.cli import study as study_cli
     from wholehand.cli import view as view_cli
@@ -83,6 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     run_cli.add_parser(sub)
     study_cli.add_parser(sub)
     grasps_cli.add_parser(sub)
+    hand_cli.add_parser(sub)
     bench_cli.add_parser(sub)
     view_cli.add_parser(sub)
     _verbose_everywhere(parser)

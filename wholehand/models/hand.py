@@ -339,6 +339,13 @@ class HandModel:
         )
         self.q_lower = np.asarray(model.lowerPositionLimit, dtype=float).copy()
         self.q_upper = np.asarray(model.upperPositionLimit, dtype=float).copy()
+        for name in moving:
+            i = model.joints[model.getJointId(name)].idx_q
+            if self.q_lower[i] > self.q_upper[i]:
+                raise ConfigError(
+                    f"{cfg.urdf_path}: joint {name!r} has inverted limits: lower "
+                    f"{self.q_lower[i]:g} > upper {self.q_upper[i]:g}; swap them in the URDF"
+                )
 
     # --- surface samples ----------------------------------------------------------------------
     def _cache_key(self) -> str:

@@ -111,6 +111,8 @@ class HandConfig:
     """Links that are never contact candidates (e.g. a forearm); they are still simulated."""
     outer_surface_only: bool = False
     """Drop surface samples buried inside another collision shape of the hand."""
+    torque_limit_set: bool = False
+    """True when hand.toml sets ``[joints] torque_limit`` (False: the paper's default)."""
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -259,6 +261,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         locked_joints=locked,
         excluded_links=_str_list(raw, "excluded_links", path, []),
         outer_surface_only=outer,
+        torque_limit_set="torque_limit" in joints,
         torque_limit_default=default_limit,
         torque_limits=limits,
         damping=_number(sim.get("damping", 0.05), "simulation.damping", path),

@@ -1,0 +1,53 @@
+"""``wholehand hand check``: a hand folder's contents and findings, each with its fix."""
+
+from __future__ import annotations
+
+import json
+
+from toy_hand import write_toy_hand
+
+from wholehand.cli.main import main
+
+
+def test_a_shipped_hand_is_usable_and_its_samples_are_drawn(tmp_path, capsys):
+    png = tmp_path / "samples.png"
+    assert main(["hand", "check", "allegro_right", "--png", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "16 joints, 16 actuated" in out and "usable" in out and "NOT usable" not in out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_findings_name_the_problem_and_the_fix(tmp_path, capsys):
+    """The toy hand with a palm box buried in the palm, a finger joint whose limits are the
+    wrong way round would not load: checked on the first, then the second."""
+    folder = write_toy_hand(tmp_path / "toy", knuckle=True, mimic=True)
+    assert main(["hand", "check", str(folder), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["ok"] is True
+    buried = [f for f in report["findings"] if "inside other collision shapes" in f["what"]]
+    assert len(buried) == 1 and buried[0]["fix"] == "set outer_surface_only = true in hand.toml"
+    assert report["summary"]["buried_samples"] > 10
+    follows = {j["name"]: j["follows"] for j in report["joints"]}
+    assert follows["f1_j2"] == "f1_j1" and follows["f1_j1"] is None
+    # No torque_limit in hand.toml and placeholder efforts in the URDF.
+    urdf = folder / "toy.urdf"
+    urdf.write_text(urdf.read_text().replace('effort="1"', 'effort="1000"'))
+    assert main(["hand", "check", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING: 5 joints have URDF effort limits that look like placeholders" in out
+    assert "fix: set [joints] torque_limit in hand.toml" in out
+
+    text = urdf.read_text()
+    urdf.write_text(text.replace('lower="-0.2" upper="1.6"', 'lower="1.6" upper="-0.2"', 1))
+    assert main(["hand", "check", str(folder)]) == 1
+    out = capsys.readouterr().out
+    assert "ERROR: joint 'f1_j1' has inverted limits: lower 1.6 > upper -0.2" in out
+    assert "fix: swap lower and upper in the URDF" in out
+    assert "NOT usable" in out
+
+
+def test_a_broken_hand_toml_is_a_finding_not_a_traceback(tmp_path, capsys):
+    folder = write_toy_hand(tmp_path / "toy", 'palm_link = "hand"')
+    assert main(["hand", "check", str(folder)]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith("hand ? from") and "ERROR:" in out and "not valid TOML" in out

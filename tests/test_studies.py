@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from wholehand.errors import ConfigError
+from wholehand.errors import ConfigError, PluginError
 from wholehand.grasps.store import load_grasps, objects_with_grasps
 from wholehand.loop.record import RunRecord
 from wholehand.models.objects import PAPER_OBJECTS
@@ -455,3 +455,57 @@ def test_pool_workers_die_with_a_killed_parent(tmp_path):
     for w in orphans:  # leave nothing behind, even when the test fails
         os.kill(w, signal.SIGKILL)
     assert not orphans
+
+
+def test_methods_replace_the_studys_own_in_place():
+    from wholehand.studies.base import with_methods
+
+    jobs = get_study("perturbation").jobs("tiny", 0)
+    assert [j.labels["method"] for j in jobs] == ["qp", "feedforward"] * 2
+    mine = with_methods(jobs, ("impedance", "qp_no_consistency", "qp"))
+    assert [j.index for j in mine] == list(range(6))
+    assert [j.spec.allocator for j in mine] == ["impedance", "qp_no_consistency", "qp"] * 2
+    assert [j.labels["method"] for j in mine] == [j.spec.allocator for j in mine]
+    assert [j.spec.theta_deg for j in mine] == [0.0] * 3 + [60.0] * 3
+    with pytest.raises(PluginError, match="no plug-in named 'nope'.*installed: feedforward"):
+        with_methods(jobs, ("qp", "nope"))
+    with pytest.raises(ConfigError, match="compares no methods"):
+        with_methods(get_study("k-sweep").jobs("tiny", 0), ("qp",))
+
+
+def test_a_study_runs_a_users_hand_and_a_third_party_allocator(tmp_path, monkeypatch):
+    """The tiny perturbation study on a hand folder of the user's (the Allegro's hand.toml with
+    one grasp file), comparing the built-in QP with a third party's allocator."""
+    import shutil
+
+    from test_registry import _make_distribution
+
+    from wholehand import registry
+    from wholehand.grasps.store import grasp_file
+    from wholehand.models.hand_config import shipped_hands_dir
+
+    site = _make_distribution(
+        tmp_path, "acme-allocator", "acme_allocator", "wholehand.allocators", "acme_qp",
+        "from wholehand_plugins.qp import QPAllocator\n\nclass Plugin(QPAllocator):\n    pass\n",
+    )  # fmt: skip
+    monkeypatch.syspath_prepend(str(site))
+    registry.refresh()
+    hand = tmp_path / "mine"
+    (hand / "grasps").mkdir(parents=True)
+    shutil.copy(shipped_hands_dir() / "allegro_right" / "hand.toml", hand)
+    shutil.copy(grasp_file("allegro_right", "077_rubiks_cube"), hand / "grasps")
+    result = run_study(
+        get_study("perturbation"), size="tiny", out=tmp_path / "out", executor="serial",
+        progress=False, hand=str(hand), methods=("qp", "acme_qp"),
+    )  # fmt: skip
+    rows = _read(result.csv_path)
+    assert [(r["method"], r["hand"]) for r in rows] == [
+        ("qp", str(hand)),
+        ("acme_qp", str(hand)),
+    ] * 2
+    assert all(r["held"] == "True" for r in rows)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    shutil.copy(shipped_hands_dir() / "allegro_right" / "hand.toml", empty)
+    with pytest.raises(ConfigError, match="no trial for hand.*generate them"):
+        run_study(get_study("perturbation"), size="tiny", out=tmp_path / "o2", hand=str(empty))

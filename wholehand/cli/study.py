@@ -8,6 +8,7 @@ import json
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from wholehand.studies import SIZES, STUDIES
+    from wholehand.studies.base import DEFAULT_HAND
 
     p = sub.add_parser(
         "study",
@@ -35,6 +36,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="--executor ray: cluster address (e.g. auto, ray://head:10001); default: local Ray",
     )
     p.add_argument("--seed", type=int, default=0, help="study seed (random pull axes)")
+    p.add_argument(
+        "--hand",
+        default=DEFAULT_HAND,
+        help="shipped hand name or hand folder (its stored grasps of the design are run)",
+    )
+    p.add_argument(
+        "--methods",
+        default=None,
+        metavar="A,B,...",
+        help="allocators to compare instead of the study's own (any registered allocator, "
+        "third-party plug-ins included; see `wholehand plugins`)",
+    )
     p.add_argument(
         "--resume",
         action="store_true",
@@ -82,6 +95,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         resume=args.resume,
         limit=args.limit,
+        hand=args.hand,
+        methods=_methods(args),
     )
     summary = {k: v for k, v in result.summary.items() if k != "description"}
     print(json.dumps(summary, indent=2))
@@ -92,14 +107,23 @@ def _cmd_study(args: argparse.Namespace) -> int:
     return 130 if result.interrupted else 0
 
 
+def _methods(args: argparse.Namespace) -> tuple[str, ...] | None:
+    if args.methods is None:
+        return None
+    return tuple(m.strip() for m in args.methods.split(",") if m.strip())
+
+
 def _view_one(args: argparse.Namespace, size: str) -> int:
     """Run one trial of the study in this process with the live viewer."""
     from wholehand.cli.run import live_view, print_summary, summarise
     from wholehand.errors import ConfigError
     from wholehand.loop.trial import run_trial
     from wholehand.studies import get_study
+    from wholehand.studies.runner import study_jobs
 
-    jobs = [j for j in get_study(args.name).jobs(size, args.seed) if j.kind == "trial"]
+    study = get_study(args.name)
+    jobs = study_jobs(study, size, args.seed, args.hand, _methods(args))
+    jobs = [j for j in jobs if j.kind == "trial"]
     if not 0 <= args.view < len(jobs):
         raise ConfigError(
             f"--view {args.view}: study {args.name} ({size}) has trials 0..{len(jobs) - 1}"

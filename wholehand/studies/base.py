@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,9 @@ SIZES = ("tiny", "quick", "full")
 """Study sizes: ``full`` is the paper's design; ``quick`` a < 2 min subset on 2 cores;
 ``tiny`` a seconds-long smoke configuration for tests."""
 
+
+DEFAULT_HAND = TrialSpec().hand
+"""The hand of the paper's studies as published here (the Allegro)."""
 
 METHODS = ("qp", "fingertip_only", "feedforward", "impedance")
 """Methods of the perturbation and contact-count studies: ours, the fingertip-only ablation and
@@ -66,8 +70,9 @@ class Study(abc.ABC):
     description: str = ""
 
     @abc.abstractmethod
-    def jobs(self, size: str, seed: int) -> list[TrialJob]:
-        """The study's trials for a size (see :data:`SIZES`), seeded by ``seed``."""
+    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
+        """The study's trials for a size (see :data:`SIZES`), seeded by ``seed``, on ``hand``
+        (a shipped hand's name or a hand folder): the grasps of the design that it has."""
 
     @abc.abstractmethod
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -140,6 +145,39 @@ def save_success_figure(fig: Any, ax: Any, path: Path, title: str | None = None)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def with_methods(jobs: list[TrialJob], methods: tuple[str, ...]) -> list[TrialJob]:
+    """The study's jobs with its methods replaced by ``methods`` (registered allocators, a
+    third party's included): every job of the study's first method is repeated for each of
+    ``methods``, in place; the other methods' jobs are dropped. Indices are renumbered.
+
+    Raises:
+        ConfigError: the study compares no methods (its jobs have no ``method`` label), or a
+            method is not a registered allocator.
+    """
+    from wholehand import registry
+
+    if not methods:
+        raise ConfigError("--methods needs at least one allocator name")
+    for method in methods:
+        registry.get_class("allocators", method)  # an unknown name raises, listing the known
+    labelled = [j for j in jobs if "method" in j.labels]
+    if jobs and not labelled:
+        raise ConfigError("this study compares no methods; --methods does not apply to it")
+    template = labelled[0].labels["method"] if labelled else None
+    out: list[TrialJob] = []
+    for job in jobs:
+        if job.labels.get("method", template) != template:
+            continue
+        for method in methods if "method" in job.labels else (None,):
+            if method is None:
+                out.append(dataclasses.replace(job, index=len(out)))
+                continue
+            spec = dataclasses.replace(job.spec, allocator=method)
+            labels = {**job.labels, "method": method}
+            out.append(dataclasses.replace(job, index=len(out), spec=spec, labels=labels))
+    return out
 
 
 def group_rows(

@@ -31,6 +31,7 @@ from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
+    DEFAULT_HAND,
     Study,
     TrialJob,
     group_rows,
@@ -135,16 +136,16 @@ class ConsistencyStudy(Study):
         "measured net force on precision grasps (Sec. IV-B-1)"
     )
 
-    def jobs(self, size: str, seed: int) -> list[TrialJob]:
+    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
-        hand = TrialSpec().hand
         jobs: list[TrialJob] = []
         for style in GRASP_TYPES:
             for obj in cfg.objects:
                 for grasp in stored_grasp_indices(hand, obj, style, cfg.grasps):
                     for method in METHODS:
                         spec = TrialSpec(
-                            object=obj, grasp=grasp, grasp_type=style, allocator=method,
+                            hand=hand, object=obj, grasp=grasp, grasp_type=style,
+                            allocator=method,
                             theta_deg=0.0, seed=seed, protocol_params=protocol_for(size),
                         )  # fmt: skip
                         labels = {"method": method, "part": "load_test"}
@@ -153,7 +154,8 @@ class ConsistencyStudy(Study):
             for grasp in stored_grasp_indices(hand, obj, "precision", cfg.net_force_grasps):
                 for method in METHODS:
                     spec = TrialSpec(
-                        object=obj, grasp=grasp, grasp_type="precision", allocator=method,
+                        hand=hand, object=obj, grasp=grasp, grasp_type="precision",
+                        allocator=method,
                         theta_deg=0.0, seed=seed,
                     )  # fmt: skip
                     labels = {"method": method, "part": "net_force"}

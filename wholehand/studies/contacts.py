@@ -17,6 +17,7 @@ from wholehand.grasps.store import objects_with_grasps, stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
+    DEFAULT_HAND,
     METHODS,
     Study,
     TrialJob,
@@ -29,14 +30,13 @@ OPEN_BIN = 10
 """Contact counts at or above this share one bin (the paper's ">= 10")."""
 
 
-HAND = "allegro_right"
 """The hand whose shipped grasps the study runs."""
 
 
 @dataclass(frozen=True)
 class ContactsConfig:
     objects: tuple[str, ...] | None
-    """Objects; None: every object with shipped power grasps of :data:`HAND`."""
+    """Objects; None: every object with stored power grasps of the hand."""
     grasps: tuple[int, ...] | None
     """Grasp indices per object (those stored); None: every stored grasp."""
     methods: tuple[str, ...] = METHODS
@@ -61,15 +61,15 @@ class ContactsStudy(Study):
     name = "contacts"
     description = "success vs ground-truth contact count at initialisation (paper Fig. 3)"
 
-    def jobs(self, size: str, seed: int) -> list[TrialJob]:
+    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
-        objects = objects_with_grasps(HAND) if cfg.objects is None else cfg.objects
+        objects = objects_with_grasps(hand) if cfg.objects is None else cfg.objects
         jobs: list[TrialJob] = []
         for obj in objects:
-            for grasp in stored_grasp_indices(HAND, obj, "power", cfg.grasps):
+            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
                 for method in cfg.methods:
                     spec = TrialSpec(
-                        hand=HAND, object=obj, grasp=grasp, allocator=method, theta_deg=0.0,
+                        hand=hand, object=obj, grasp=grasp, allocator=method, theta_deg=0.0,
                         seed=seed, protocol_params=protocol_for(size),
                     )  # fmt: skip
                     jobs.append(TrialJob(len(jobs), spec, {"method": method}))

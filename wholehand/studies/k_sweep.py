@@ -14,9 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
+    DEFAULT_HAND,
     Study,
     TrialJob,
     derive_seed,
@@ -46,17 +48,18 @@ class KSweepStudy(Study):
     name = "k-sweep"
     description = "success, QP contact count and control rate vs contacts per link K (paper Fig. 7)"
 
-    def jobs(self, size: str, seed: int) -> list[TrialJob]:
+    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
         jobs: list[TrialJob] = []
         for oi, obj in enumerate(cfg.objects):
-            for grasp in cfg.grasps:
+            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
                 for theta in cfg.thetas:
                     for repeat in range(cfg.repeats):
                         trial_seed = derive_seed(seed, oi, grasp, repeat)
                         for k in cfg.ks:
                             spec = TrialSpec(
-                                object=obj, grasp=grasp, allocator="qp", theta_deg=theta,
+                                hand=hand, object=obj, grasp=grasp, allocator="qp",
+                                theta_deg=theta,
                                 seed=trial_seed, estimator_params={"k": k},
                                 protocol_params=protocol_for(size),
                             )  # fmt: skip

@@ -12,9 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
+    DEFAULT_HAND,
     METHODS,
     Study,
     TrialJob,
@@ -52,18 +54,19 @@ class PerturbationStudy(Study):
     name = "perturbation"
     description = "success vs rotational-pull angle per method (paper Fig. 4)"
 
-    def jobs(self, size: str, seed: int) -> list[TrialJob]:
+    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
         protocol = protocol_for(size)
         jobs: list[TrialJob] = []
         for oi, obj in enumerate(cfg.objects):
-            for grasp in cfg.grasps:
+            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
                 for theta in cfg.thetas:
                     for repeat in range(1 if theta == 0.0 else cfg.repeats):
                         trial_seed = derive_seed(seed, oi, grasp, repeat)
                         for method in cfg.methods:
                             spec = TrialSpec(
-                                object=obj, grasp=grasp, allocator=method, theta_deg=theta,
+                                hand=hand, object=obj, grasp=grasp, allocator=method,
+                                theta_deg=theta,
                                 seed=trial_seed, protocol_params=protocol,
                             )  # fmt: skip
                             labels = {"method": method, "repeat": repeat}

@@ -18,9 +18,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies.base import (
+    DEFAULT_HAND,
     Study,
     TrialJob,
     derive_seed,
@@ -66,7 +68,7 @@ class PoseErrorStudy(Study):
     name = "pose-error"
     description = "success vs constant object-pose error, qp per d_thresh vs feedforward (Fig. 6)"
 
-    def jobs(self, size: str, seed: int) -> list[TrialJob]:
+    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
         protocol = protocol_for(size)
         variants: list[tuple[str, float | None]] = [("qp", d) for d in cfg.d_thresholds]
@@ -74,7 +76,7 @@ class PoseErrorStudy(Study):
             variants.append(("feedforward", None))
         jobs: list[TrialJob] = []
         for oi, obj in enumerate(cfg.objects):
-            for grasp in cfg.grasps:
+            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
                 for rot, trans in cfg.levels:
                     zero = rot == 0.0 and trans == 0.0
                     for repeat in range(1 if zero else cfg.repeats):
@@ -84,7 +86,8 @@ class PoseErrorStudy(Study):
                         }  # fmt: skip
                         for method, d_thresh in variants:
                             spec = TrialSpec(
-                                object=obj, grasp=grasp, allocator=method, theta_deg=0.0,
+                                hand=hand, object=obj, grasp=grasp, allocator=method,
+                                theta_deg=0.0,
                                 seed=offset_seed, protocol_params=protocol,
                                 estimator_params={} if d_thresh is None else {"d_thresh": d_thresh},
                                 pose_error=pose_error,

@@ -41,7 +41,7 @@ from wholehand.errors import ConfigError
 from wholehand.loop.outcome import outcome_of
 from wholehand.loop.record import RunRecord
 from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.studies.base import Study, TrialJob
+from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, with_methods
 from wholehand.studies.executors import execute
 
 log = logging.getLogger(__name__)
@@ -441,14 +441,30 @@ def _terminate_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def continue_command(study: Study, folder: Path, size: str, seed: int) -> str:
+def continue_command(
+    study: Study, folder: Path, size: str, seed: int, hand: str = DEFAULT_HAND,
+    methods: tuple[str, ...] | None = None,
+) -> str:  # fmt: skip
     """The command line that continues a study run in ``folder``."""
     words = ["wholehand", "study", study.name, "--out", str(folder), "--resume"]
     if size != "full":
         words += ["--size", size]
     if seed != 0:
         words += ["--seed", str(seed)]
+    if hand != DEFAULT_HAND:
+        words += ["--hand", hand]
+    if methods is not None:
+        words += ["--methods", ",".join(methods)]
     return shlex.join(words)
+
+
+def study_jobs(
+    study: Study, size: str, seed: int, hand: str = DEFAULT_HAND,
+    methods: tuple[str, ...] | None = None,
+) -> list[TrialJob]:  # fmt: skip
+    """The jobs of ``study`` on ``hand``, with ``methods`` in place of its own (if given)."""
+    jobs = study.jobs(size, seed, hand)
+    return jobs if methods is None else with_methods(jobs, tuple(methods))
 
 
 def run_study(
@@ -462,6 +478,8 @@ def run_study(
     address: str | None = None,
     resume: bool = False,
     limit: int | None = None,
+    hand: str = DEFAULT_HAND,
+    methods: tuple[str, ...] | None = None,
 ) -> StudyResult:
     """Run the jobs of ``study`` and write ``trials.csv``, ``summary.json`` and ``<name>.png``.
 
@@ -484,6 +502,10 @@ def run_study(
         resume: first reuse the rows already in ``out`` (``rows.jsonl`` and ``trials.csv``,
             matched to the jobs by content, :func:`match_rows`); run only the others.
         limit: run at most this many unfinished jobs this time (None: all of them).
+        hand: the hand (a shipped hand's name or a hand folder); the design's grasps that it
+            has stored are run.
+        methods: allocators replacing the study's methods (:func:`~wholehand.studies.base.
+            with_methods`); None: the study's own.
 
     Raises:
         ConfigError: an unknown size or executor, ``workers < 1`` or ``limit < 0``.
@@ -494,9 +516,16 @@ def run_study(
             f"limit must be >= 0 (trials to run this time), got {limit}; "
             "pass None to run every unfinished trial"
         )
-    folder = Path(out) if out is not None else Path("out") / f"study-{study.name}"
+    jobs = study_jobs(study, size, seed, hand, methods)
+    if not jobs:
+        raise ConfigError(
+            f"study {study.name} ({size}) has no trial for hand {hand!r}: it has no stored "
+            "grasps of the study's objects; generate them with `wholehand grasps generate "
+            f"--hand {hand}`"
+        )
+    default = f"study-{study.name}" + ("" if hand == DEFAULT_HAND else f"-{Path(hand).name}")
+    folder = Path(out) if out is not None else Path("out") / default
     folder.mkdir(parents=True, exist_ok=True)
-    jobs = study.jobs(size, seed)
     journal_path = folder / JOURNAL_NAME
     done: dict[int, dict[str, Any]] = {}
     from_csv: list[dict[str, Any]] = []
@@ -584,7 +613,7 @@ def run_study(
         print(
             f"study {study.name}: {len(rows)} of {len(jobs)} trials finished ({why}); "
             f"partial results in {folder}. Continue with:\n"
-            f"  {continue_command(study, folder, size, seed)}",
+            f"  {continue_command(study, folder, size, seed, hand, methods)}",
             file=sys.stderr,
         )
     return StudyResult(rows, summary, csv_path, summary_path, plot_path, interrupted)

@@ -11,10 +11,14 @@ import pytest
 import trimesh
 from wholehand_plugins.mujoco_backend import MujocoBackend
 
+from wholehand.grasps.generate import generate_grasps
+from wholehand.grasps.store import load_grasps
 from wholehand.loop.command import Command
+from wholehand.loop.outcome import outcome_of
+from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
 from wholehand.models.hand_config import shipped_hands_dir
-from wholehand.models.objects import ObjectModel
+from wholehand.models.objects import PAPER_OBJECTS, ObjectModel, load_object
 from wholehand.models.poses import pose_from_xyz_rpy
 
 FOLDER = shipped_hands_dir() / "robotis_hx5_d20_right"
@@ -114,3 +118,40 @@ def test_the_build_script_reproduces_the_shipped_urdf(tmp_path):
     assert urdf.read_text() == (FOLDER / "hx5_d20_right.urdf").read_text()
     for mesh in (FOLDER / "meshes").iterdir():
         assert (tmp_path / "meshes" / mesh.name).read_bytes() == mesh.read_bytes()
+
+
+@pytest.mark.parametrize("name", PAPER_OBJECTS)
+def test_ten_power_grasps_ship_for_each_paper_object(hx5, name):
+    grasps = load_grasps("robotis_hx5_d20_right", name)
+    assert len(grasps) == 10
+    for g in grasps:
+        q = g.q_array(hx5)
+        assert np.all(q >= hx5.q_lower - 0.01) and np.all(q <= hx5.q_upper + 0.01)
+        assert "thumb" in g.extra["fingers"] and len(g.extra["fingers"]) >= 3
+
+
+def test_generation_in_the_palm_frame_reproduces_the_shipped_grasps(hx5):
+    """The HX5-D20's root is at its wrist, 12 cm below the knuckles: candidates are placed in
+    the palm frame derived from the model, and the generator is deterministic."""
+    cube = load_object("077_rubiks_cube")
+    generated, info = generate_grasps(hx5, cube, count=2, seed=0)
+    assert (
+        info["candidates_tried"]
+        == load_grasps("robotis_hx5_d20_right", "077_rubiks_cube")[1].extra["candidate"] + 1
+    )
+    for g, s in zip(
+        generated, load_grasps("robotis_hx5_d20_right", "077_rubiks_cube"), strict=False
+    ):
+        np.testing.assert_allclose(g.oMb, s.oMb, atol=1e-8)
+        assert g.q == pytest.approx(s.q, abs=1e-8)
+
+
+def test_the_paper_hand_holds_a_grasp_through_the_load_test():
+    spec = TrialSpec(
+        hand="robotis_hx5_d20_right", object="065-f_cups", theta_deg=0.0,
+        protocol_params={"settle_time": 0.2, "load_duration": 0.2},
+    )  # fmt: skip
+    record = run_trial(spec)
+    outcome = outcome_of(record)
+    assert outcome.held and outcome.unbalanced_cycles == 0
+    assert record.meta["loop"]["faults"] == {}

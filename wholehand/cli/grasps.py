@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--count", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-candidates", type=int, default=400)
+    p.add_argument("--max-candidates", type=int, default=400, help="give up after this many")
     p.add_argument(
         "--out",
         default=None,

@@ -63,6 +63,8 @@ MAX_SETTLE_MOTION = 0.01
 HOLD_FREQUENCY = 20.0
 """Natural frequency of the critically damped spring that holds the object in place during
 closing [Hz]; its gains scale with the object's mass and inertia."""
+MAX_CANDIDATES = 400
+"""Candidates tried per object before the generator gives up on finding ``count`` grasps."""
 PD_GAINS = (2.0, 0.05)
 """PD gains holding the non-closing joints at the pre-shape: [N*m/rad], [N*m*s/rad]."""
 
@@ -289,7 +291,11 @@ class GraspGenerator:
         )
 
     def generate(
-        self, count: int = 10, seed: int = 0, max_candidates: int = 400, progress: bool = False
+        self,
+        count: int = 10,
+        seed: int = 0,
+        max_candidates: int = MAX_CANDIDATES,
+        progress: bool = False,
     ) -> list[Grasp]:
         """Up to ``count`` grasps from at most ``max_candidates`` seeded candidates, in order."""
         from tqdm import tqdm
@@ -314,7 +320,7 @@ class GraspGenerator:
 
 def generate_grasps(
     hand: HandModel, obj: ObjectModel, count: int = 10, seed: int = 0,
-    max_candidates: int = 400, progress: bool = False, style: str = "power",
+    max_candidates: int = MAX_CANDIDATES, progress: bool = False, style: str = "power",
 ) -> tuple[list[Grasp], dict[str, object]]:  # fmt: skip
     """Grasps and a description of how they were made (for the file's ``generator`` field)."""
     started = time.perf_counter()
@@ -324,6 +330,8 @@ def generate_grasps(
         f"wholehand grasps generate --hand {hand.name} --object {obj.name} "
         f"--count {count} --seed {seed}"
     )
+    if max_candidates != MAX_CANDIDATES:
+        command += f" --max-candidates {max_candidates}"
     info = {
         "command": command if style == "power" else f"{command} --type {style}",
         "seed": seed,

@@ -1,0 +1,53 @@
+"""docs/adding_a_hand.md, followed as a user would: its hand.toml and every command in it."""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+import shutil
+from pathlib import Path
+
+from wholehand.cli.main import main
+from wholehand.models.hand_config import shipped_hands_dir
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "adding_a_hand.md"
+
+
+def _blocks(language: str) -> list[str]:
+    return re.findall(rf"```{language}\n(.*?)```", DOC.read_text(), flags=re.S)
+
+
+def test_adding_a_hand_from_its_urdf_to_a_held_grasp_and_a_study(tmp_path, monkeypatch, capsys):
+    folder = tmp_path / "my_hands" / "hx5"
+    folder.mkdir(parents=True)
+    shipped = shipped_hands_dir() / "robotis_hx5_d20_right"
+    shutil.copy(shipped / "hx5_d20_right.urdf", folder)
+    shutil.copytree(shipped / "meshes", folder / "meshes")
+    (folder / "hand.toml").write_text(_blocks("toml")[0])  # the page's hand.toml, as written
+    monkeypatch.chdir(tmp_path)
+    commands = [line for block in _blocks("bash") for line in block.splitlines() if line]
+    assert len(commands) == 4
+    for command in commands:
+        words = shlex.split(command)
+        assert words[0] == "wholehand"
+        assert main(words[1:]) == 0, command
+    out = capsys.readouterr().out
+    assert "usable" in out and "NOT usable" not in out
+    assert (folder / "samples.png").is_file()
+    assert "result: HELD through every phase" in out
+    grasps = json.loads((folder / "grasps" / "077_rubiks_cube.json").read_text())
+    assert len(grasps["grasps"]) == 3
+    summary = json.loads((folder / "study" / "summary.json").read_text())
+    assert {g["method"] for g in summary["groups"]} == {"qp", "feedforward"}
+    assert summary["n_trials"] == 4
+
+
+def test_the_reference_hand_toml_names_every_key_the_parser_knows():
+    from wholehand.models import hand_config
+
+    reference = _blocks("toml")[1]
+    source = Path(hand_config.__file__).read_text()
+    known = re.search(r"known = \{(.*?)\}", source, flags=re.S).group(1)
+    for key in re.findall(r'"(\w+)"', known):
+        assert re.search(rf"^\[?{key}\b", reference, flags=re.M), key

@@ -62,6 +62,15 @@ def test_round_trip_and_bad_files(tmp_path, allegro):
         load_grasps(path)
     with pytest.raises(ConfigError, match="no grasp file.*exist for.*077_rubiks_cube"):
         load_grasps("allegro_right", "no_object")
+    raw["grasps"][0]["oMb"] = np.eye(4).tolist()
+    raw["grasps"][0]["q"] = [0.1] * 16
+    path.write_text(json.dumps(raw))
+    with pytest.raises(ConfigError, match="grasp 0: q must map joint names to angles"):
+        load_grasps(path)
+    raw["grasps"][0]["q"] = {"joint_0.0": "up"}
+    path.write_text(json.dumps(raw))
+    with pytest.raises(ConfigError, match="q\\['joint_0.0'\\] must be a finite angle"):
+        load_grasps(path)
     partial = Grasp(0, np.eye(4), {"joint_0.0": 0.0})
     with pytest.raises(ConfigError, match="no angle for joints"):
         partial.q_array(allegro)

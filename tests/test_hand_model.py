@@ -267,3 +267,12 @@ def test_grasp_style_with_unknown_joint_lists_valid_joints(tmp_path):
     )
     with pytest.raises(ConfigError, match="'j7' is not a moving joint.*'j1'"):
         load_hand(folder)
+
+
+@pytest.mark.parametrize("value", ['"origin"', "[0.0, 0.0]", '[0.0, "a", 0.0]', "[nan, 0.0, 0.0]"])
+def test_mount_xyz_must_be_three_finite_numbers(tmp_path, value):
+    folder = write_hand(tmp_path)
+    with open(folder / "hand.toml", "a") as toml:
+        toml.write(f"[mount]\nxyz = {value}\n")
+    with pytest.raises(ConfigError, match="\\[mount\\] xyz must be a list of 3 finite numbers"):
+        load_hand(folder)

@@ -164,3 +164,15 @@ def test_name_clash_warns_and_builtin_wins(tmp_path, monkeypatch):
     assert specs["mesh_sdf"].distribution == "wholehand"
     other = registry.get_class("contact_estimators", "acme-estimator:mesh_sdf")
     assert other.__module__ == "acme_estimator"
+
+
+def test_a_plugin_whose_constructor_raises_is_named():
+    class Exploding:
+        """Raises on construction."""
+
+        def __init__(self, gain: float = 1.0) -> None:
+            raise RuntimeError("no calibration file")
+
+    with pytest.raises(PluginError, match="Exploding.*raised while it was constructed.*"
+                       "RuntimeError: no calibration file"):  # fmt: skip
+        registry.load("allocators", Exploding, gain=2.0)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from typing import Any
 
-from wholehand.errors import PluginError
+from wholehand.errors import PluginError, WholehandError
 
 GROUPS: dict[str, str] = {
     "contact_estimators": "wholehand.contact_estimators",
@@ -143,4 +143,13 @@ def load(group: str, name: str | type, /, **params: Any) -> Any:
             f"plug-in {name!r} of group {GROUPS[_group_key(group)]!r} rejected its parameters "
             f"{sorted(params)}: {err}"
         ) from err
-    return cls(**params)
+    try:
+        return cls(**params)
+    except WholehandError:
+        raise  # already names the problem and the fix
+    except Exception as err:
+        raise PluginError(
+            f"plug-in {name!r} of group {GROUPS[_group_key(group)]!r} ({cls.__module__}."
+            f"{cls.__qualname__}) raised while it was constructed with {sorted(params)}: "
+            f"{type(err).__name__}: {err}; fix the plug-in or its parameters"
+        ) from err

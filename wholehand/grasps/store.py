@@ -121,6 +121,21 @@ def stored_grasp_indices(
     return [g for g in (range(n) if wanted is None else wanted) if g < n]
 
 
+def _joint_angles(raw: Any, where: str) -> dict[str, float]:
+    """``{"joint": angle}`` of a grasp entry; anything else is named."""
+    if not isinstance(raw, dict):
+        raise ConfigError(
+            f'{where}: q must map joint names to angles [rad], e.g. {{"joint_0.0": 0.1}}; '
+            f"got a {type(raw).__name__}"
+        )
+    out = {}
+    for joint, value in raw.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            raise ConfigError(f"{where}: q[{joint!r}] must be a finite angle [rad], got {value!r}")
+        out[str(joint)] = float(value)
+    return out
+
+
 def load_grasps(
     path_or_hand: str | Path, obj: str | None = None, style: str = "power"
 ) -> list[Grasp]:
@@ -146,7 +161,7 @@ def load_grasps(
     for i, entry in enumerate(raw.get("grasps", [])):
         try:
             oMb = check_pose(entry["oMb"], f"{path} grasp {i} oMb")
-            q = {str(k): float(v) for k, v in entry["q"].items()}
+            q = _joint_angles(entry["q"], f"{path}: grasp {i}")
         except KeyError as err:
             raise ConfigError(f"{path}: grasp {i} lacks the key {err}") from err
         grasps.append(

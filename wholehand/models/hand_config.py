@@ -38,6 +38,7 @@ Names are checked against the URDF when the hand is loaded (:mod:`wholehand.mode
 
 from __future__ import annotations
 
+import math
 import sys
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -241,10 +242,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         raise ConfigError(f"{path}: outer_surface_only must be true or false, got {outer!r}")
     sim = raw.get("simulation", {})
     mount = raw.get("mount", {})
-    xyz = tuple(float(v) for v in mount.get("xyz", (0.0, 0.0, 0.0)))
-    rpy = tuple(float(v) for v in mount.get("rpy", (0.0, 0.0, 0.0)))
-    if len(xyz) != 3 or len(rpy) != 3:
-        raise ConfigError(f"{path}: [mount] xyz and rpy need 3 numbers each, got {xyz}, {rpy}")
+    xyz, rpy = (_three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
 
     return HandConfig(
         path=path.resolve(),
@@ -267,13 +265,25 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         damping=_number(sim.get("damping", 0.05), "simulation.damping", path),
         armature=_number(sim.get("armature", 0.001), "simulation.armature", path),
         grasp_styles=grasp_styles,
-        mount_xyz=xyz,  # type: ignore[arg-type]
-        mount_rpy=rpy,  # type: ignore[arg-type]
+        mount_xyz=xyz,
+        mount_rpy=rpy,
     )
 
 
 _GRASP_SUBSTYLES = ("precision",)
 """Names of the optional ``[grasping.<name>]`` sub-tables."""
+
+
+def _three_numbers(value: Any, key: str, where: Path) -> tuple[float, float, float]:
+    ok = isinstance(value, list) and len(value) == 3
+    if ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        x, y, z = (float(v) for v in value)
+        if all(map(math.isfinite, (x, y, z))):
+            return x, y, z
+    raise ConfigError(
+        f"{where}: [mount] {key} must be a list of 3 finite numbers "
+        f"({'[m]' if key == 'xyz' else '[rad]'}), e.g. {key} = [0.0, 0.0, 0.0]; got {value!r}"
+    )
 
 
 def _joint_numbers(table: Any, what: str, where: Path) -> dict[str, float]:

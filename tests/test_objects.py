@@ -217,6 +217,16 @@ def test_unreadable_file_raises_asset_error(tmp_path: Path) -> None:
         ObjectModel.from_mesh(path)
 
 
+def test_a_nan_vertex_is_named_not_reported_as_holes(tmp_path: Path) -> None:
+    box = trimesh.creation.box(extents=[0.05, 0.05, 0.05])
+    vertices = box.vertices.copy()
+    vertices[3, 1] = np.nan
+    path = tmp_path / "nan_box.obj"
+    path.write_text(trimesh.Trimesh(vertices, box.faces, process=False).export(file_type="obj"))
+    with pytest.raises(AssetError, match="1 vertices with NaN or infinite coordinates.*index 3"):
+        ObjectModel.from_mesh(path, repair=True)
+
+
 def test_non_watertight_mesh_needs_explicit_repair(tmp_path: Path) -> None:
     box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
     path = write_mesh(trimesh.Trimesh(box.vertices, box.faces[1:]), tmp_path / "open_box.stl")

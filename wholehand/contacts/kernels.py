@@ -17,16 +17,16 @@ eight corner values (float32) are interpolated in float32 along z, then y, then 
 outside the box get their distance to the box added (the gradient of that term replaces the
 clamped axes' components). NaN coordinates give NaN distances and gradients, as there.
 
-Compilation: every kernel is ``@numba.njit(cache=True, nogil=True, error_model="numpy")``;
+Compilation: every kernel is ``@numba.njit(cache=CACHE, nogil=True, error_model="numpy")``;
 ``error_model="numpy"`` makes a float division by zero give inf/NaN instead of raising, which
 keeps exception paths (and per-point reference counting of the arrays) out of the loops. The
 per-point helpers are also ``inline="always"``. The first call in a fresh environment compiles
 (about 2 s) and writes the machine code to a cache; later processes load it (tens of ms). Numba
 picks the cache folder in this order: ``$NUMBA_CACHE_DIR`` if set; else ``__pycache__`` next to
 this file if writable; else the user cache folder (``~/.cache/numba``). Where none is writable (a
-read-only install for a user without a home), importing this module fails: set
-``NUMBA_CACHE_DIR`` to a writable folder. Cache entries are keyed by the source file's contents,
-the argument types, the CPU and the numba version, so a stale entry is never used.
+read-only install for a user without a home), the kernels compile in every process, with a
+warning that names the fix (:mod:`wholehand.jit`). Cache entries are keyed by the source file's
+contents, the argument types, the CPU and the numba version, so a stale entry is never used.
 
 The SDF grid is passed as three arguments (see :func:`grid_arguments`):
 
@@ -48,6 +48,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.jit import CACHE
 from wholehand.models.sdf import SignedDistanceGrid
 
 FloatArray = npt.NDArray[np.float64]
@@ -70,7 +71,7 @@ def grid_arguments(
     return values, dims, geom
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _grid_tuples(
     dims: npt.NDArray[np.int64], geom: FloatArray
 ) -> tuple[tuple[int, int, int], tuple[float, float, float, float, float]]:
@@ -78,7 +79,7 @@ def _grid_tuples(
     return (dims[0], dims[1], dims[2]), (geom[0], geom[1], geom[2], geom[3], geom[4])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _clamp_axis(u: float, n: int) -> tuple[float, float]:
     """Grid coordinate ``u`` [cells] clamped to [0, n - 1], and the lower corner of its cell,
     at most n - 2. A NaN ``u`` stays NaN and gets the (safe) cell n - 2."""
@@ -94,7 +95,7 @@ def _clamp_axis(u: float, n: int) -> tuple[float, float]:
     return uc, cell
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def sdf_value(
     values: npt.NDArray[np.float32],
     shape: tuple[int, int, int],
@@ -134,7 +135,7 @@ def sdf_value(
     return d
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def sdf_value_and_gradient(
     values: npt.NDArray[np.float32],
     shape: tuple[int, int, int],
@@ -196,7 +197,7 @@ def sdf_value_and_gradient(
     return d, np.float64(gx / norm), np.float64(gy / norm), np.float64(gz / norm)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def sdf_query(
     values: npt.NDArray[np.float32],
     dims: npt.NDArray[np.int64],
@@ -220,7 +221,7 @@ def sdf_query(
     return dist, grad
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _joint_poses_in_object(
     wMo: FloatArray, wMb: FloatArray, bRj: FloatArray, bp_j: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -252,7 +253,7 @@ def _joint_poses_in_object(
     return oRj, op_j
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _flush(
     top: FloatArray, n_top: int, link: int, sel: FloatArray, sel_link: IntArray, n_sel: int
 ) -> int:
@@ -267,7 +268,7 @@ def _flush(
     return n_sel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def mesh_sdf_contacts(
     wMo: FloatArray,
     wMb: FloatArray,

@@ -19,6 +19,7 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand.errors import ConfigError, ObservationError
+from wholehand.jit import CACHE
 from wholehand.models.poses import check_pose
 
 FloatArray = npt.NDArray[np.float64]
@@ -156,7 +157,7 @@ class Observation:
         )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def _usable(
     q: FloatArray, dq: FloatArray, wMb: FloatArray, wMo: FloatArray
 ) -> bool:  # pragma: no cover - jit

@@ -480,11 +480,19 @@ def _read_mesh(path: Path) -> trimesh.Trimesh:
             "or a YCB name (wholehand.models.objects.available_objects())"
         )
     try:
-        mesh = trimesh.load(path, force="mesh", process=True)
+        mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as err:  # trimesh raises many types for unreadable files
         raise AssetError(f"cannot read mesh file {str(path)!r}: {err}") from err
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise AssetError(f"mesh file {str(path)!r} contains no triangles")
+    # Checked before processing, which would silently drop such vertices and leave holes.
+    bad = np.flatnonzero(~np.isfinite(np.asarray(mesh.vertices)).all(axis=1))
+    if bad.size:
+        raise AssetError(
+            f"mesh file {str(path)!r} has {bad.size} vertices with NaN or infinite coordinates "
+            f"(the first at index {int(bad[0])}); fix or re-export the mesh"
+        )
+    mesh.process()  # as trimesh.load(process=True): merge duplicate vertices
     return mesh
 
 

@@ -305,6 +305,32 @@ def test_sigterm_ends_a_run_like_ctrl_c(tmp_path, monkeypatch, capsys):
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+def test_a_second_sigterm_while_stopping_does_not_break_off_the_writes(tmp_path, monkeypatch):
+    """A scheduler that sends SIGTERM twice: the second arrives while the finished rows are
+    being written, and is ignored."""
+    ran: list[int] = []
+
+    def fake_trial(job):
+        if len(ran) == 3:
+            os.kill(os.getpid(), signal.SIGTERM)
+        ran.append(job.index)
+        return {"held": True, "stages_total": 1, "failure_stage": "", "error": "", "cycles": 1}
+
+    write = runner.write_csv
+
+    def write_after_a_second_sigterm(rows, path):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return write(rows, path)
+
+    monkeypatch.setitem(runner.JOB_KINDS, "trial", fake_trial)
+    monkeypatch.setattr(runner, "_warm_caches", lambda jobs: None)
+    monkeypatch.setattr(runner, "write_csv", write_after_a_second_sigterm)
+    result = run_study(get_study("perturbation"), "full", tmp_path, executor="serial",
+                       progress=False)  # fmt: skip
+    assert result.interrupted and len(read_csv(result.csv_path)) == 3
+    assert (tmp_path / "summary.json").is_file()
+
+
 OLDER_COLUMNS = ("kind", "pose_error", "grasp_type")
 """Columns that rows of older versions lack."""
 

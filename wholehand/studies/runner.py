@@ -422,21 +422,35 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
-@contextlib.contextmanager
-def _terminate_as_interrupt() -> Iterator[None]:
-    """While the block runs, SIGTERM (a batch scheduler's stop, ``timeout``, ``kill``) raises
-    ``KeyboardInterrupt`` like Ctrl-C, so the finished rows are written and the run can be
-    resumed. Only the main thread can set signal handlers; elsewhere nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+class _Termination:
+    """SIGTERM handling of a study run: see :func:`_terminate_as_interrupt`."""
 
-    def interrupt(signum: int, frame: Any) -> None:
+    def __init__(self) -> None:
+        self.interrupts = True
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        if not self.interrupts:  # stopping or writing: a SIGTERM must not break that off
+            print("study: already finishing; writing the finished rows", file=sys.stderr)
+            return
+        self.interrupts = False
         raise KeyboardInterrupt(f"signal {signum}")
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[_Termination]:
+    """While the block runs, SIGTERM (a batch scheduler's stop, ``timeout``, ``kill``) raises
+    ``KeyboardInterrupt`` like Ctrl-C, once, so the finished rows are written and the run can be
+    resumed. Later SIGTERMs, and any after ``termination.interrupts = False`` (set when the
+    outputs are being written), are ignored: they would break off the pool's shutdown (leaving
+    the process waiting on its threads) or the writes. Only the main thread can set signal
+    handlers; elsewhere nothing changes."""
+    termination = _Termination()
+    if threading.current_thread() is not threading.main_thread():
+        yield termination
+        return
+    previous = signal.signal(signal.SIGTERM, termination)
     try:
-        yield
+        yield termination
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -561,10 +575,10 @@ def run_study(
 
     started = time.perf_counter()
     interrupted = False
-    try:
-        if todo:
-            _warm_caches(todo)
-            with _terminate_as_interrupt():
+    with _terminate_as_interrupt() as termination:
+        try:
+            if todo:
+                _warm_caches(todo)
                 execute(
                     todo,
                     run_job,
@@ -575,45 +589,46 @@ def run_study(
                     address=address,
                     on_result=finished,
                 )
-    except KeyboardInterrupt:
-        interrupted = True
-        print(f"\nstudy {study.name}: interrupted; writing the finished rows", file=sys.stderr)
-    finally:
-        journal.close()
-    wall = time.perf_counter() - started
-    rows = [done[i] for i in sorted(done)]
-    complete = len(rows) == len(jobs)
-    summary = {
-        "study": study.name,
-        "description": study.description,
-        "size": size,
-        "seed": seed,
-        "complete": complete,
-        "n_planned": len(jobs),
-        "n_trials": len(rows),
-        "n_reused": n_reused,
-        "n_errors": sum(1 for r in rows if r.get("error")),
-        "executor": executor,
-        "wall_time_s": wall,
-        **study.summarise(rows),
-    }
-    csv_path = write_csv(rows, folder / "trials.csv")
-    summary_path = folder / "summary.json"
-    summary_path.write_text(json.dumps(_json_safe(summary), indent=2) + "\n")
-    plot_path = folder / f"{study.name}.png"
-    import matplotlib
+        except KeyboardInterrupt:
+            interrupted = True
+            print(f"\nstudy {study.name}: interrupted; writing the finished rows", file=sys.stderr)
+        finally:
+            termination.interrupts = False
+            journal.close()
+        wall = time.perf_counter() - started
+        rows = [done[i] for i in sorted(done)]
+        complete = len(rows) == len(jobs)
+        summary = {
+            "study": study.name,
+            "description": study.description,
+            "size": size,
+            "seed": seed,
+            "complete": complete,
+            "n_planned": len(jobs),
+            "n_trials": len(rows),
+            "n_reused": n_reused,
+            "n_errors": sum(1 for r in rows if r.get("error")),
+            "executor": executor,
+            "wall_time_s": wall,
+            **study.summarise(rows),
+        }
+        csv_path = write_csv(rows, folder / "trials.csv")
+        summary_path = folder / "summary.json"
+        summary_path.write_text(json.dumps(_json_safe(summary), indent=2) + "\n")
+        plot_path = folder / f"{study.name}.png"
+        import matplotlib
 
-    matplotlib.use("Agg")
-    # The plot gets NaN, not JSON's None, where a group has no valid trial (more likely in a
-    # partial run): a gap in the figure instead of a TypeError.
-    study.plot(rows, summary, plot_path)
-    summary = _json_safe(summary)
-    if not complete:
-        why = "interrupted" if interrupted else f"limit {limit}"
-        print(
-            f"study {study.name}: {len(rows)} of {len(jobs)} trials finished ({why}); "
-            f"partial results in {folder}. Continue with:\n"
-            f"  {continue_command(study, folder, size, seed, hand, methods)}",
-            file=sys.stderr,
-        )
-    return StudyResult(rows, summary, csv_path, summary_path, plot_path, interrupted)
+        matplotlib.use("Agg")
+        # The plot gets NaN, not JSON's None, where a group has no valid trial (more likely in a
+        # partial run): a gap in the figure instead of a TypeError.
+        study.plot(rows, summary, plot_path)
+        summary = _json_safe(summary)
+        if not complete:
+            why = "interrupted" if interrupted else f"limit {limit}"
+            print(
+                f"study {study.name}: {len(rows)} of {len(jobs)} trials finished ({why}); "
+                f"partial results in {folder}. Continue with:\n"
+                f"  {continue_command(study, folder, size, seed, hand, methods)}",
+                file=sys.stderr,
+            )
+        return StudyResult(rows, summary, csv_path, summary_path, plot_path, interrupted)

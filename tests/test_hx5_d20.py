@@ -44,7 +44,7 @@ def test_twenty_revolute_joints_four_per_finger_at_the_papers_limit(hx5):
     assert kinds <= {"JointModelRX", "JointModelRY", "JointModelRZ"}
     assert hx5.actuated_dofs.all()
     # The URDF says effort="1000" (a placeholder); hand.toml sets the paper's 0.2 N*m.
-    efforts = {float(lim.get("effort")) for lim in ET.parse(hx5.config.urdf_path).iter("limit")}
+    efforts = {float(lim.get("effort")) for lim in ET.parse(hx5.config.model_path).iter("limit")}
     assert efforts == {1000.0}
     np.testing.assert_array_equal(hx5.tau_max, 0.2)
     fingers = hx5.config.fingers

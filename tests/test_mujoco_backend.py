@@ -479,17 +479,17 @@ def test_missing_torque_limits_raise(allegro):
 
 
 def test_broken_urdf_raises_asset_error(allegro, tmp_path):
-    text = allegro.config.urdf_path.read_text()
+    text = allegro.config.model_path.read_text()
     broken = tmp_path / "broken.urdf"
     broken.write_text(text.replace('<box size="0.0196 0.0275 0.0164"/>', '<box size="0 0 0"/>', 1))
     hand = copy.copy(allegro)
-    hand.config = dataclasses.replace(allegro.config, urdf_path=broken)
+    hand.config = dataclasses.replace(allegro.config, model_path=broken)
     with pytest.raises(AssetError, match="broken.urdf|cannot compile"):
         build_scene(hand, make_sphere())
     missing = tmp_path / "missing_mesh.urdf"
     mesh = '<mesh filename="package://nowhere/none.stl"/>'
     missing.write_text(text.replace('<box size="0.0196 0.0275 0.0164"/>', mesh, 1))
-    hand.config = dataclasses.replace(allegro.config, urdf_path=missing)
+    hand.config = dataclasses.replace(allegro.config, model_path=missing)
     with pytest.raises(AssetError, match="none.stl"):
         build_scene(hand, make_sphere())
 

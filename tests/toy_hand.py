@@ -76,9 +76,58 @@ def toy_urdf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), wrist=False, fo
     return f'<?xml version="1.0"?>\n<robot name="toy">\n{body}</robot>\n'
 
 
+def _mjcf_body(name: str, size: tuple[float, ...], centre: tuple[float, ...],
+               pos: tuple[float, ...], joint: str, axis: str, inner: str = "",
+               mass: float = 0.02) -> str:  # fmt: skip
+    half = " ".join(f"{0.5 * v:g}" for v in size)
+    return (
+        f'<body name="{name}" pos="{pos[0]} {pos[1]} {pos[2]}">'
+        f'<joint name="{joint}" axis="{axis}" range="-0.2 1.6"/>'
+        f'<inertial pos="0 0 0" mass="{mass}" diaginertia="{mass * 1e-4} {mass * 1e-4} '
+        f'{mass * 1e-4}"/>'
+        f'<geom type="box" size="{half}" pos="{centre[0]} {centre[1]} {centre[2]}"/>{inner}</body>'
+    )
+
+
+def toy_mjcf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), mimic=False):
+    """The same hand as :func:`toy_urdf` in MJCF (no wrist, forearm or knuckle): the palm body
+    posed by extrinsic x-y-z Euler angles (the URDF's rpy), a floor, a visual-only sphere on the
+    palm, position actuators and a keyframe, all of which the scene must drop; with ``mimic``
+    the couplings as joint equalities."""
+    fingers = ""
+    for k, y in (("1", 0.025), ("2", -0.025)):
+        tip = _mjcf_body(f"f{k}_2", (0.015, 0.015, 0.03), (0, 0, 0.015), (0, 0, 0.04), f"f{k}_j2",
+                         "0 1 0")  # fmt: skip
+        fingers += _mjcf_body(f"f{k}_1", (0.015, 0.015, 0.04), (0, 0, 0.02), (0, y, 0),
+                              f"f{k}_j1", "0 1 0", tip)  # fmt: skip
+    thumb = _mjcf_body("t_1", (0.06, 0.015, 0.015), (0.03, 0, 0), (0, 0, -0.07), "t_j1", "0 -1 0")
+    x, r = palm_xyz, palm_rpy
+    equality = "".join(
+        f'<joint joint1="f{k}_j2" joint2="f{k}_j1" polycoef="{MIMIC[1]} {MIMIC[0]} 0 0 0"/>'
+        for k in "12"
+    )
+    return f"""<mujoco model="toy">
+  <compiler angle="radian" eulerseq="XYZ"/>
+  <worldbody>
+    <light pos="0 0 1"/>
+    <geom name="floor" type="plane" size="1 1 0.1" pos="0 0 -0.5"/>
+    <body name="palm" pos="{x[0]} {x[1]} {x[2]}" euler="{r[0]} {r[1]} {r[2]}">
+      <inertial pos="0 0 0" mass="0.1" diaginertia="1e-5 1e-5 1e-5"/>
+      <geom type="box" size="0.01 0.04 0.04" pos="-0.01 0 -0.04"/>
+      <geom name="palm_visual" type="sphere" size="0.03" contype="0" conaffinity="0"/>
+      {fingers}{thumb}
+    </body>
+  </worldbody>
+  <equality>{equality if mimic else ""}</equality>
+  <actuator><position joint="f1_j1" kp="1"/><position joint="t_j1" kp="1"/></actuator>
+  <keyframe><key qpos="0 0 0 0 0"/></keyframe>
+</mujoco>
+"""
+
+
 TOML = """\
 name = "toy"
-urdf = "toy.urdf"
+{model}
 palm_link = "palm"
 thumb = "thumb"
 fingertip_links = ["f1_2", "f2_2", "t_1"]
@@ -94,18 +143,26 @@ close_torque = {{ {close} }}
 """
 
 
-def write_toy_hand(folder: Path, top: str = "", tables: str = "", **urdf: object) -> Path:
-    """Write ``toy.urdf`` and ``hand.toml`` into ``folder`` (made if needed); return it.
+def write_toy_hand(folder: Path, top: str = "", tables: str = "", mjcf: bool = False,
+                   **urdf: object) -> Path:  # fmt: skip
+    """Write ``toy.urdf`` (or ``toy.xml`` with ``mjcf``) and ``hand.toml`` into ``folder`` (made
+    if needed); return it.
 
     ``top`` adds top-level keys to hand.toml, ``tables`` adds tables at its end; ``urdf``
-    keywords go to :func:`toy_urdf`.
+    keywords go to :func:`toy_urdf` (or :func:`toy_mjcf`).
     """
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "toy.urdf").write_text(toy_urdf(**urdf))  # type: ignore[arg-type]
+    if mjcf:
+        (folder / "toy.xml").write_text(toy_mjcf(**urdf))  # type: ignore[arg-type]
+    else:
+        (folder / "toy.urdf").write_text(toy_urdf(**urdf))  # type: ignore[arg-type]
+    model = 'mjcf = "toy.xml"' if mjcf else 'urdf = "toy.urdf"'
     close = "f1_j1 = 0.1, f2_j1 = 0.1, t_j1 = 0.1"
     if not urdf.get("mimic"):  # the second joints close too when they have motors of their own
         close += ", f1_j2 = 0.05, f2_j2 = 0.05"
     (folder / "hand.toml").write_text(
-        TOML.format(top=textwrap.dedent(top), tables=textwrap.dedent(tables), close=close)
+        TOML.format(
+            model=model, top=textwrap.dedent(top), tables=textwrap.dedent(tables), close=close
+        )
     )
     return folder

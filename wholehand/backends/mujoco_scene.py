@@ -187,18 +187,18 @@ def _urdf_for_mujoco(hand: HandModel) -> str:
     inertias, fixed links kept as bodies)."""
     cfg = hand.config
     try:
-        root = ET.parse(cfg.urdf_path).getroot()
+        root = ET.parse(cfg.model_path).getroot()
     except (ET.ParseError, OSError) as err:
-        raise AssetError(f"{cfg.urdf_path}: cannot read the URDF: {err}") from err
+        raise AssetError(f"{cfg.model_path}: cannot read the URDF: {err}") from err
     for link in root.iter("link"):
         for visual in list(link.findall("visual")):
             link.remove(visual)
     for mesh in root.iter("mesh"):
         uri = mesh.get("filename", "")
-        path = resolve_mesh_uri(uri, cfg.urdf_path, cfg.package_dirs)
+        path = resolve_mesh_uri(uri, cfg.model_path, cfg.package_dirs)
         if path is None:
             raise AssetError(
-                f"{cfg.urdf_path}: collision mesh {uri!r} not found in the package directories "
+                f"{cfg.model_path}: collision mesh {uri!r} not found in the package directories "
                 f"{[str(d) for d in cfg.package_dirs]}; install the package that ships it"
             )
         mesh.set("filename", str(path.resolve()))
@@ -215,12 +215,34 @@ def _urdf_for_mujoco(hand: HandModel) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
+def _mjcf_hand_spec(hand: HandModel) -> mujoco.MjSpec:
+    """An MJCF hand as the scene needs it (its one root body is the hand base, as a URDF's root
+    link): its actuators, keyframes and sensors removed (the scene adds its own motors and an
+    object), static world geoms (a floor) removed, and its visual-only geoms (contype =
+    conaffinity = 0, as Pinocchio reads them) removed."""
+    path = hand.config.model_path
+    try:
+        spec = mujoco.MjSpec.from_file(str(path))
+    except ValueError as err:
+        raise AssetError(f"{path}: MuJoCo cannot load this MJCF: {err}") from err
+    for element in [*spec.actuators, *spec.keys, *spec.sensors, *spec.worldbody.geoms]:
+        spec.delete(element)
+    for geom in list(spec.geoms):
+        if geom.contype == 0 and geom.conaffinity == 0:
+            spec.delete(geom)
+    return spec
+
+
 def _load_hand_spec(hand: HandModel) -> mujoco.MjSpec:
+    if hand.config.model_format == "mjcf":
+        spec = _mjcf_hand_spec(hand)
+        spec.compiler.discardvisual = False
+        return spec
     try:
         spec = mujoco.MjSpec.from_string(_urdf_for_mujoco(hand))
     except ValueError as err:
         raise AssetError(
-            f"{hand.config.urdf_path}: MuJoCo cannot parse this URDF: {err}; check the URDF "
+            f"{hand.config.model_path}: MuJoCo cannot parse this URDF: {err}; check the URDF "
             "(hand.toml names it) and its mesh files"
         ) from err
     # The URDF's visuals are already stripped; keep the visual-only object mesh if one is added.
@@ -259,7 +281,7 @@ def _weld_locked_joints(spec: mujoco.MjSpec, hand: HandModel) -> None:
     for name, value in hand.config.locked_joints.items():
         joint = spec.joint(name)
         if joint is None:
-            raise AssetError(f"{hand.config.urdf_path}: locked joint {name!r} has no MuJoCo joint")
+            raise AssetError(f"{hand.config.model_path}: locked joint {name!r} has no MuJoCo joint")
         body, axis = joint.parent, np.asarray(joint.axis, dtype=float)
         axis = axis / np.linalg.norm(axis)
         quat = np.asarray(body.quat, dtype=float)
@@ -281,11 +303,12 @@ def _edit_hand(
     roots = list(spec.worldbody.bodies)
     if len(roots) != 1:
         raise AssetError(
-            f"{hand.config.urdf_path}: expected one root link, MuJoCo found "
+            f"{hand.config.model_path}: expected one root link (body), MuJoCo found "
             f"{[b.name for b in roots]}"
         )
-    base = roots[0]
+    base = roots[0]  # the base frame b; an MJCF root body's own pose is dropped, as Pinocchio does
     _set_pose(base, wMb)
+    base.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # the quaternion just set
     if opts.base == "mocap":
         base.mocap = True
     _weld_locked_joints(spec, hand)
@@ -566,7 +589,7 @@ def build_scene(
     o.iterations = int(opts.iterations)
     o.tolerance = 1e-8
 
-    what = f"hand {hand.name!r} ({hand.config.urdf_path}) with object {obj.name!r}"
+    what = f"hand {hand.name!r} ({hand.config.model_path}) with object {obj.name!r}"
     model = _compile(spec, what)
     maps = _index_maps(model, hand)
     if opts.self_collision:

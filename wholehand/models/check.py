@@ -1,10 +1,10 @@
 """``wholehand hand check``: what a hand folder gives the controller, and what looks wrong.
 
 The report lists links, joints, actuators, couplings, locked joints, limits and the surface
-samples per link, then findings, each with the fix. The URDF is read twice: raw, for what
+samples per link, then findings, each with the fix. A URDF is read twice: raw, for what
 Pinocchio would silently accept (inverted or missing limits, placeholder efforts), and through
-the hand model, for what the controller will see. A hand that does not load at all gets the
-loader's error as a finding, with every raw finding beside it.
+the hand model, for what the controller will see; an MJCF through the hand model. A hand that
+does not load at all gets the loader's error as a finding, with every raw finding beside it.
 """
 
 from __future__ import annotations
@@ -72,7 +72,10 @@ class HandReport:
 
 
 def _raw_joint_findings(cfg: HandConfig, report: HandReport) -> None:
-    root = ET.parse(cfg.urdf_path).getroot()
+    """What a URDF's joint tags say that Pinocchio accepts silently."""
+    if cfg.model_format != "urdf":
+        return
+    root = ET.parse(cfg.model_path).getroot()
     placeholders = []
     for joint in root.iter("joint"):
         name, kind = joint.get("name", ""), joint.get("type", "")
@@ -82,7 +85,7 @@ def _raw_joint_findings(cfg: HandConfig, report: HandReport) -> None:
         if limit is None or limit.get("lower") is None or limit.get("upper") is None:
             report.add(
                 "error",
-                f"joint {name!r} ({kind}) has no lower/upper limit in {cfg.urdf_path.name}",
+                f"joint {name!r} ({kind}) has no lower/upper limit in {cfg.model_path.name}",
                 'give it <limit lower="..." upper="..." effort="..." velocity="..."/> from the '
                 "hand's data sheet, or lock it in hand.toml ([joints] locked)",
             )
@@ -203,6 +206,17 @@ def check_hand(name_or_path: str | Path) -> HandReport:
             }
         )
     report.summary = hand.summary()
+    unlimited = [
+        j["name"]
+        for j in report.joints
+        if not (np.isfinite(j["lower"]) and np.isfinite(j["upper"]))
+    ]
+    if unlimited and hand.config.model_format == "mjcf":
+        report.add(
+            "error",
+            f"joints without a range in {hand.config.model_path.name}: {unlimited}",
+            'give each a range="lower upper" (and limited="true" where the file needs it)',
+        )
     if not any(hand.link_fingertip):
         report.add(
             "warning",

@@ -1,8 +1,9 @@
 """Coupled joints: a follower joint moves with a leader, ``q_f = multiplier * q_l + offset``.
 
 URDF declares a coupling with ``<mimic joint="leader" multiplier="m" offset="o"/>`` on the
-follower (a linkage or tendon that one motor drives). The hand model keeps every joint (so the
-kinematics are the URDF's), and the controller works in actuator coordinates:
+follower (a linkage or tendon that one motor drives), MJCF with a joint equality. The hand model
+keeps every joint (so the kinematics are the file's), and the controller works in actuator
+coordinates:
 
     q = C q_act + d
 
@@ -65,6 +66,44 @@ def urdf_mimics(urdf_path: Path) -> dict[str, Mimic]:
                 "multiplier and offset"
             )
         out[name] = Mimic(leader, multiplier, offset)
+    return out
+
+
+def mjcf_mimics(mjcf_path: Path) -> dict[str, Mimic]:
+    """The couplings of an MJCF: its joint equalities ``<joint joint1="f" joint2="l"
+    polycoef="a0 a1 0 0 0"/>``, i.e. ``q_f - ref_f = a0 + a1 (q_l - ref_l)``, as
+    follower -> :class:`Mimic` (``multiplier = a1``, ``offset = a0 + ref_f - a1 ref_l``).
+
+    Raises:
+        ConfigError: MuJoCo cannot load the file, an equality fixes a joint alone (lock it in
+            hand.toml instead), or a coupling is not linear.
+    """
+    import mujoco
+
+    try:
+        model = mujoco.MjModel.from_xml_path(str(mjcf_path))
+    except ValueError as err:
+        raise ConfigError(f"{mjcf_path}: MuJoCo cannot load this MJCF: {err}") from err
+    out = {}
+    for e in range(model.neq):
+        if model.eq_type[e] != mujoco.mjtEq.mjEQ_JOINT:
+            continue
+        follower, leader = int(model.eq_obj1id[e]), int(model.eq_obj2id[e])
+        name = model.joint(follower).name
+        if leader < 0:
+            raise ConfigError(
+                f"{mjcf_path}: a joint equality holds joint {name!r} fixed; lock it in hand.toml "
+                "([joints] locked) so that the hand model knows it too"
+            )
+        a0, a1, *higher = (float(c) for c in model.eq_data[e, :5])
+        if any(higher):
+            raise ConfigError(
+                f"{mjcf_path}: the joint equality of {name!r} is not linear (polycoef "
+                f"{[a0, a1, *higher]}); only q_f = a0 + a1 q_l couplings are supported"
+            )
+        ref_f = float(model.qpos0[model.jnt_qposadr[follower]])
+        ref_l = float(model.qpos0[model.jnt_qposadr[leader]])
+        out[name] = Mimic(model.joint(leader).name, a1, a0 + ref_f - a1 * ref_l)
     return out
 
 

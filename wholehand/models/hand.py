@@ -22,7 +22,13 @@ import pinocchio as pin
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import cache
-from wholehand.models.coupling import Mimic, coupling_matrix, resolve_chains, urdf_mimics
+from wholehand.models.coupling import (
+    Mimic,
+    coupling_matrix,
+    mjcf_mimics,
+    resolve_chains,
+    urdf_mimics,
+)
 from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
 from wholehand.models.outer_surface import find_buried_samples
 from wholehand.models.poses import pose_from_xyz_rpy
@@ -58,8 +64,8 @@ class SurfaceSamples:
         return int(self.p_joint.shape[0])
 
 
-def _mesh_uris(urdf_path: Path, surface: str) -> list[str]:
-    root = ET.parse(urdf_path).getroot()
+def _mesh_uris(model_path: Path, surface: str) -> list[str]:
+    root = ET.parse(model_path).getroot()
     return [
         m.get("filename", "")
         for link in root.iter("link")
@@ -68,7 +74,7 @@ def _mesh_uris(urdf_path: Path, surface: str) -> list[str]:
     ]
 
 
-def resolve_mesh_uri(uri: str, urdf_path: Path, package_dirs: tuple[Path, ...]) -> Path | None:
+def resolve_mesh_uri(uri: str, model_path: Path, package_dirs: tuple[Path, ...]) -> Path | None:
     """The file a URDF mesh URI names (``package://``, ``file://`` or relative), None if absent."""
     if uri.startswith("package://"):
         rel = uri[len("package://") :]
@@ -79,18 +85,23 @@ def resolve_mesh_uri(uri: str, urdf_path: Path, package_dirs: tuple[Path, ...]) 
     if uri.startswith("file://"):
         path = Path(unquote(urlparse(uri).path))
     else:
-        path = urdf_path.parent / uri
+        path = model_path.parent / uri
     return path if path.is_file() else None
 
 
 def _check_meshes(cfg: HandConfig, surface: str) -> list[Path]:
+    """The mesh files of a URDF's ``surface`` geometry; a missing one raises AssetError naming
+    every folder searched. An MJCF's meshes are found by Pinocchio's parser (see
+    :meth:`HandModel._build_geometry`)."""
+    if cfg.model_format == "mjcf":
+        return []
     found = []
-    for uri in _mesh_uris(cfg.urdf_path, surface):
-        path = resolve_mesh_uri(uri, cfg.urdf_path, cfg.package_dirs)
+    for uri in _mesh_uris(cfg.model_path, surface):
+        path = resolve_mesh_uri(uri, cfg.model_path, cfg.package_dirs)
         if path is None:
             dirs = "\n  ".join(str(d) for d in cfg.package_dirs)
             raise AssetError(
-                f"{cfg.urdf_path}: {surface} mesh {uri!r} not found. Searched relative to the "
+                f"{cfg.model_path}: {surface} mesh {uri!r} not found. Searched relative to the "
                 f"URDF and in the package directories:\n  {dirs}\nInstall the package that ships "
                 "it or fix the filename in the URDF."
             )
@@ -147,12 +158,16 @@ class HandModel:
     # --- construction -------------------------------------------------------------------------
     def _build_model(self) -> pin.Model:
         cfg = self.config
+        mjcf = cfg.model_format == "mjcf"
         try:
-            return pin.buildModelFromUrdf(str(cfg.urdf_path))
+            if mjcf:
+                return pin.buildModelFromMJCF(str(cfg.model_path))
+            return pin.buildModelFromUrdf(str(cfg.model_path))
         except Exception as err:
             raise AssetError(
-                f"{cfg.urdf_path}: Pinocchio cannot parse this URDF ({err}); check that it is "
-                "well-formed XML with one root link"
+                f"{cfg.model_path}: Pinocchio cannot parse this {cfg.model_format.upper()} "
+                f"({err}); check that it is well-formed XML"
+                + (" that MuJoCo loads" if mjcf else " with one root link")
             ) from err
 
     def _check_joint_types(self, model: pin.Model) -> None:
@@ -160,7 +175,7 @@ class HandModel:
             kind = model.joints[jid].shortname()
             if kind not in SUPPORTED_JOINTS:
                 raise ConfigError(
-                    f"{self.config.urdf_path}: joint {model.names[jid]!r} has type {kind}, "
+                    f"{self.config.model_path}: joint {model.names[jid]!r} has type {kind}, "
                     "which a hand model does not support; use revolute (with limits) or "
                     "prismatic joints, and fixed joints for rigid attachments"
                 )
@@ -171,15 +186,21 @@ class HandModel:
         cfg = self.config
         _check_meshes(cfg, surface)
         try:
+            if cfg.model_format == "mjcf":  # collision: geoms with contype or conaffinity set
+                geometry = pin.buildGeomFromMJCF(model, str(cfg.model_path), kind)
+                for obj in list(geometry.geometryObjects):  # the world's own (a floor)
+                    if model.frames[obj.parentFrame].type != pin.FrameType.BODY:
+                        geometry.removeGeometryObject(obj.name)
+                return geometry
             return pin.buildGeomFromUrdf(
                 model,
-                str(cfg.urdf_path),
+                str(cfg.model_path),
                 kind,
                 package_dirs=[str(d) for d in cfg.package_dirs],
             )
         except Exception as err:
             raise AssetError(
-                f"{cfg.urdf_path}: cannot build the {surface} geometry: {err}"
+                f"{cfg.model_path}: cannot build the {surface} geometry: {err}"
             ) from err
 
     def _lock_joints(
@@ -197,7 +218,7 @@ class HandModel:
             if name not in moving:
                 raise ConfigError(
                     f"{cfg.path}: locked joint {name!r} is not a moving joint of "
-                    f"{cfg.urdf_path.name}; valid joints: {moving}"
+                    f"{cfg.model_path.name}; valid joints: {moving}"
                 )
             jid = model.getJointId(name)
             i = model.joints[jid].idx_q
@@ -205,7 +226,7 @@ class HandModel:
             if not low <= value <= high:
                 raise ConfigError(
                     f"{cfg.path}: [joints] locked.{name} = {value} is outside the joint's "
-                    f"limits [{low:g}, {high:g}] in {cfg.urdf_path.name}"
+                    f"limits [{low:g}, {high:g}] in {cfg.model_path.name}"
                 )
             q_ref[i] = value
             ids.append(jid)
@@ -216,7 +237,7 @@ class HandModel:
         if not self.model.existFrame(link, pin.FrameType.BODY):
             raise ConfigError(
                 f"{self.config.path}: {what} {link!r} is not a link of "
-                f"{self.config.urdf_path.name}; "
+                f"{self.config.model_path.name}; "
                 f"valid links: {self.all_link_names}"
             )
         return self.model.getFrameId(link, pin.FrameType.BODY)
@@ -258,7 +279,7 @@ class HandModel:
             if link not in self.link_names:
                 raise ConfigError(
                     f"{cfg.path}: {what} {link!r} has no {cfg.sample_surface} geometry in "
-                    f"{cfg.urdf_path.name}, so it can never touch the object; links with "
+                    f"{cfg.model_path.name}, so it can never touch the object; links with "
                     f"geometry: {self.link_names}"
                 )
         self.link_fingertip = np.array([n in cfg.fingertip_links for n in self.link_names])
@@ -268,7 +289,7 @@ class HandModel:
     def _couplings(self, moving: list[str]) -> dict[str, Mimic]:
         """The URDF's ``<mimic>`` couplings among the model's joints, chains resolved."""
         cfg = self.config
-        mimics = urdf_mimics(cfg.urdf_path)
+        mimics = (mjcf_mimics if cfg.model_format == "mjcf" else urdf_mimics)(cfg.model_path)
         locked = cfg.locked_joints
         for follower, m in list(mimics.items()):
             if (follower in locked) != (m.leader in locked):
@@ -278,7 +299,7 @@ class HandModel:
                 )
             if follower in locked:
                 del mimics[follower]
-        return resolve_chains(mimics, moving, cfg.urdf_path)
+        return resolve_chains(mimics, moving, cfg.model_path)
 
     def _build_joint_tables(self) -> None:
         cfg, model = self.config, self.model
@@ -301,7 +322,7 @@ class HandModel:
             if name not in moving:
                 raise ConfigError(
                     f"{cfg.path}: joint {name!r} is not a moving joint of "
-                    f"{cfg.urdf_path.name}; valid joints: {moving}"
+                    f"{cfg.model_path.name}; valid joints: {moving}"
                 )
         motored = [*actuated, *cfg.torque_limits, *(j for st in styles for j in st.close_torque)]
         for name in motored:
@@ -343,20 +364,23 @@ class HandModel:
             i = model.joints[model.getJointId(name)].idx_q
             if self.q_lower[i] > self.q_upper[i]:
                 raise ConfigError(
-                    f"{cfg.urdf_path}: joint {name!r} has inverted limits: lower "
+                    f"{cfg.model_path}: joint {name!r} has inverted limits: lower "
                     f"{self.q_lower[i]:g} > upper {self.q_upper[i]:g}; swap them in the URDF"
                 )
 
     # --- surface samples ----------------------------------------------------------------------
     def _cache_key(self) -> str:
         cfg = self.config
-        meshes = sorted(set(_check_meshes(cfg, cfg.sample_surface)))
+        sampled = self.collision_model if cfg.sample_surface == "collision" else self.visual_model
+        meshes = sorted(
+            {Path(o.meshPath) for o in sampled.geometryObjects if Path(o.meshPath).is_file()}
+        )
         shape = {
             "links": self.link_names,
             "locked": cfg.locked_joints,
             "outer_surface_only": cfg.outer_surface_only,
         }
-        return cache.content_hash(cfg.urdf_path, *meshes, self.sample_params, shape)
+        return cache.content_hash(cfg.model_path, *meshes, self.sample_params, shape)
 
     def _load_or_sample(self) -> SurfaceSamples:
         key = self._cache_key()
@@ -484,7 +508,7 @@ class HandModel:
         counts = np.bincount(self.samples.link, minlength=len(self.link_names))
         return {
             "name": self.name,
-            "urdf": str(self.config.urdf_path),
+            "model": str(self.config.model_path),
             "nq": self.nq,
             "nv": self.nv,
             "actuated_dofs": int(self.actuated_dofs.sum()),

@@ -5,6 +5,7 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     name = "my_hand"
     urdf = "my_hand.urdf"                      # relative to the hand.toml folder, or
     urdf = { distribution = "pkg", path = "share/.../hand.urdf" }   # inside an installed package
+    mjcf = "my_hand.xml"                       # instead of urdf: a MuJoCo MJCF file
     palm_link = "palm"
     passive_links = ["palm"]                    # default: [palm_link]
     sample_surface = "collision"                # or "visual"
@@ -84,8 +85,8 @@ class HandConfig:
     path: Path
     """The hand.toml file."""
     name: str
-    urdf_path: Path
-    """Resolved URDF file."""
+    model_path: Path
+    """Resolved URDF or MJCF file."""
     package_dirs: tuple[Path, ...]
     """Directories searched for ``package://`` mesh URIs."""
     palm_link: str
@@ -112,6 +113,8 @@ class HandConfig:
     """Links that are never contact candidates (e.g. a forearm); they are still simulated."""
     outer_surface_only: bool = False
     """Drop surface samples buried inside another collision shape of the hand."""
+    model_format: str = "urdf"
+    """``urdf`` or ``mjcf``: which key of hand.toml named :attr:`model_path`."""
     torque_limit_set: bool = False
     """True when hand.toml sets ``[joints] torque_limit`` (False: the paper's default)."""
     extra: dict[str, Any] = field(default_factory=dict)
@@ -169,30 +172,39 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         raise ConfigError(f"{path}: not valid TOML: {err}") from err
 
     known = {
-        "name", "urdf", "palm_link", "passive_links", "sample_surface", "thumb",
+        "name", "urdf", "mjcf", "palm_link", "passive_links", "sample_surface", "thumb",
         "fingertip_links", "excluded_links", "outer_surface_only", "fingers", "joints",
         "simulation", "mount", "grasping",
     }  # fmt: skip
     unknown = sorted(set(raw) - known)
     if unknown:
         raise ConfigError(f"{path}: unknown keys {unknown}; valid keys are {sorted(known)}")
-    for key in ("urdf", "palm_link"):
-        if key not in raw:
-            raise ConfigError(f"{path}: missing required key {key!r}")
+    if ("urdf" in raw) == ("mjcf" in raw):
+        raise ConfigError(
+            f'{path}: give the hand\'s model as exactly one of urdf = "hand.urdf" or '
+            'mjcf = "hand.xml"'
+        )
+    if "palm_link" not in raw:
+        raise ConfigError(f"{path}: missing required key 'palm_link'")
 
-    urdf = raw["urdf"]
-    if isinstance(urdf, str):
-        urdf_path = (path.parent / urdf).resolve()
-        if not urdf_path.is_file():
-            raise AssetError(f"{path}: URDF {urdf_path} does not exist; fix 'urdf' in hand.toml")
-    elif isinstance(urdf, dict) and set(urdf) == {"distribution", "path"}:
-        urdf_path = _locate_in_distribution(urdf["distribution"], urdf["path"], path)
+    model_format = "urdf" if "urdf" in raw else "mjcf"
+    key = model_format
+    source = raw[key]
+    if isinstance(source, str):
+        model_path = (path.parent / source).resolve()
+        if not model_path.is_file():
+            raise AssetError(
+                f"{path}: {key.upper()} {model_path} does not exist; fix '{key}' in hand.toml"
+            )
+    elif isinstance(source, dict) and set(source) == {"distribution", "path"}:
+        model_path = _locate_in_distribution(source["distribution"], source["path"], path)
     else:
         raise ConfigError(
-            f"{path}: 'urdf' must be a path or {{ distribution = ..., path = ... }}, got {urdf!r}"
+            f"{path}: '{key}' must be a path or {{ distribution = ..., path = ... }}, "
+            f"got {source!r}"
         )
     # package://name/... URIs resolve against every ancestor of the URDF and the hand folder.
-    package_dirs = (path.parent.resolve(), *urdf_path.parents)
+    package_dirs = (path.parent.resolve(), *model_path.parents)
 
     palm = raw["palm_link"]
     surface = raw.get("sample_surface", "collision")
@@ -247,7 +259,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     return HandConfig(
         path=path.resolve(),
         name=str(raw.get("name", path.parent.name)),
-        urdf_path=urdf_path,
+        model_path=model_path,
         package_dirs=package_dirs,
         palm_link=palm,
         passive_links=_str_list(raw, "passive_links", path, [palm]),
@@ -260,6 +272,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         excluded_links=_str_list(raw, "excluded_links", path, []),
         outer_surface_only=outer,
         torque_limit_set="torque_limit" in joints,
+        model_format=model_format,
         torque_limit_default=default_limit,
         torque_limits=limits,
         damping=_number(sim.get("damping", 0.05), "simulation.damping", path),

@@ -49,6 +49,17 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_soak(args: argparse.Namespace) -> int:
+    from wholehand.loop.soak import run_soak
+
+    result = run_soak(
+        cycles=args.cycles, every=args.every, hand=args.hand, obj=args.object, grasp=args.grasp
+    )
+    print(json.dumps(result, indent=2))
+    ok = result["exceptions"] == 0 and result["torque_limit_violations"] == 0
+    return 0 if ok and result["recovered"] == result["n_injected"] else 1
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="latency benchmarks (JSON with p50/p95/p99)")
     bsub = bench.add_subparsers(dest="bench", required=True)
@@ -78,3 +89,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--estimator", default="mesh_sdf")
     p.add_argument("--allocator", default="qp")
     p.set_defaults(func=_cmd_cycle)
+
+    p = bsub.add_parser(
+        "soak",
+        help="a held grasp for many cycles with a fault every N (exceptions, limit violations, "
+        "recoveries, memory); exits 1 if any requirement fails",
+    )
+    p.add_argument("--cycles", type=int, default=100_000)
+    p.add_argument("--every", type=int, default=100, help="one fault every this many cycles")
+    p.add_argument("--hand", default="allegro_right")
+    p.add_argument("--object", default="077_rubiks_cube")
+    p.add_argument("--grasp", type=int, default=0)
+    p.set_defaults(func=_cmd_soak)

@@ -222,10 +222,13 @@ def check_observation(obs: Observation, n_q: int, n_v: int) -> None:
     ):
         return
     for name, value, n in (("q", obs.q, n_q), ("dq", obs.dq, n_v)):
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError) as err:
-            raise ObservationError(f"observation {name} is not numeric: {err}") from err
+        kind = np.asarray(value).dtype.kind
+        if kind not in "fiu":  # text that numpy would parse ("1.0") is still not a reading
+            raise ObservationError(
+                f"observation {name} is not numeric (numpy dtype kind {kind!r}); a backend must "
+                "deliver float arrays"
+            )
+        arr = np.asarray(value, dtype=float)
         if arr.shape != (n,):
             raise ObservationError(
                 f"observation {name} has shape {arr.shape}, the hand needs ({n},)"

@@ -30,6 +30,10 @@ from wholehand.models.objects import ObjectModel
 UNIT_TOL = 1e-3
 """Largest deviation of a contact normal's squared length from 1 that counts as a unit vector."""
 
+BAD_CONTACTS = "bad_contacts"
+"""Status of a cycle whose estimated contacts all had degenerate normals: no torque (the loop
+keeps the last feasible one), since "no contact" would release the grasp on an estimator fault."""
+
 EstimateAt = Literal["object_stamp", "current"]
 ESTIMATE_AT: tuple[EstimateAt, ...] = ("object_stamp", "current")
 
@@ -52,7 +56,8 @@ class ForceRegulation(Stage):
 
     A contact whose normal is not a unit vector (an SDF gradient that vanishes inside a thin
     object, NaN) never reaches the allocator: it is dropped and counted in
-    :attr:`degenerate_normals`, so it cannot count toward the minimum squeeze.
+    :attr:`degenerate_normals`, so it cannot count toward the minimum squeeze; when every
+    contact of a cycle is such, the cycle gives no torque (status :data:`BAD_CONTACTS`).
     """
 
     def __init__(
@@ -93,6 +98,8 @@ class ForceRegulation(Stage):
         unit = np.abs(np.einsum("ij,ij->i", n, n) - 1.0) < UNIT_TOL  # False for NaN
         if not unit.all():
             self.degenerate_normals += int((~unit).sum())
+            if not unit.any():
+                return StageOutput(None, BAD_CONTACTS, contacts.select(unit))
             contacts = contacts.select(unit)
         if then is not now:
             contacts = contacts.in_joint_frames(then).moved_to(now)

@@ -227,6 +227,16 @@ def test_a_nan_vertex_is_named_not_reported_as_holes(tmp_path: Path) -> None:
         ObjectModel.from_mesh(path, repair=True)
 
 
+def test_a_huge_mesh_is_refused_with_the_fix(tmp_path: Path, monkeypatch) -> None:
+    import wholehand.models.objects as objects
+
+    path = tmp_path / "scan.stl"
+    trimesh.creation.icosphere(subdivisions=3, radius=0.05).export(path)  # 1280 faces
+    monkeypatch.setattr(objects, "MAX_MESH_FACES", 1000)
+    with pytest.raises(AssetError, match="has 1280 triangles, more than the 1000.*decimate"):
+        ObjectModel.from_mesh(path)
+
+
 def test_non_watertight_mesh_needs_explicit_repair(tmp_path: Path) -> None:
     box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
     path = write_mesh(trimesh.Trimesh(box.vertices, box.faces[1:]), tmp_path / "open_box.stl")

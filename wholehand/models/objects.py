@@ -73,6 +73,11 @@ scaled twice or in the wrong unit."""
 MAX_EXTENT: float = 2.0
 """Largest plausible largest extent of a graspable object [m]; above, probably millimetres."""
 
+MAX_MESH_FACES: int = 200_000
+"""Largest object mesh accepted [triangles]. A grasped object needs no more (the YCB scans have
+at most 16 k after repair); a 500 k-face scan took minutes and gigabytes in the convex
+decomposition and the SDF. A larger mesh is refused with the fix (decimate it first)."""
+
 KINDS = ("mesh", "box", "sphere", "cylinder", "capsule")
 """Object kinds: a triangle mesh or one of the primitives."""
 
@@ -485,6 +490,13 @@ def _read_mesh(path: Path) -> trimesh.Trimesh:
         raise AssetError(f"cannot read mesh file {str(path)!r}: {err}") from err
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise AssetError(f"mesh file {str(path)!r} contains no triangles")
+    if len(mesh.faces) > MAX_MESH_FACES:
+        raise AssetError(
+            f"mesh file {str(path)!r} has {len(mesh.faces)} triangles, more than the "
+            f"{MAX_MESH_FACES} an object mesh may have (its convex decomposition and SDF would "
+            "take minutes and gigabytes); decimate it first, e.g. with trimesh: "
+            "mesh.simplify_quadric_decimation(face_count=50000) (pip install fast-simplification)"
+        )
     # Checked before processing, which would silently drop such vertices and leave holes.
     bad = np.flatnonzero(~np.isfinite(np.asarray(mesh.vertices)).all(axis=1))
     if bad.size:

@@ -284,9 +284,8 @@ def test_interrupted_run_writes_a_balanced_partial_result(tmp_path, monkeypatch,
     assert first_repeat_1 == len(order) // 5  # every (object, grasp, theta, K) once first
 
 
-def test_sigterm_ends_a_run_like_ctrl_c(tmp_path, monkeypatch, capsys):
-    """SIGTERM (a scheduler stopping the job) writes the finished rows and says how to go on;
-    the previous SIGTERM handler is back afterwards."""
+def _sigterm_after_three_trials(monkeypatch) -> None:
+    """Trials that finish at once, with a SIGTERM to this process as the fourth starts."""
     ran: list[int] = []
 
     def fake_trial(job):
@@ -297,6 +296,12 @@ def test_sigterm_ends_a_run_like_ctrl_c(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setitem(runner.JOB_KINDS, "trial", fake_trial)
     monkeypatch.setattr(runner, "_warm_caches", lambda jobs: None)
+
+
+def test_sigterm_ends_a_run_like_ctrl_c(tmp_path, monkeypatch, capsys):
+    """SIGTERM (a scheduler stopping the job) writes the finished rows and says how to go on;
+    the previous SIGTERM handler is back afterwards."""
+    _sigterm_after_three_trials(monkeypatch)
     before = signal.getsignal(signal.SIGTERM)
     result = run_study(get_study("perturbation"), "full", tmp_path, executor="serial",
                        progress=False)  # fmt: skip
@@ -308,22 +313,13 @@ def test_sigterm_ends_a_run_like_ctrl_c(tmp_path, monkeypatch, capsys):
 def test_a_second_sigterm_while_stopping_does_not_break_off_the_writes(tmp_path, monkeypatch):
     """A scheduler that sends SIGTERM twice: the second arrives while the finished rows are
     being written, and is ignored."""
-    ran: list[int] = []
-
-    def fake_trial(job):
-        if len(ran) == 3:
-            os.kill(os.getpid(), signal.SIGTERM)
-        ran.append(job.index)
-        return {"held": True, "stages_total": 1, "failure_stage": "", "error": "", "cycles": 1}
-
+    _sigterm_after_three_trials(monkeypatch)
     write = runner.write_csv
 
     def write_after_a_second_sigterm(rows, path):
         os.kill(os.getpid(), signal.SIGTERM)
         return write(rows, path)
 
-    monkeypatch.setitem(runner.JOB_KINDS, "trial", fake_trial)
-    monkeypatch.setattr(runner, "_warm_caches", lambda jobs: None)
     monkeypatch.setattr(runner, "write_csv", write_after_a_second_sigterm)
     result = run_study(get_study("perturbation"), "full", tmp_path, executor="serial",
                        progress=False)  # fmt: skip

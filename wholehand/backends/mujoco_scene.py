@@ -52,7 +52,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.errors import AssetError, ConfigError
-from wholehand.models.hand import resolve_mesh_uri
+from wholehand.models.mesh_files import resolve_mesh_uri
 from wholehand.models.poses import check_pose
 
 if TYPE_CHECKING:

@@ -10,10 +10,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from urllib.parse import unquote, urlparse
 
 import numpy as np
 import numpy.typing as npt
@@ -30,6 +28,7 @@ from wholehand.models.coupling import (
     urdf_mimics,
 )
 from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
+from wholehand.models.mesh_files import check_meshes
 from wholehand.models.outer_surface import find_buried_samples
 from wholehand.models.poses import pose_from_xyz_rpy
 from wholehand.models.surface import link_mesh_in_joint_frame, sample_link_surface
@@ -62,51 +61,6 @@ class SurfaceSamples:
 
     def __len__(self) -> int:
         return int(self.p_joint.shape[0])
-
-
-def _mesh_uris(model_path: Path, surface: str) -> list[str]:
-    root = ET.parse(model_path).getroot()
-    return [
-        m.get("filename", "")
-        for link in root.iter("link")
-        for elem in link.iter(surface)
-        for m in elem.iter("mesh")
-    ]
-
-
-def resolve_mesh_uri(uri: str, model_path: Path, package_dirs: tuple[Path, ...]) -> Path | None:
-    """The file a URDF mesh URI names (``package://``, ``file://`` or relative), None if absent."""
-    if uri.startswith("package://"):
-        rel = uri[len("package://") :]
-        for d in package_dirs:
-            if (d / rel).is_file():
-                return d / rel
-        return None
-    if uri.startswith("file://"):
-        path = Path(unquote(urlparse(uri).path))
-    else:
-        path = model_path.parent / uri
-    return path if path.is_file() else None
-
-
-def _check_meshes(cfg: HandConfig, surface: str) -> list[Path]:
-    """The mesh files of a URDF's ``surface`` geometry; a missing one raises AssetError naming
-    every folder searched. An MJCF's meshes are found by Pinocchio's parser (see
-    :meth:`HandModel._build_geometry`)."""
-    if cfg.model_format == "mjcf":
-        return []
-    found = []
-    for uri in _mesh_uris(cfg.model_path, surface):
-        path = resolve_mesh_uri(uri, cfg.model_path, cfg.package_dirs)
-        if path is None:
-            dirs = "\n  ".join(str(d) for d in cfg.package_dirs)
-            raise AssetError(
-                f"{cfg.model_path}: {surface} mesh {uri!r} not found. Searched relative to the "
-                f"URDF and in the package directories:\n  {dirs}\nInstall the package that ships "
-                "it or fix the filename in the URDF."
-            )
-        found.append(path)
-    return found
 
 
 class HandModel:
@@ -184,7 +138,7 @@ class HandModel:
         self, model: pin.Model, kind: pin.GeometryType, surface: str
     ) -> pin.GeometryModel:
         cfg = self.config
-        _check_meshes(cfg, surface)
+        check_meshes(cfg, surface)
         try:
             if cfg.model_format == "mjcf":  # collision: geoms with contype or conaffinity set
                 geometry = pin.buildGeomFromMJCF(model, str(cfg.model_path), kind)

@@ -330,7 +330,7 @@ def _edit_hand(
         geom.priority = 0
         geom.margin = 0.0
         geom.gap = 0.0
-    for equality in spec.equalities:  # URDF <mimic> couplings, imported as joint equalities
+    for equality in spec.equalities:  # couplings: an MJCF's own, or URDF <mimic> as imported
         equality.solref = list(opts.solref)
     for dof in np.flatnonzero(hand.actuated_dofs):
         name = hand.joint_names[int(dof)]

@@ -1,6 +1,7 @@
-"""The grasp file format (``objects/grasps/<hand>/<object>.json`` for power grasps,
-``objects/grasps/<hand>/<style>/<object>.json`` for another style of hand.toml's ``[grasping]``,
-e.g. ``precision``).
+"""The grasp file format: ``objects/grasps/<hand>/<object>.json`` for a shipped hand's power
+grasps, ``objects/grasps/<hand>/<style>/<object>.json`` for another style of hand.toml's
+``[grasping]`` (e.g. ``precision``); a user's hand keeps the same layout in the folder
+``grasps/`` beside its hand.toml (:func:`hand_grasps_dir`).
 
 A grasp is a hand base pose in the object frame plus joint angles by joint name, so that grasps
 from any synthesiser (Dexonomy, DexGraspNet, ...) can be converted: express the hand root pose

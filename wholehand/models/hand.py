@@ -241,7 +241,8 @@ class HandModel:
         self.link_finger = [finger_of.get(n, "") for n in self.link_names]
 
     def _couplings(self, moving: list[str]) -> dict[str, Mimic]:
-        """The URDF's ``<mimic>`` couplings among the model's joints, chains resolved."""
+        """The model file's couplings (URDF ``<mimic>``, MJCF joint equalities) among the
+        model's joints, chains resolved."""
         cfg = self.config
         mimics = (mjcf_mimics if cfg.model_format == "mjcf" else urdf_mimics)(cfg.model_path)
         locked = cfg.locked_joints
@@ -279,11 +280,12 @@ class HandModel:
                     f"{cfg.model_path.name}; valid joints: {moving}"
                 )
         motored = [*actuated, *cfg.torque_limits, *(j for st in styles for j in st.close_torque)]
+        declared = "URDF <mimic>" if cfg.model_format == "urdf" else "MJCF joint equality"
         for name in motored:
             if name in self.mimics:
                 leader = self.mimics[name].leader
                 raise ConfigError(
-                    f"{cfg.path}: joint {name!r} follows {leader!r} (URDF <mimic>): it has no "
+                    f"{cfg.path}: joint {name!r} follows {leader!r} ({declared}): it has no "
                     f"motor of its own; name {leader!r} instead (in [joints] actuated, "
                     "torque_limit or a close_torque)"
                 )

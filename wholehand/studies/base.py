@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -124,13 +125,16 @@ def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
 
 
 def trials_label(summary: dict[str, Any]) -> str:
-    """``"<size>, N trials"``, or ``"<size>, N of M trials"`` for a partial run."""
+    """``"<size>, N trials"``, or ``"<size>, N of M trials"`` for a partial run, preceded by
+    the hand's name when it is not the default one."""
     n, planned = summary["n_trials"], summary.get("n_planned", summary["n_trials"])
-    return (
+    label = (
         f"{summary['size']}, {n} trials"
         if n == planned
         else f"{summary['size']}, {n} of {planned} trials"
     )
+    hand = summary.get("hand", DEFAULT_HAND)
+    return label if hand == DEFAULT_HAND else f"{Path(hand).name}, {label}"
 
 
 def save_success_figure(fig: Any, ax: Any, path: Path, title: str | None = None) -> None:
@@ -140,7 +144,7 @@ def save_success_figure(fig: Any, ax: Any, path: Path, title: str | None = None)
     ax.set_ylabel("success [%]")
     ax.set_ylim(-5, 105)
     if title:
-        ax.set_title(title)
+        ax.set_title("\n".join(textwrap.wrap(title, 48)), fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

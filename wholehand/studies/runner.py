@@ -601,6 +601,7 @@ def run_study(
         summary = {
             "study": study.name,
             "description": study.description,
+            "hand": str(hand),
             "size": size,
             "seed": seed,
             "complete": complete,

@@ -1,8 +1,8 @@
 """A MuJoCo scene of one hand and one free object, built with ``mujoco.MjSpec``.
 
-The hand comes from its URDF (``package://`` mesh URIs resolved, visual geometry discarded, fixed
-links kept as bodies so every Pinocchio link has a MuJoCo body of the same name) and is then
-edited in the spec:
+The hand comes from its URDF or MJCF (:mod:`wholehand.backends.hand_spec`: every Pinocchio link
+has a MuJoCo body of the same name, visual-only geometry is discarded) and is then edited in the
+spec:
 
 - its root link (the Pinocchio base ``b``) is welded to the world at ``hand.wMb`` (``base="fixed"``)
   or is a mocap body that can be moved kinematically (``base="mocap"``);
@@ -43,7 +43,6 @@ from __future__ import annotations
 import functools
 import logging
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -51,8 +50,8 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
 from wholehand.errors import AssetError, ConfigError
-from wholehand.models.mesh_files import resolve_mesh_uri
 from wholehand.models.poses import check_pose
 
 if TYPE_CHECKING:
@@ -181,75 +180,6 @@ class HandObjectScene:
 
 
 # --- hand ---------------------------------------------------------------------------------------
-def _urdf_for_mujoco(hand: HandModel) -> str:
-    """The hand's URDF as a string MuJoCo can compile: absolute mesh paths, visuals removed (only
-    collision geometry is simulated), and a ``<mujoco><compiler/></mujoco>`` block (balanced
-    inertias, fixed links kept as bodies)."""
-    cfg = hand.config
-    try:
-        root = ET.parse(cfg.model_path).getroot()
-    except (ET.ParseError, OSError) as err:
-        raise AssetError(f"{cfg.model_path}: cannot read the URDF: {err}") from err
-    for link in root.iter("link"):
-        for visual in list(link.findall("visual")):
-            link.remove(visual)
-    for mesh in root.iter("mesh"):
-        uri = mesh.get("filename", "")
-        path = resolve_mesh_uri(uri, cfg.model_path, cfg.package_dirs)
-        if path is None:
-            raise AssetError(
-                f"{cfg.model_path}: collision mesh {uri!r} not found in the package directories "
-                f"{[str(d) for d in cfg.package_dirs]}; install the package that ships it"
-            )
-        mesh.set("filename", str(path.resolve()))
-    for old in root.findall("mujoco"):
-        root.remove(old)
-    block = ET.SubElement(root, "mujoco")
-    ET.SubElement(
-        block,
-        "compiler",
-        balanceinertia="true",
-        fusestatic="false",
-        strippath="false",
-    )
-    return ET.tostring(root, encoding="unicode")
-
-
-def _mjcf_hand_spec(hand: HandModel) -> mujoco.MjSpec:
-    """An MJCF hand as the scene needs it (its one root body is the hand base, as a URDF's root
-    link): its actuators, keyframes and sensors removed (the scene adds its own motors and an
-    object), static world geoms (a floor) removed, and its visual-only geoms (contype =
-    conaffinity = 0, as Pinocchio reads them) removed."""
-    path = hand.config.model_path
-    try:
-        spec = mujoco.MjSpec.from_file(str(path))
-    except ValueError as err:
-        raise AssetError(f"{path}: MuJoCo cannot load this MJCF: {err}") from err
-    for element in [*spec.actuators, *spec.keys, *spec.sensors, *spec.worldbody.geoms]:
-        spec.delete(element)
-    for geom in list(spec.geoms):
-        if geom.contype == 0 and geom.conaffinity == 0:
-            spec.delete(geom)
-    return spec
-
-
-def _load_hand_spec(hand: HandModel) -> mujoco.MjSpec:
-    if hand.config.model_format == "mjcf":
-        spec = _mjcf_hand_spec(hand)
-        spec.compiler.discardvisual = False
-        return spec
-    try:
-        spec = mujoco.MjSpec.from_string(_urdf_for_mujoco(hand))
-    except ValueError as err:
-        raise AssetError(
-            f"{hand.config.model_path}: MuJoCo cannot parse this URDF: {err}; check the URDF "
-            "(hand.toml names it) and its mesh files"
-        ) from err
-    # The URDF's visuals are already stripped; keep the visual-only object mesh if one is added.
-    spec.compiler.discardvisual = False
-    return spec
-
-
 def _set_pose(element: Any, M: FloatArray) -> None:
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(M[:3, :3]).ravel())
@@ -275,28 +205,6 @@ def _check_hand(hand: HandModel) -> None:
         raise ConfigError(f"{hand.config.path}: hand {hand.name!r} has no actuated joint")
 
 
-def _weld_locked_joints(spec: mujoco.MjSpec, hand: HandModel) -> None:
-    """Replace each locked joint by a fixed offset of its body at the locked value, as the
-    hand model does: rotate the body about a hinge's axis, or shift it along a slide's."""
-    for name, value in hand.config.locked_joints.items():
-        joint = spec.joint(name)
-        if joint is None:
-            raise AssetError(f"{hand.config.model_path}: locked joint {name!r} has no MuJoCo joint")
-        body, axis = joint.parent, np.asarray(joint.axis, dtype=float)
-        axis = axis / np.linalg.norm(axis)
-        quat = np.asarray(body.quat, dtype=float)
-        if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
-            turn, turned = np.zeros(4), np.zeros(4)
-            mujoco.mju_axisAngle2Quat(turn, axis, float(value))
-            mujoco.mju_mulQuat(turned, quat, turn)
-            body.quat = turned.tolist()
-        else:  # slide: the axis is in the body frame
-            shift = np.zeros(3)
-            mujoco.mju_rotVecQuat(shift, axis * float(value), quat)
-            body.pos = (np.asarray(body.pos, dtype=float) + shift).tolist()
-        spec.delete(joint)
-
-
 def _edit_hand(
     spec: mujoco.MjSpec, hand: HandModel, wMb: FloatArray, opts: SceneOptions, mu: float
 ) -> None:
@@ -311,7 +219,7 @@ def _edit_hand(
     base.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # the quaternion just set
     if opts.base == "mocap":
         base.mocap = True
-    _weld_locked_joints(spec, hand)
+    weld_locked_joints(spec, hand)
     for joint in spec.joints:
         joint.damping = [hand.config.damping, 0.0, 0.0]  # linear viscous damping only
         joint.armature = hand.config.armature
@@ -574,7 +482,7 @@ def build_scene(
     if not (math.isfinite(mu) and mu >= 0):
         raise ConfigError(f"object {obj.name!r}: friction must be a number >= 0, got {mu!r}")
 
-    spec = _load_hand_spec(hand)
+    spec = load_hand_spec(hand)
     spec.modelname = f"{hand.name}_{obj.name}".replace(":", "_")
     _edit_hand(spec, hand, wMb, opts, mu)
     parts = _add_object(spec, obj, wMo, opts, mu)

@@ -182,3 +182,17 @@ def test_every_rejected_candidate_has_a_reason(allegro):
     assert grasps == [] and info["candidates_tried"] == 3
     assert sum(info["rejected"].values()) == 3
     assert all(isinstance(reason, str) and reason for reason in info["rejected"])
+
+
+def test_a_power_grasp_without_a_thumb_is_refused_with_the_fix(tmp_path):
+    from toy_hand import write_toy_hand
+
+    from wholehand.grasps.generate import GraspGenerator
+    from wholehand.models.hand import load_hand
+
+    folder = write_toy_hand(tmp_path / "toy")
+    toml = folder / "hand.toml"
+    toml.write_text(toml.read_text().replace('thumb = "thumb"\n', "", 1))
+    hand = load_hand(folder)
+    with pytest.raises(ConfigError, match="this hand names no thumb; set thumb ="):
+        GraspGenerator(hand, load_object("sphere:0.03"))

@@ -152,6 +152,12 @@ class GraspGenerator:
                 f"{cfg.path}: {table} close_torque is empty; the grasp generator needs the "
                 "closing torque of each flexion joint"
             )
+        if not self.style.fingers and cfg.thumb is None:
+            raise ConfigError(
+                f"{cfg.path}: a power grasp needs the thumb and two other fingers to touch, and "
+                'this hand names no thumb; set thumb = "<a key of [fingers]>", or define a style '
+                "that names the fingers that must touch ([grasping.precision] fingers = [...])"
+            )
         self.q_pre, self.tau_close, self.closing = style_arrays(hand, self.style)
         self.backend = registry.load("backends", backend, hand=hand, obj=obj, q_init=self.q_pre)
         self.kin = HandKinematics(hand)

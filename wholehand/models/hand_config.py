@@ -187,8 +187,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     if "palm_link" not in raw:
         raise ConfigError(f"{path}: missing required key 'palm_link'")
 
-    model_format = "urdf" if "urdf" in raw else "mjcf"
-    key = model_format
+    key = model_format = "urdf" if "urdf" in raw else "mjcf"
     source = raw[key]
     if isinstance(source, str):
         model_path = (path.parent / source).resolve()

@@ -43,10 +43,10 @@ class BuriedSamples:
     """Names of the collision shapes that are not watertight and were not checked."""
 
 
-def _shapes(
-    geometry: pin.GeometryModel,
-) -> tuple[list[trimesh.Trimesh], list[int], list[str], list[str]]:
-    meshes, joints, names, skipped = [], [], [], []
+def _shapes(geometry: pin.GeometryModel) -> tuple[list[trimesh.Trimesh], list[int], list[str]]:
+    """Closed collision shapes in their parent joints' frames, those joints, and the names of
+    the shapes that are not closed."""
+    meshes, joints, skipped = [], [], []
     for obj in geometry.geometryObjects:
         mesh = geometry_to_trimesh(obj)
         if not mesh.is_watertight:
@@ -55,8 +55,7 @@ def _shapes(
         mesh.apply_transform(obj.placement.homogeneous)  # into the parent joint's frame
         meshes.append(mesh)
         joints.append(int(obj.parentJoint))
-        names.append(obj.name)
-    return meshes, joints, names, skipped
+    return meshes, joints, skipped
 
 
 def _inside(mesh: trimesh.Trimesh, points: FloatArray) -> BoolArray:
@@ -88,7 +87,7 @@ def find_buried_samples(
             joints' indices.
         seed: seeds the random configurations.
     """
-    meshes, shape_joints, _, skipped = _shapes(geometry)
+    meshes, shape_joints, skipped = _shapes(geometry)
     buried = np.ones(len(p_joint), dtype=bool)
     if not meshes:
         return BuriedSamples(np.zeros(len(p_joint), dtype=bool), skipped)

@@ -60,6 +60,15 @@ def _cmd_soak(args: argparse.Namespace) -> int:
     return 0 if ok and result["recovered"] == result["n_injected"] else 1
 
 
+def _cmd_thin_walls(args: argparse.Namespace) -> int:
+    from wholehand.models.walls_bench import run_thin_wall_benchmark
+
+    walls = tuple(float(w) for w in args.walls_mm.split(","))
+    result = run_thin_wall_benchmark(walls_mm=walls, points=args.points, seed=args.seed)
+    print(json.dumps(result, indent=2))
+    return 0
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="latency benchmarks (JSON with p50/p95/p99)")
     bsub = bench.add_subparsers(dest="bench", required=True)
@@ -101,3 +110,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object", default="077_rubiks_cube")
     p.add_argument("--grasp", type=int, default=0)
     p.set_defaults(func=_cmd_soak)
+
+    p = bsub.add_parser(
+        "thin-walls",
+        help="SDF sign and normal errors on tilted plates and shells, default spacing vs auto",
+    )
+    p.add_argument("--walls-mm", default="2,3,4,5", help="comma-separated wall thicknesses [mm]")
+    p.add_argument("--points", type=int, default=4000, help="points per shape")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_thin_walls)

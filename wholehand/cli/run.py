@@ -17,6 +17,7 @@ from wholehand.loop.record import RunRecord
 
 if TYPE_CHECKING:
     from wholehand.loop.control_loop import Cycle, Observer
+    from wholehand.models.objects import ObjectModel
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -51,6 +52,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--d-thresh", type=float, default=None, help="contact threshold [m] (default 0.01)"
     )
     p.add_argument("--gravity", action="store_true", help="turn gravity on (off in the paper)")
+    p.add_argument(
+        "--sdf-spacing",
+        default=None,
+        help="object SDF node spacing [m], or 'auto' to resolve its thinnest wall "
+        "(default 0.002; see docs/reliability.md)",
+    )
     g = p.add_argument_group(
         "object tracking",
         "how the object pose reaches the controller (default: exact, every cycle)",
@@ -125,6 +132,24 @@ def tracking_options(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def _object(name: str, sdf_spacing: str | None) -> ObjectModel | None:
+    """The object with ``--sdf-spacing`` applied (None: the trial loads it as registered)."""
+    if sdf_spacing is None:
+        return None
+    from wholehand.models.objects import AUTO_SPACING, load_object
+
+    if sdf_spacing == AUTO_SPACING:
+        return load_object(name, sdf_spacing=AUTO_SPACING)
+    try:
+        spacing = float(sdf_spacing)
+    except ValueError:
+        raise ConfigError(
+            f"--sdf-spacing {sdf_spacing!r} must be a spacing in metres (e.g. 0.001) or "
+            f"{AUTO_SPACING!r}"
+        ) from None
+    return load_object(name, sdf_spacing=spacing)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from wholehand.loop.trial import TrialSpec, run_trial
 
@@ -162,7 +187,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         estimate_at=args.estimate_at,
     )
     observers = [live_view(spec, args.view_every)] if args.view else []
-    record = run_trial(spec, observers=observers)
+    record = run_trial(spec, obj=_object(obj, args.sdf_spacing), observers=observers)
     if args.save:
         print(f"run record: {record.save(Path(args.save))}")
     if args.record_html:

@@ -34,7 +34,14 @@ import trimesh
 
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
-from wholehand.models.sdf import DEFAULT_PADDING, DEFAULT_SPACING, SignedDistanceGrid
+from wholehand.models.sdf import (
+    DEFAULT_PADDING,
+    DEFAULT_SPACING,
+    MAX_GRID_NODES,
+    SignedDistanceGrid,
+    grid_layout,
+)
+from wholehand.models.walls import CELLS_PER_WALL, spacing_for_wall, thinnest_wall
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -79,6 +86,9 @@ at most 16 k after repair); a 500 k-face scan took minutes and gigabytes in the 
 decomposition and the SDF. A larger mesh is refused with the fix (decimate it first)."""
 
 KINDS = ("mesh", "box", "sphere", "cylinder", "capsule")
+
+AUTO_SPACING = "auto"
+"""``sdf_spacing`` value that picks the grid spacing from the object's thinnest wall."""
 """Object kinds: a triangle mesh or one of the primitives."""
 
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
@@ -116,8 +126,9 @@ class ObjectModel:
     """Primitive dimensions [m]: box ``size`` (x, y, z full lengths); sphere ``radius``;
     cylinder ``radius``, ``height`` (along z); capsule ``radius``, ``length`` (of the cylindrical
     part, along z, between the hemisphere centres). Empty for meshes."""
-    sdf_spacing: float = DEFAULT_SPACING
-    """Node spacing of the SDF grid [m]."""
+    sdf_spacing: float | str = DEFAULT_SPACING
+    """Node spacing of the SDF grid [m], or ``"auto"``: fine enough for the object's thinnest
+    wall (:attr:`grid_spacing`)."""
     sdf_padding: float = DEFAULT_PADDING
     """Margin of the SDF grid around the mesh's bounding box [m]."""
 
@@ -146,8 +157,13 @@ class ObjectModel:
             raise ConfigError(
                 f"{where}: inertia must be positive semi-definite, got {inertia.tolist()}"
             )
-        if not (np.isfinite(self.sdf_spacing) and self.sdf_spacing > 0.0):
-            raise ConfigError(f"{where}: sdf_spacing must be > 0 [m], got {self.sdf_spacing!r}")
+        spacing = self.sdf_spacing
+        if spacing != AUTO_SPACING and not (
+            isinstance(spacing, (int, float)) and np.isfinite(spacing) and spacing > 0.0
+        ):
+            raise ConfigError(
+                f"{where}: sdf_spacing must be > 0 [m] or {AUTO_SPACING!r}, got {spacing!r}"
+            )
         if not (np.isfinite(self.sdf_padding) and self.sdf_padding >= 0.0):
             raise ConfigError(f"{where}: sdf_padding must be >= 0 [m], got {self.sdf_padding!r}")
         com.flags.writeable = False
@@ -160,9 +176,36 @@ class ObjectModel:
     # --- derived quantities --------------------------------------------------------------------
     @functools.cached_property
     def sdf(self) -> SignedDistanceGrid:
-        """The signed distance grid of :attr:`mesh` (object frame), built on first use (about a
-        second for a 16k-face mesh at 2 mm) and cached on disk by content hash."""
-        return SignedDistanceGrid.from_mesh(self.mesh, self.sdf_spacing, self.sdf_padding)
+        """The signed distance grid of :attr:`mesh` (object frame) at :attr:`grid_spacing`,
+        built on first use and cached on disk by content hash."""
+        return SignedDistanceGrid.from_mesh(self.mesh, self.grid_spacing, self.sdf_padding)
+
+    @functools.cached_property
+    def thinnest_wall(self) -> float:
+        """Wall thickness [m] that 2 % of the surface is thinner than
+        (:func:`wholehand.models.walls.thinnest_wall`; ray casting, about a second)."""
+        return thinnest_wall(self.mesh)
+
+    @functools.cached_property
+    def grid_spacing(self) -> float:
+        """The SDF node spacing [m]: ``sdf_spacing``, or for ``"auto"`` a third of the thinnest
+        wall, between ``MIN_AUTO_SPACING`` and ``DEFAULT_SPACING``, coarsened (with a warning)
+        where the grid would pass ``MAX_GRID_NODES``."""
+        if self.sdf_spacing != AUTO_SPACING:
+            return float(self.sdf_spacing)
+        spacing = spacing_for_wall(self.thinnest_wall, DEFAULT_SPACING)
+        _, shape = grid_layout(np.asarray(self.mesh.vertices), spacing, self.sdf_padding)
+        nodes = float(np.prod(np.asarray(shape, dtype=np.float64)))
+        if nodes > MAX_GRID_NODES:
+            coarser = spacing * (nodes / MAX_GRID_NODES) ** (1.0 / 3.0) * 1.01
+            log.warning(
+                "%s: a grid fine enough for its %.2f mm walls (%.2f mm spacing) would pass %d "
+                "nodes; using %.2f mm, which resolves walls of %.2f mm and up",
+                self.name, self.thinnest_wall * 1e3, spacing * 1e3, MAX_GRID_NODES,
+                coarser * 1e3, coarser * CELLS_PER_WALL * 1e3,
+            )  # fmt: skip
+            spacing = coarser
+        return spacing
 
     @property
     def volume(self) -> float:
@@ -204,7 +247,7 @@ class ObjectModel:
         *,
         density: float | None = None,
         name: str | None = None,
-        sdf_spacing: float = DEFAULT_SPACING,
+        sdf_spacing: float | str = DEFAULT_SPACING,
         sdf_padding: float = DEFAULT_PADDING,
     ) -> ObjectModel:
         """A box of full side lengths ``size`` = (x, y, z) [m] centred at the origin.
@@ -240,7 +283,7 @@ class ObjectModel:
         *,
         density: float | None = None,
         name: str | None = None,
-        sdf_spacing: float = DEFAULT_SPACING,
+        sdf_spacing: float | str = DEFAULT_SPACING,
         sdf_padding: float = DEFAULT_PADDING,
     ) -> ObjectModel:
         """A sphere of ``radius`` [m] centred at the origin (icosphere mesh,
@@ -272,7 +315,7 @@ class ObjectModel:
         *,
         density: float | None = None,
         name: str | None = None,
-        sdf_spacing: float = DEFAULT_SPACING,
+        sdf_spacing: float | str = DEFAULT_SPACING,
         sdf_padding: float = DEFAULT_PADDING,
     ) -> ObjectModel:
         """A solid cylinder of ``radius`` and ``height`` [m] along z, centred at the origin
@@ -306,7 +349,7 @@ class ObjectModel:
         *,
         density: float | None = None,
         name: str | None = None,
-        sdf_spacing: float = DEFAULT_SPACING,
+        sdf_spacing: float | str = DEFAULT_SPACING,
         sdf_padding: float = DEFAULT_PADDING,
     ) -> ObjectModel:
         """A capsule: a cylinder of ``radius`` and ``length`` [m] along z (the distance between
@@ -350,7 +393,7 @@ class ObjectModel:
         inertia: FloatArray,
         mass_note: str,
         name: str,
-        sdf_spacing: float,
+        sdf_spacing: float | str,
         sdf_padding: float,
     ) -> ObjectModel:
         _check_extent(mesh, name)
@@ -379,7 +422,7 @@ class ObjectModel:
         repair: bool = False,
         name: str | None = None,
         *,
-        sdf_spacing: float = DEFAULT_SPACING,
+        sdf_spacing: float | str = DEFAULT_SPACING,
         sdf_padding: float = DEFAULT_PADDING,
         mass_source: str | None = None,
     ) -> ObjectModel:
@@ -393,7 +436,7 @@ class ObjectModel:
             repair: repair a mesh that is not watertight (:func:`repair_mesh`); without it such a
                 mesh raises :class:`AssetError`.
             name: object name; the file's stem by default.
-            sdf_spacing: SDF node spacing [m].
+            sdf_spacing: SDF node spacing [m], or ``"auto"`` (:attr:`ObjectModel.grid_spacing`).
             sdf_padding: SDF margin around the mesh [m].
             mass_source: where ``mass`` (or ``density``) comes from, recorded in ``source``.
 
@@ -426,7 +469,7 @@ class ObjectModel:
         friction: float = DEFAULT_FRICTION,
         repair: bool = False,
         *,
-        sdf_spacing: float = DEFAULT_SPACING,
+        sdf_spacing: float | str = DEFAULT_SPACING,
         sdf_padding: float = DEFAULT_PADDING,
         mass_source: str | None = None,
         origin: str = "in-memory mesh",

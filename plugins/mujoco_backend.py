@@ -198,6 +198,8 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         ignored. A target group's PD law (:mod:`wholehand.loop.command`) is evaluated before
         every MuJoCo step on the state of that step."""
         tau = _vector(command.tau, self.hand.nv, "tau")
+        if command.base is not None:
+            self.set_base_pose(command.base)
         self._tau = tau
         self._targets = None
         if command.targets:

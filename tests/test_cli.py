@@ -59,6 +59,8 @@ def test_run_takes_grasp_type_and_backend_options(capsys):
         (["run", "--rate", "1e-3"], "gives no cycle in phase 'settle'"),
         (["run", "--seed", "-1"], "seed must be an integer >= 0, got -1"),
         (["run", "--grasps", "no_such.json"], "no_such.json: cannot read the object"),
+        (["reach", "--seed", "-1"], "--seed -1 must be an integer >= 0"),
+        (["reach", "--duration", "0"], "--duration 0.0 must be > 0 [s]"),
         (["run", "--sdf-spacing", "fine"], "--sdf-spacing 'fine' must be a spacing in metres"),
         (["run", "--sdf-spacing", "-1"], "sdf_spacing must be > 0 [m] or 'auto', got -1.0"),
     ],

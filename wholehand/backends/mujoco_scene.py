@@ -51,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
+from wholehand.backends.table import Table
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models.poses import check_pose
 
@@ -80,6 +81,8 @@ HAND_BIT = 1
 """contype bit of hand geoms."""
 OBJECT_BIT = 2
 """contype bit of object geoms."""
+TABLE_BIT = 4
+"""contype bit of the table (it collides with the hand and the object)."""
 
 CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
 BASES = ("fixed", "mocap")
@@ -119,6 +122,8 @@ class SceneOptions:
     """Newton solver iterations per step (upper bound)."""
     visual_mesh: bool = False
     """Also add the original object mesh as a visual-only geom (group 2), for viewers."""
+    table: Table | None = None
+    """A table under the object (:class:`~wholehand.backends.table.Table`); None: none."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.timestep, (int, float)) and 0.0 < self.timestep <= 0.01):
@@ -272,10 +277,11 @@ def _principal_inertia(obj: ObjectModel) -> tuple[FloatArray, FloatArray]:
     return moments, quat
 
 
-def _add_object_geoms(
+def add_object_geoms(
     spec: mujoco.MjSpec, body: Any, obj: ObjectModel, opts: SceneOptions, mu: float
 ) -> int:
-    """Add the collision geoms of the object; return the number of convex parts (0: primitive)."""
+    """Add the collision geoms of the object to ``body``; return the number of convex parts
+    (0: a primitive). Geoms are named ``object_geom`` or ``object_part_<i>``."""
     common = {
         "contype": OBJECT_BIT,
         "conaffinity": HAND_BIT,
@@ -360,7 +366,7 @@ def _add_object(
     body.ipos = com.tolist()
     body.iquat = iquat.tolist()
     body.inertia = moments.tolist()
-    parts = _add_object_geoms(spec, body, obj, opts, mu)
+    parts = add_object_geoms(spec, body, obj, opts, mu)
     if opts.visual_mesh:
         _add_visual_mesh(spec, body, obj)
     return parts
@@ -486,6 +492,11 @@ def build_scene(
     spec.modelname = f"{hand.name}_{obj.name}".replace(":", "_")
     _edit_hand(spec, hand, wMb, opts, mu)
     parts = _add_object(spec, obj, wMo, opts, mu)
+    if opts.table is not None:
+        opts.table.add_to(
+            spec.worldbody, TABLE_BIT, HAND_BIT | OBJECT_BIT, condim=opts.condim,
+            solref=list(opts.solref), solimp=list(opts.solimp),
+        )  # fmt: skip
 
     o = spec.option
     o.timestep = float(opts.timestep)

@@ -77,11 +77,13 @@ def build_parser() -> argparse.ArgumentParser:
     from wholehand.cli import bench as bench_cli
     from wholehand.cli import grasps as grasps_cli
     from wholehand.cli import hand as hand_cli
+    from wholehand.cli import reach as reach_cli
     from wholehand.cli import run as run_cli
     from wholehand.cli import study as study_cli
     from wholehand.cli import view as view_cli
 
     run_cli.add_parser(sub)
+    reach_cli.add_parser(sub)
     study_cli.add_parser(sub)
     grasps_cli.add_parser(sub)
     hand_cli.add_parser(sub)

@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.errors import ConfigError
+from wholehand.models.poses import check_pose
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -70,6 +71,9 @@ class Command:
     """(n_v,) joint torques [N*m]; on joints of a target group, a feedforward term."""
     targets: tuple[JointTargets, ...] = field(default_factory=tuple)
     """Position-controlled groups (disjoint)."""
+    base: FloatArray | None = None
+    """(4, 4) pose to move the hand base to, world frame, for a hand on a floating wrist
+    (the MuJoCo backend's ``base="mocap"``); None: the base stays where it is."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tau", np.asarray(self.tau, dtype=float))
@@ -82,6 +86,8 @@ class Command:
                     f"{group.name!r}); each joint belongs to one group"
                 )
             seen |= set(group.dofs.tolist())
+        if self.base is not None:
+            object.__setattr__(self, "base", check_pose(self.base, "Command.base"))
         n_v = self.tau.shape[0]
         if seen and (min(seen) < 0 or max(seen) >= n_v):
             raise ConfigError(f"Command: target dofs {sorted(seen)} outside [0, {n_v})")

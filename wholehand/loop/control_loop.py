@@ -91,6 +91,17 @@ class Cycle:
     """Why the cycle faulted ("" when it did not)."""
 
 
+@dataclass(frozen=True)
+class Transition:
+    """A switch between stages."""
+
+    t: float
+    """Backend time of the cycle that asked for it [s]."""
+    source: str
+    target: str
+    reason: str
+
+
 @dataclass
 class LoopReport:
     """What a run of the loop did, for records and the CLI."""
@@ -116,6 +127,8 @@ class LoopReport:
     """Stage exceptions, the first :data:`MAX_KEPT_ERRORS` with their tracebacks."""
     n_errors: int = 0
     """All stage exceptions, kept or not."""
+    transitions: list[Transition] = field(default_factory=list)
+    """Every switch between stages, in order."""
 
     def as_dict(self) -> dict[str, object]:
         """JSON-serialisable summary (tracebacks of at most three errors)."""
@@ -131,6 +144,7 @@ class LoopReport:
             "max_overrun_s": self.max_overrun,
             "n_errors": self.n_errors,
             "errors": [e.__dict__ for e in self.errors[:3]],
+            "transitions": [t.__dict__ for t in self.transitions],
         }
 
 
@@ -235,14 +249,14 @@ class ControlLoop:
                     report.stopped_by = END
                     break
                 if next_stage is not None:
-                    self._switch(next_stage, t)
+                    self._switch(next_stage, t, cycle.output.reason)
                 self._advance(t + self.dt)
         finally:
             for observer in self.observers:
                 observer.on_end(self)
         return report
 
-    def _switch(self, name: str, t: float) -> None:
+    def _switch(self, name: str, t: float, reason: str = "") -> None:
         if name not in self.stages:  # a bug of the stage: reported, and the stage stays
             message = (
                 f"ConfigError: stage {self.active!r} switched to {name!r}, which is not one of "
@@ -250,6 +264,7 @@ class ControlLoop:
             )
             self._keep_error(t, self.active, message, "")
             return
+        self.report.transitions.append(Transition(t, self.active, name, reason))
         self.active = name
         self._started.discard(name)
 
@@ -330,7 +345,7 @@ class ControlLoop:
             return command
         self.report.clamped += 1
         self.report.max_excess = max(self.report.max_excess, excess)
-        return Command(np.clip(tau, -limit, limit), command.targets)
+        return dataclasses.replace(command, tau=np.clip(tau, -limit, limit))
 
     def _keep_error(self, t: float, stage: str, error: str, trace: str) -> None:
         report = self.report

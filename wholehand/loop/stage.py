@@ -108,6 +108,8 @@ class StageOutput:
     """Kinematics plus contact estimation [s]."""
     next: str | None = None
     """None: stay; a stage name: switch to it next cycle; :data:`END`: end the run now."""
+    reason: str = ""
+    """Why the stage switches (with ``next``), kept in the loop's transitions."""
 
 
 class Stage(abc.ABC):

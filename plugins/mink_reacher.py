@@ -1,0 +1,225 @@
+"""Reacher ``mink``: a joint-velocity IK QP over the floating wrist and the fingers (mink).
+
+Tasks: a frame task (position and orientation) for the palm and for every fingertip target; the
+fingertip weights rise from ``tip_weight_far`` to 1 as the palm nears its target (from
+``far`` to ``near`` metres away), the palm's stay fixed, so the hand first carries its open
+fingers to the object and then shapes them; a posture task toward the target joint angles.
+Limits: joint positions (mink's ``ConfigurationLimit``) and, with MuJoCo geom distances
+(``CollisionAvoidanceLimit``), hand-table and hand-object clearance. The object collides as the
+convex parts of its decomposition (a mesh geom's distance is to its convex hull, which would
+fill cavities), on a mocap body that follows the tracked pose. The hand-object limit is dropped
+when ``targets.avoid_object`` is False (the grasp stage). The QP's velocity is scaled down as a
+whole to the speed limits, which keeps every collision bound that was not violated already.
+
+The IK runs on its own MuJoCo model: the hand with a free joint at its base, the object and the
+table; never the simulation's.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import mink
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
+from wholehand.backends.mujoco_scene import SceneOptions, add_object_geoms
+from wholehand.backends.table import TABLE_GEOM, Table
+from wholehand.errors import ConfigError
+from wholehand.models.hand import HandModel
+from wholehand.models.objects import ObjectModel
+from wholehand.reaching.base import Reacher, ReachTargets
+
+FloatArray = npt.NDArray[np.float64]
+
+WRIST_JOINT = "wrist_free"
+"""Name of the free joint at the hand base in the IK model."""
+OBJECT_MOCAP = "object"
+"""Name of the object's mocap body in the IK model."""
+
+_HAND, _OBJECT, _TABLE = 1, 2, 4  # contype bits (mink's pair filter reads them)
+
+
+def _quat_of(M: FloatArray) -> FloatArray:
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(M[:3, :3]).ravel())
+    return quat
+
+
+def _pose_of(pos: FloatArray, quat: FloatArray) -> FloatArray:
+    M = np.eye(4)
+    mat = np.zeros(9)
+    mujoco.mju_quat2Mat(mat, np.asarray(quat, dtype=float))
+    M[:3, :3] = mat.reshape(3, 3)
+    M[:3, 3] = pos
+    return M
+
+
+def build_reach_model(
+    hand: HandModel, obj: ObjectModel, table: Table | None
+) -> tuple[mujoco.MjModel, list[str], list[str]]:
+    """The IK model (hand on a free joint, mocap object, table) and the names of its hand and
+    object collision geoms."""
+    spec = load_hand_spec(hand)
+    spec.modelname = f"reach_{hand.name}"
+    weld_locked_joints(spec, hand)
+    roots = list(spec.worldbody.bodies)
+    roots[0].add_freejoint(name=WRIST_JOINT)
+    hand_geoms = []
+    for body in spec.bodies:
+        for k, geom in enumerate(body.geoms):
+            geom.name = geom.name or f"{body.name}/collision_{k}"
+            geom.contype, geom.conaffinity = _HAND, _OBJECT | _TABLE
+            hand_geoms.append(geom.name)
+    obj_body = spec.worldbody.add_body(name=OBJECT_MOCAP, mocap=True)
+    add_object_geoms(spec, obj_body, obj, SceneOptions(), float(obj.friction))
+    object_geoms = [g.name for g in obj_body.geoms]
+    for geom in obj_body.geoms:
+        geom.contype, geom.conaffinity = _OBJECT, _HAND
+    if table is not None:
+        # On a mocap body of its own: mink drops the pairs of a geom of the world body (and of
+        # any static body) with the hand's root, whose parent is the world.
+        table.add_to(spec.worldbody.add_body(name="table", mocap=True), _TABLE, _HAND)
+    return spec.compile(), hand_geoms, object_geoms
+
+
+class MinkReacher(Reacher):
+    """Fingertip-plus-palm IK with collision limits (see the module docstring).
+
+    Args:
+        hand, obj, table: the hand, the object and the table (None: no table).
+        palm_cost: position [1/m] and orientation [1/rad] cost of the palm task.
+        tip_cost: position cost of each fingertip task at full weight [1/m] (orientation:
+            ``tip_orientation_cost``).
+        tip_orientation_cost: orientation cost of each fingertip task at full weight [1/rad].
+        tip_weight_far: fingertip weight (fraction of full) while the palm is ``far`` away.
+        near, far: palm-to-target distances [m] between which the fingertip weight rises.
+        posture_cost: cost of the posture task [1/rad].
+        gain: task gain (fraction of the error corrected per period).
+        max_speed: speed limits: wrist [m/s], wrist rotation [rad/s], finger joints [rad/s].
+        clearance: least hand-table and hand-object distance [m] (mink's
+            ``minimum_distance_from_collisions``).
+        detection: distance below which a pair is constrained [m].
+        solver: a qpsolvers solver name.
+        damping: Levenberg-Marquardt damping of the IK QP.
+    """
+
+    def __init__(
+        self,
+        hand: HandModel,
+        obj: ObjectModel,
+        table: Table | None = None,
+        palm_cost: tuple[float, float] = (1.0, 0.5),
+        tip_cost: float = 1.0,
+        tip_orientation_cost: float = 0.02,
+        tip_weight_far: float = 0.05,
+        near: float = 0.03,
+        far: float = 0.15,
+        posture_cost: float = 0.05,
+        gain: float = 1.0,
+        max_speed: tuple[float, float, float] = (0.3, 1.5, 3.0),
+        clearance: float = 0.005,
+        detection: float = 0.04,
+        solver: str = "daqp",
+        damping: float = 1e-3,
+    ) -> None:
+        if not 0.0 <= near < far:
+            raise ConfigError(f"MinkReacher: need 0 <= near < far [m], got {near}, {far}")
+        if not 0.0 <= tip_weight_far <= 1.0:
+            raise ConfigError(
+                f"MinkReacher: tip_weight_far must be in [0, 1], got {tip_weight_far}"
+            )
+        if min(max_speed) <= 0.0:
+            raise ConfigError(f"MinkReacher: max_speed must be > 0, got {max_speed}")
+        self.hand, self.obj, self.table = hand, obj, table
+        self.model, hand_geoms, object_geoms = build_reach_model(hand, obj, table)
+        self.configuration = mink.Configuration(self.model)
+        m = self.model
+        joint = m.joint(WRIST_JOINT)
+        self._wrist_q, self._wrist_v = int(joint.qposadr[0]), int(joint.dofadr[0])
+        self._qpos = np.array([m.joint(n).qposadr[0] for n in hand.joint_names], dtype=np.intp)
+        self._dof = np.array([m.joint(n).dofadr[0] for n in hand.joint_names], dtype=np.intp)
+        self._mocap = int(m.body_mocapid[m.body(OBJECT_MOCAP).id])
+        self.palm_cost = palm_cost
+        self.tip_cost, self.tip_orientation_cost = float(tip_cost), float(tip_orientation_cost)
+        self.tip_weight_far, self.near, self.far = float(tip_weight_far), near, far
+        self.gain, self.max_speed = float(gain), tuple(float(s) for s in max_speed)
+        self.solver, self.damping = solver, float(damping)
+        self._tasks: dict[str, mink.FrameTask] = {}
+        posture_weights = np.zeros(m.nv)
+        posture_weights[self._dof] = posture_cost
+        self.posture = mink.PostureTask(m, cost=posture_weights, gain=self.gain)
+        self.limits: list[Any] = [mink.ConfigurationLimit(m)]
+        collide: dict[str, Any] = {"gain": 0.85, "minimum_distance_from_collisions": clearance}
+        collide["collision_detection_distance"] = detection
+        if table is not None:
+            self.limits.append(
+                mink.CollisionAvoidanceLimit(m, [(hand_geoms, [TABLE_GEOM])], **collide)
+            )
+        self.object_limit = mink.CollisionAvoidanceLimit(m, [(hand_geoms, object_geoms)], **collide)
+
+    def _task(self, link: str) -> mink.FrameTask:
+        if link not in self._tasks:
+            self._tasks[link] = mink.FrameTask(link, "body", 1.0, 1.0, gain=self.gain)
+        return self._tasks[link]
+
+    def _set_state(self, q: FloatArray, wMb: FloatArray, wMo: FloatArray) -> None:
+        data = self.configuration.data
+        data.qpos[self._wrist_q : self._wrist_q + 3] = wMb[:3, 3]
+        data.qpos[self._wrist_q + 3 : self._wrist_q + 7] = _quat_of(wMb)
+        data.qpos[self._qpos] = q
+        data.mocap_pos[self._mocap] = wMo[:3, 3]
+        data.mocap_quat[self._mocap] = _quat_of(wMo)
+        self.configuration.update()
+
+    def tip_weight(self, palm_distance: float) -> float:
+        """Fingertip task weight (fraction of full) at a palm-to-target distance [m]."""
+        rise = (self.far - palm_distance) / (self.far - self.near)
+        return float(np.clip(rise, 0.0, 1.0) * (1.0 - self.tip_weight_far) + self.tip_weight_far)
+
+    def step(
+        self, q: FloatArray, wMb: FloatArray, wMo: FloatArray, targets: ReachTargets, dt: float
+    ) -> tuple[FloatArray, FloatArray]:
+        self._set_state(np.asarray(q, dtype=float), wMb, wMo)
+        palm_target = targets.links[targets.palm]
+        palm_now = self.configuration.get_transform_frame_to_world(targets.palm, "body")
+        palm_distance = float(np.linalg.norm(palm_now.translation() - palm_target[:3, 3]))
+        weight = self.tip_weight(palm_distance)
+        tasks: list[Any] = []
+        for link, target in targets.links.items():
+            task = self._task(link)
+            if link == targets.palm:
+                task.set_position_cost(self.palm_cost[0])
+                task.set_orientation_cost(self.palm_cost[1])
+            else:
+                task.set_position_cost(weight * self.tip_cost)
+                task.set_orientation_cost(weight * self.tip_orientation_cost)
+            task.set_target(mink.SE3.from_matrix(np.asarray(target, dtype=float)))
+            tasks.append(task)
+        posture = self.configuration.q.copy()
+        posture[self._qpos] = targets.q
+        self.posture.set_target(posture)
+        tasks.append(self.posture)
+        limits = self.limits + ([self.object_limit] if targets.avoid_object else [])
+        velocity = mink.solve_ik(
+            self.configuration, tasks, dt, self.solver, damping=self.damping, limits=limits
+        )
+        velocity *= self._speed_scale(velocity)
+        self.configuration.integrate_inplace(velocity, dt)
+        qpos = self.configuration.data.qpos
+        wMb_next = _pose_of(
+            qpos[self._wrist_q : self._wrist_q + 3], qpos[self._wrist_q + 3 : self._wrist_q + 7]
+        )
+        return qpos[self._qpos].copy(), wMb_next
+
+    def _speed_scale(self, velocity: FloatArray) -> float:
+        """Largest factor <= 1 that keeps the wrist and finger speeds within ``max_speed``."""
+        v = self._wrist_v
+        linear = float(np.linalg.norm(velocity[v : v + 3]))
+        angular = float(np.linalg.norm(velocity[v + 3 : v + 6]))
+        joints = float(np.max(np.abs(velocity[self._dof]), initial=0.0))
+        speeds = (linear, angular, joints)
+        ratios = [s / max(x, 1e-12) for s, x in zip(self.max_speed, speeds, strict=True)]
+        return min(1.0, *ratios)

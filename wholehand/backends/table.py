@@ -1,0 +1,81 @@
+"""A table: a static box in the world whose top face is the support plane of the object."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.errors import ConfigError
+
+FloatArray = npt.NDArray[np.float64]
+
+TABLE_GEOM = "table"
+"""Name of the table's geom in MuJoCo scenes."""
+
+
+@dataclass(frozen=True)
+class Table:
+    """A box resting in the world, world axes; its top face at height ``top`` [m].
+
+    Attributes:
+        top: height of the top face, world z [m].
+        centre: (x, y) of the top face's centre, world frame [m].
+        size: (x, y) side lengths of the top face [m].
+        thickness: height of the box [m].
+        friction: sliding friction coefficient against the object and the hand [-].
+    """
+
+    top: float = 0.0
+    centre: tuple[float, float] = (0.0, 0.0)
+    size: tuple[float, float] = (0.8, 0.8)
+    thickness: float = 0.04
+    friction: float = 0.7
+
+    def __post_init__(self) -> None:
+        values = [self.top, *self.centre, *self.size, self.thickness, self.friction]
+        if len(self.centre) != 2 or len(self.size) != 2:
+            raise ConfigError(f"Table: centre and size take 2 numbers each, got {self!r}")
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            raise ConfigError(f"Table: every value must be a finite number, got {self!r}")
+        if min(*self.size, self.thickness) <= 0.0 or self.friction < 0.0:
+            raise ConfigError(
+                f"Table: size and thickness must be > 0 [m] and friction >= 0, got {self!r}"
+            )
+
+    @property
+    def half_extents(self) -> FloatArray:
+        """(3,) half side lengths of the box [m]."""
+        return 0.5 * np.array([self.size[0], self.size[1], self.thickness])
+
+    @property
+    def box_centre(self) -> FloatArray:
+        """(3,) centre of the box, world frame [m]."""
+        return np.array([self.centre[0], self.centre[1], self.top - 0.5 * self.thickness])
+
+    def add_to(self, body: Any, contype: int, conaffinity: int, **geom: Any) -> Any:
+        """Add the table to ``body`` (an ``MjsBody`` at the world origin: the world body or a
+        static child of it) as geom :data:`TABLE_GEOM`; returns the geom."""
+        return body.add_geom(
+            name=TABLE_GEOM,
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=self.half_extents.tolist(),
+            pos=self.box_centre.tolist(),
+            contype=contype,
+            conaffinity=conaffinity,
+            friction=[self.friction, 0.005, 0.0001],
+            rgba=[0.55, 0.45, 0.35, 1.0],
+            **geom,
+        )
+
+
+def resting_pose(obj_bounds: FloatArray, table: Table, xy: tuple[float, float]) -> FloatArray:
+    """(4, 4) object pose, world axes, with the lowest point of its mesh on the table top at
+    (x, y) = ``xy`` [m]; ``obj_bounds`` is the mesh's (2, 3) axis-aligned box, object frame."""
+    wMo = np.eye(4)
+    wMo[:3, 3] = [xy[0], xy[1], table.top - float(np.asarray(obj_bounds)[0, 2])]
+    return wMo

@@ -1,0 +1,228 @@
+"""The stage machine of the autonomous pipeline (paper Sec. III-D).
+
+    reach_pregrasp --(mean fingertip error < 2 cm)--> reach_grasp
+    reach_grasp --(thumb and two other fingers touch, by the geometric estimate)--> regulate
+    reach_grasp --(no such touch within GRASP_TIMEOUT)--> reach_pregrasp (another grasp)
+    regulate --(hull of fingertips and palm leaves the object's bounding box)--> reach_pregrasp
+
+Every target follows the tracked object pose, so the hand reacts to the object moving before
+contact. On entering ``reach_pregrasp`` the plan (a stored grasp and its pre-grasp,
+:mod:`wholehand.reaching.pregrasp`) whose pre-grasp is nearest the current palm is chosen
+among those usable at the object's current pose.
+
+Reaching commands a floating wrist (``Command.base``) and the finger joints as position targets
+that the backend's servo tracks within the torque limits; force regulation commands torques and
+leaves the wrist where it is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand import defaults
+from wholehand.contacts.base import ContactEstimator
+from wholehand.loop.command import Command, JointTargets
+from wholehand.loop.grasp_loss import GraspLossCheck
+from wholehand.loop.regulation import ForceRegulation
+from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.models.hand import HandModel
+from wholehand.models.kinematics import HandKinematics
+from wholehand.reaching.base import Reacher, ReachTargets
+from wholehand.reaching.pregrasp import GraspPlan, nearest_plan
+
+FloatArray = npt.NDArray[np.float64]
+
+PREGRASP, GRASP, REGULATE = "reach_pregrasp", "reach_grasp", "regulate"
+"""Stage names."""
+
+TOUCH_DISTANCE: float = 0.002
+"""A finger touches the object when a sample of it is within this signed distance [m]."""
+GRASP_TIMEOUT: float = 3.0
+"""Longest time in ``reach_grasp`` without the touch that hands over to regulation [s]."""
+PREGRASP_TIMEOUT: float = 4.0
+"""Longest time in ``reach_pregrasp`` before another plan is chosen [s]."""
+FINGER_KP: float = 2.0
+"""Position gain of the finger servo while reaching [N*m/rad] (torques stay within limits)."""
+FINGER_KD: float = 0.05
+"""Velocity gain of the finger servo while reaching [N*m*s/rad]."""
+SQUEEZE: float = 0.2
+"""At the grasp stage, how far past the grasp the finger servo closes the closing joints [rad],
+so the fingers press on the object instead of stopping a millimetre short (a stored grasp's
+angles are those of a settled grasp, within 0-3 mm of the surface in the estimate)."""
+SQUEEZE_PALM_ERROR: float = 0.01
+"""The squeeze starts once the palm is within this distance of its grasp pose [m]."""
+MAX_LEAD: float = 0.3
+"""Farthest the finger reference may run ahead of the measured joint angles [rad]."""
+
+
+@dataclass
+class ReachPlanner:
+    """Holds the plans usable at an object pose and the one chosen (shared by the stages).
+
+    Args:
+        plans: every grasp's plan.
+        usable: plan, object pose -> whether the plan can be used there (e.g. above the table).
+    """
+
+    plans: list[GraspPlan]
+    usable: Callable[[GraspPlan, FloatArray], bool]
+    chosen: GraspPlan | None = None
+    failed: set[int] = field(default_factory=set)
+    """Grasp ids whose pre-grasp or grasp timed out; skipped until every usable one has."""
+
+    def choose(self, wMo: FloatArray, wMb_now: FloatArray) -> GraspPlan | None:
+        """Choose the usable plan nearest the current base pose, preferring those that have not
+        failed; None if none is usable."""
+        plans = [p for p in self.plans if self.usable(p, wMo)]
+        fresh = [p for p in plans if p.grasp_id not in self.failed]
+        if plans and not fresh:
+            self.failed.clear()
+            fresh = plans
+        self.chosen = nearest_plan(fresh, wMo, wMb_now) if fresh else None
+        return self.chosen
+
+    def fail(self) -> None:
+        """The chosen plan did not work: skip it at the next choice."""
+        if self.chosen is not None:
+            self.failed.add(self.chosen.grasp_id)
+
+
+def _targets(
+    hand: HandModel, kin: HandKinematics, q: FloatArray, wMb: FloatArray, links: list[str]
+) -> dict[str, FloatArray]:
+    kin.update(q, wMb)
+    return {link: kin.frame_pose(link) for link in links}
+
+
+class ReachStage(Stage):
+    """Drive the hand toward the chosen plan's pre-grasp (``kind="pregrasp"``) or grasp.
+
+    Status: ``reaching``, or ``no_plan`` when no stored grasp is usable at the object's pose
+    (the hand then holds still and the choice is retried every cycle).
+    """
+
+    def __init__(
+        self,
+        hand: HandModel,
+        reacher: Reacher,
+        planner: ReachPlanner,
+        estimator: ContactEstimator,
+        kind: str,
+        switch_distance: float = defaults.PREGRASP_SWITCH_DISTANCE,
+        touch_distance: float = TOUCH_DISTANCE,
+        timeout: float = GRASP_TIMEOUT,
+        closing: FloatArray | None = None,
+    ) -> None:
+        if kind not in ("pregrasp", "grasp"):
+            raise ValueError(f"ReachStage: kind must be 'pregrasp' or 'grasp', got {kind!r}")
+        self.hand, self.reacher, self.planner, self.estimator = hand, reacher, planner, estimator
+        self.kind = kind
+        self.name = PREGRASP if kind == "pregrasp" else GRASP
+        self.switch_distance, self.touch_distance = switch_distance, touch_distance
+        self.timeout = timeout
+        self.squeeze = SQUEEZE * np.sign(closing if closing is not None else np.zeros(hand.nv))
+        self.tips = [links[-1] for links in hand.config.fingers.values()]
+        self.links = [hand.palm_link, *self.tips]
+        self._kin = HandKinematics(hand)
+        self._since = 0.0
+        self._q_ref = np.zeros(hand.nq)
+        finger_of = {}
+        for finger, links in hand.config.fingers.items():
+            for link in links:
+                if link in hand.link_names:
+                    finger_of[hand.link_index(link)] = finger
+        self._finger_of = finger_of
+        self._dofs = np.arange(hand.nv)
+
+    def start(self, context: CycleContext) -> None:
+        self._since = context.t
+        self._q_ref = context.obs.q.copy()
+        if self.kind == "pregrasp":
+            assert context.obs.wMo is not None
+            self.planner.choose(context.obs.wMo, context.obs.wMb)
+
+    def fingers_touching(self, context: CycleContext) -> set[str]:
+        """Fingers with a sample within ``touch_distance`` of the object (geometric estimate)."""
+        assert context.obs.wMo is not None
+        contacts = self.estimator.estimate(context.kinematics, context.obs.wMo)
+        touching = contacts.link[contacts.distance <= self.touch_distance]
+        return {self._finger_of[int(i)] for i in touching if int(i) in self._finger_of}
+
+    def step(self, context: CycleContext) -> StageOutput:
+        obs = context.obs
+        wMo = obs.wMo
+        assert wMo is not None
+        plan = self.planner.chosen
+        if plan is None:
+            plan = self.planner.choose(wMo, obs.wMb)
+            if plan is None:
+                return StageOutput(None, "no_plan")
+        if self.kind == "pregrasp":
+            q_goal, oMb_goal = plan.q_pre, plan.oMb_pre
+        else:
+            q_goal, oMb_goal = plan.q_grasp, plan.oMb_grasp
+        targets = _targets(self.hand, self._kin, q_goal, wMo @ oMb_goal, self.links)
+        goal = ReachTargets(targets, q_goal, self.hand.palm_link, self.kind == "pregrasp")
+        # The reacher integrates the servo's reference, not the reading: a reference one step
+        # ahead of the reading would give the servo almost no error to act on. It may lead the
+        # reading by MAX_LEAD at most, so a finger blocked by the object does not wind it up.
+        q_ref = np.clip(self._q_ref, obs.q - MAX_LEAD, obs.q + MAX_LEAD)
+        q_next, wMb_next = self.reacher.step(q_ref, obs.wMb, wMo, goal, context.dt)
+        self._q_ref = q_next
+        now = context.kinematics
+        palm_error = np.linalg.norm(
+            now.frame_pose(self.hand.palm_link)[:3, 3] - targets[self.hand.palm_link][:3, 3]
+        )
+        q_servo = q_next
+        if self.kind == "grasp" and palm_error < SQUEEZE_PALM_ERROR:
+            q_servo = np.clip(q_next + self.squeeze, self.hand.q_lower, self.hand.q_upper)
+        command = Command(
+            np.zeros(self.hand.nv),
+            (JointTargets(self._dofs, q_servo, None, FINGER_KP, FINGER_KD, name="fingers"),),
+            base=wMb_next,
+        )
+        errors = [np.linalg.norm(now.frame_pose(t)[:3, 3] - targets[t][:3, 3]) for t in self.tips]
+        error = float(np.mean(errors))
+        if self.kind == "pregrasp" and error < self.switch_distance:
+            reason = f"mean fingertip error {100 * error:.1f} cm < {100 * self.switch_distance} cm"
+            return StageOutput(command, "reaching", next=GRASP, reason=reason)
+        if self.kind == "pregrasp" and context.t - self._since > PREGRASP_TIMEOUT:
+            self.planner.fail()
+            self.planner.choose(wMo, obs.wMb)
+            self._since = context.t
+            reason = f"pre-grasp not reached within {PREGRASP_TIMEOUT} s: grasp {plan.grasp_id}"
+            return StageOutput(command, "replan", reason=reason)
+        if self.kind == "grasp":
+            fingers = self.fingers_touching(context)
+            thumb = self.hand.config.thumb
+            if thumb in fingers and len(fingers - {thumb}) >= 2:
+                reason = f"touching: {', '.join(sorted(fingers))}"
+                return StageOutput(command, "reaching", next=REGULATE, reason=reason)
+            if context.t - self._since > self.timeout:
+                self.planner.fail()
+                reason = f"no grasp within {self.timeout} s (touching: {sorted(fingers)})"
+                return StageOutput(command, "reaching", next=PREGRASP, reason=reason)
+        return StageOutput(command, "reaching")
+
+
+class HoldStage(Stage):
+    """Force regulation until the grasp is lost (paper's criterion, on the tracked pose)."""
+
+    name = REGULATE
+
+    def __init__(self, regulation: ForceRegulation, loss: GraspLossCheck) -> None:
+        self.regulation, self.loss = regulation, loss
+
+    def start(self, context: CycleContext) -> None:
+        self.regulation.start(context)
+
+    def step(self, context: CycleContext) -> StageOutput:
+        assert context.obs.wMo is not None
+        if not self.loss.held(context.kinematics, context.obs.wMo):
+            reason = "grasp lost: the hull of fingertips and palm left the object's box"
+            return StageOutput(None, "lost", next=PREGRASP, reason=reason)
+        return self.regulation.step(context)

@@ -1,0 +1,253 @@
+"""A seeded reach-grasp-hold-regrasp episode in MuJoCo with gravity (``wholehand reach``).
+
+The hand hangs on a floating wrist (a mocap base) above a table. A person (a stiff
+spring-damper on the object) holds the object out in the air:
+
+1. while the hand reaches, the person moves the object by ``displace`` in a seeded horizontal
+   direction and turns it about the vertical (the hand must follow);
+2. once the hand has held it for ``release_after``, the person lets go (gravity on);
+3. while held: a push (``push_force`` for ``pulse``) and a twist (``twist_torque``);
+4. the person snatches the object, pulling it ``snatch`` away at the height it was first held
+   (picking it up if it was dropped), and holds it there;
+5. the hand loses the grasp, reaches again and regrasps; the person lets go once more and the
+   episode ends after ``hold_after`` of holding, or at ``duration``.
+
+Until table-top grasps exist (the stored grasps wrap around the object, so most would put a
+finger under it on a table), the object is grasped in the air; the table is there to be avoided
+and to catch a dropped object.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from wholehand import registry
+from wholehand.backends.table import Table
+from wholehand.errors import ConfigError
+from wholehand.grasps.generate import style_arrays
+from wholehand.grasps.store import load_grasps
+from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.loop.grasp_loss import GraspLossCheck
+from wholehand.loop.reach import GRASP, PREGRASP, REGULATE, HoldStage, ReachPlanner, ReachStage
+from wholehand.loop.regulation import ForceRegulation
+from wholehand.loop.trial import load_allocator
+from wholehand.models.hand import HandModel, load_hand
+from wholehand.models.objects import ObjectModel, load_object
+from wholehand.reaching.pregrasp import GraspPlan, lowest_point, plan_pregrasp
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """Everything that defines an episode; equal specs give equal episodes."""
+
+    hand: str = "allegro_right"
+    object: str = "077_rubiks_cube"
+    seed: int = 0
+    rate: float = 200.0
+    """Control rate [Hz] (simulated time)."""
+    duration: float = 14.0
+    """Longest episode [s]."""
+    reacher: str = "mink"
+    estimator: str = "mesh_sdf"
+    allocator: str = "qp"
+    hold_height: float = 0.25
+    """Height of the object's frame above the table top where the person holds it [m]."""
+    displace: float = 0.04
+    """How far the person moves the object while the hand reaches [m]."""
+    displace_at: float = 0.5
+    """When [s]."""
+    release_after: float = 0.5
+    """Holding time before the person lets go [s]."""
+    push_force: float = 3.0
+    """Push while held [N]."""
+    twist_torque: float = 0.1
+    """Twist while held [N*m]."""
+    pulse: float = 0.3
+    """Duration of the push and the twist [s]."""
+    snatch: float = 0.15
+    """How far the snatch pulls the object [m]."""
+    hold_after: float = 1.0
+    """Holding time after the regrasp that ends the episode [s]."""
+
+
+PERSON_STIFFNESS = (1000.0, 20.0)
+"""The person's grip on the object: [N/m], [N*m/rad]."""
+PERSON_DAMPING = (20.0, 0.2)
+"""[N*s/m], [N*m*s/rad]."""
+GAP = 1.0
+"""Pause between successive perturbations [s]."""
+PERTURBATIONS = ("person moves", "push", "twist", "person snatches")
+"""Events that count as perturbations."""
+
+
+@dataclass
+class Event:
+    t: float
+    what: str
+
+
+@dataclass
+class Person(Observer):
+    """Scripts the perturbations of :class:`EpisodeSpec` on a backend that pushes objects."""
+
+    spec: EpisodeSpec
+    backend: Any
+    wMo_hold: FloatArray
+    rng: np.random.Generator
+    events: list[Event] = field(default_factory=list)
+    state: str = "holding"
+    since: float = 0.0
+    held_since: float | None = None
+    done: bool = False
+
+    def on_start(self, loop: ControlLoop) -> None:
+        self._grip(self.wMo_hold)
+
+    def _grip(self, wMo: FloatArray) -> None:
+        self.backend.set_object_spring(wMo, PERSON_STIFFNESS, PERSON_DAMPING)
+
+    def _note(self, t: float, what: str) -> None:
+        self.events.append(Event(round(t, 4), what))
+
+    def _horizontal(self) -> FloatArray:
+        angle = self.rng.uniform(0.0, 2.0 * np.pi)
+        return np.array([np.cos(angle), np.sin(angle), 0.0])
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        t, spec, state = cycle.t, self.spec, self.state
+        holding = cycle.stage == REGULATE
+        self.held_since = (self.held_since or t) if holding else None
+        held_for = t - self.held_since if self.held_since is not None else 0.0
+        if state == "holding" and t >= spec.displace_at:
+            target = self.wMo_hold.copy()
+            target[:3, 3] += spec.displace * self._horizontal()
+            target[:3, :3] = pin.exp3(np.array([0.0, 0.0, np.radians(20.0)])) @ target[:3, :3]
+            self._grip(target)
+            self._note(t, f"person moves the object by {100 * spec.displace:.0f} cm and 20 deg")
+            self.state, self.since = "moved", t
+        elif state in ("moved", "snatched") and held_for >= spec.release_after:
+            self.backend.set_object_spring(None)
+            self._note(t, "person lets go")
+            self.state, self.since = ("released" if state == "moved" else "regrasped"), t
+        elif state == "released" and t - self.since >= GAP:
+            force = spec.push_force * self._horizontal()
+            self.backend.apply_object_wrench(force, np.zeros(3))
+            self._note(t, f"push {spec.push_force:.1f} N for {spec.pulse} s")
+            self.state, self.since = "pushing", t
+        elif state == "pushing" and t - self.since >= spec.pulse:
+            self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
+            self.state, self.since = "pushed", t
+        elif state == "pushed" and t - self.since >= GAP:
+            axis = self.rng.normal(size=3)
+            torque = spec.twist_torque * axis / np.linalg.norm(axis)
+            self.backend.apply_object_wrench(np.zeros(3), torque)
+            self._note(t, f"twist {spec.twist_torque:.2f} N*m for {spec.pulse} s")
+            self.state, self.since = "twisting", t
+        elif state == "twisting" and t - self.since >= spec.pulse:
+            self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
+            self.state, self.since = "twisted", t
+        elif state == "twisted" and t - self.since >= GAP:
+            target = cycle.truth.wMo.copy()  # pulled away, and back up if it had been dropped
+            target[:3, 3] += spec.snatch * self._horizontal()
+            target[2, 3] = self.wMo_hold[2, 3]
+            self._grip(target)
+            self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
+            self.state, self.since = "snatched", t
+        elif state == "regrasped" and t - self.since >= spec.hold_after:
+            self.done = True
+            return "episode complete"
+        return None
+
+
+def _plans(hand: HandModel, obj: ObjectModel) -> list[GraspPlan]:
+    q_open = style_arrays(hand, hand.config.grasp_styles["power"])[0]
+    plans = [plan_pregrasp(hand, obj, g, q_open) for g in load_grasps(hand.name, obj.name, "power")]
+    found = [p for p in plans if p is not None]
+    if not found:
+        raise ConfigError(f"no stored grasp of {obj.name!r} for {hand.name!r} has a pre-grasp")
+    return found
+
+
+def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
+    """Run one episode; returns its summary (events, transitions, counts, timings)."""
+    if not (math.isfinite(spec.rate) and spec.rate > 0):
+        raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
+    hand, obj = load_hand(spec.hand), load_object(spec.object)
+    table = Table()
+    rng = np.random.default_rng(spec.seed)
+    plans = _plans(hand, obj)
+    wMo = np.eye(4)
+    wMo[:3, 3] = [0.0, 0.0, table.top + spec.hold_height]
+
+    def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
+        return all(
+            lowest_point(hand, q, wMo_now @ oMb) >= table.top + 0.01
+            for q, oMb in ((plan.q_grasp, plan.oMb_grasp), (plan.q_pre, plan.oMb_pre))
+        )
+
+    start = plans[int(rng.integers(len(plans)))]
+    wMb0 = wMo @ start.oMb_pre
+    wMb0[:3, 3] += np.array([0.0, 0.0, 0.1]) + 0.1 * np.r_[rng.normal(size=2), 0.0]
+    backend = registry.load(
+        "backends", "mujoco", hand=hand, obj=obj, q_init=start.q_pre, wMo_init=wMo,
+        gravity=True, wMb=wMb0, base="mocap", table=table,
+    )  # fmt: skip
+    estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj)
+    reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
+    planner = ReachPlanner(plans, usable)
+    closing = style_arrays(hand, hand.config.grasp_styles["power"])[1]
+    regulation = ForceRegulation(hand, obj, estimator, load_allocator(spec.allocator, hand, {}))
+    stages = {
+        PREGRASP: ReachStage(hand, reacher, planner, estimator, "pregrasp"),
+        GRASP: ReachStage(hand, reacher, planner, estimator, "grasp", closing=closing),
+        REGULATE: HoldStage(regulation, GraspLossCheck(hand, obj)),
+    }
+    person = Person(spec, backend, wMo, rng)
+    timer = _CycleTimes()
+    loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=[person, timer])
+    report = loop.run(spec.duration)
+    losses = [t for t in report.transitions if t.source == REGULATE and t.target == PREGRASP]
+    grasps = [t for t in report.transitions if t.target == REGULATE]
+    recovered = sum(any(g.t > loss.t for g in grasps) for loss in losses)
+    return {
+        "spec": asdict(spec),
+        "complete": person.done,
+        "duration_s": backend.time,
+        "perturbations": sum(e.what.startswith(PERTURBATIONS) for e in person.events),
+        "grasps": len(grasps),
+        "time_to_grasp_s": grasps[0].t if grasps else None,
+        "losses": len(losses),
+        "recovered": recovered,
+        "events": [asdict(e) for e in person.events],
+        "transitions": [t.__dict__ for t in report.transitions],
+        "cycle_us": timer.summary(),
+        "loop": report.as_dict(),
+        "mujoco_warnings": backend.warnings(),
+    }
+
+
+class _CycleTimes(Observer):
+    """Compute time of every cycle by stage kind [us]."""
+
+    def __init__(self) -> None:
+        self.times: dict[str, list[float]] = {"reach": [], "regulate": []}
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        kind = "regulate" if cycle.stage == REGULATE else "reach"
+        self.times[kind].append(cycle.cycle_time * 1e6)
+        return None
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        return {
+            kind: {"p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99))}
+            for kind, v in self.times.items()
+            if v
+        }

@@ -4,8 +4,9 @@ Tasks: a frame task (position and orientation) for the palm and for every finger
 fingertip weights rise from ``tip_weight_far`` to 1 as the palm nears its target (from
 ``far`` to ``near`` metres away), the palm's stay fixed, so the hand first carries its open
 fingers to the object and then shapes them; a posture task toward the target joint angles.
-Limits: joint positions (mink's ``ConfigurationLimit``) and, with MuJoCo geom distances
-(``CollisionAvoidanceLimit``), hand-table and hand-object clearance. The object collides as the
+Limits: joint positions (mink's ``ConfigurationLimit``), hand-table clearance for every hand
+surface sample near the table (:class:`TableLimit`) and hand-object clearance from MuJoCo geom
+distances (mink's ``CollisionAvoidanceLimit``). The object collides as the
 convex parts of its decomposition (a mesh geom's distance is to its convex hull, which would
 fill cavities), on a mocap body that follows the tracked pose. The hand-object limit is dropped
 when ``targets.avoid_object`` is False (the grasp stage). The QP's velocity is scaled down as a
@@ -26,9 +27,10 @@ import numpy.typing as npt
 
 from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
 from wholehand.backends.mujoco_scene import SceneOptions, add_object_geoms
-from wholehand.backends.table import TABLE_GEOM, Table
+from wholehand.backends.table import Table
 from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel
+from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.reaching.base import Reacher, ReachTargets
 
@@ -78,11 +80,61 @@ def build_reach_model(
     object_geoms = [g.name for g in obj_body.geoms]
     for geom in obj_body.geoms:
         geom.contype, geom.conaffinity = _OBJECT, _HAND
-    if table is not None:
-        # On a mocap body of its own: mink drops the pairs of a geom of the world body (and of
-        # any static body) with the hand's root, whose parent is the world.
-        table.add_to(spec.worldbody.add_body(name="table", mocap=True), _TABLE, _HAND)
+    if table is not None:  # for the viewer and geom queries; TableLimit keeps the hand above it
+        table.add_to(spec.worldbody, _TABLE, _HAND)
     return spec.compile(), hand_geoms, object_geoms
+
+
+class TableLimit(mink.Limit):
+    """Keeps the hand's surface samples above the table top (a half-space), point by point.
+
+    mink's ``CollisionAvoidanceLimit`` constrains one witness point per geom pair; when a box
+    face comes down parallel to the table that point is arbitrary on the face, and a small
+    rotation about it lowers another corner unconstrained (measured: a palm box 7.5 mm into the
+    table). Here every sample within ``detection`` of the plane gets its own row,
+    ``-dz/dq v <= gain (z - top - clearance) / dt``, the lowest ``per_link`` of each link.
+    """
+
+    def __init__(
+        self,
+        reacher: MinkReacher,
+        table: Table,
+        gain: float,
+        clearance: float,
+        detection: float,
+        per_link: int = 8,
+    ) -> None:
+        hand, m = reacher.hand, reacher.model
+        self.reacher, self.table = reacher, table
+        self.gain, self.clearance, self.detection = gain, clearance, detection
+        self.per_link = per_link
+        self._body = np.array([m.body(name).id for name in hand.link_names], dtype=np.intp)
+        self._kin = HandKinematics(hand)
+        self._jac = np.zeros((3, m.nv))
+
+    def compute_qp_inequalities(
+        self, configuration: mink.Configuration, dt: float
+    ) -> mink.limits.Constraint:
+        hand, top = self.reacher.hand, self.table.top
+        q, wMb = self.reacher.hand_state()
+        self._kin.update(q, wMb)
+        samples = hand.samples
+        points = self._kin.transform_points(samples.p_joint, samples.joint)
+        near = np.flatnonzero(points[:, 2] < top + self.clearance + self.detection)
+        if near.size == 0:
+            return mink.limits.Constraint()
+        rows = []
+        for link in np.unique(samples.link[near]):
+            mine = near[samples.link[near] == link]
+            rows.extend(mine[np.argsort(points[mine, 2])[: self.per_link]].tolist())
+        G = np.empty((len(rows), configuration.model.nv))
+        h = np.empty(len(rows))
+        for k, i in enumerate(rows):
+            body = int(self._body[samples.link[i]])
+            mujoco.mj_jac(configuration.model, configuration.data, self._jac, None, points[i], body)
+            G[k] = -self._jac[2]
+            h[k] = self.gain * (points[i, 2] - top - self.clearance) / dt
+        return mink.limits.Constraint(G=G, h=h)
 
 
 class MinkReacher(Reacher):
@@ -155,15 +207,19 @@ class MinkReacher(Reacher):
         collide: dict[str, Any] = {"gain": 0.85, "minimum_distance_from_collisions": clearance}
         collide["collision_detection_distance"] = detection
         if table is not None:
-            self.limits.append(
-                mink.CollisionAvoidanceLimit(m, [(hand_geoms, [TABLE_GEOM])], **collide)
-            )
+            self.limits.append(TableLimit(self, table, 0.85, clearance, detection))
         self.object_limit = mink.CollisionAvoidanceLimit(m, [(hand_geoms, object_geoms)], **collide)
 
     def _task(self, link: str) -> mink.FrameTask:
         if link not in self._tasks:
             self._tasks[link] = mink.FrameTask(link, "body", 1.0, 1.0, gain=self.gain)
         return self._tasks[link]
+
+    def hand_state(self) -> tuple[FloatArray, FloatArray]:
+        """The IK model's current hand joint angles (n_q,) and base pose (4, 4)."""
+        qpos = self.configuration.data.qpos
+        w = self._wrist_q
+        return qpos[self._qpos].copy(), _pose_of(qpos[w : w + 3], qpos[w + 3 : w + 7])
 
     def _set_state(self, q: FloatArray, wMb: FloatArray, wMo: FloatArray) -> None:
         data = self.configuration.data
@@ -208,11 +264,7 @@ class MinkReacher(Reacher):
         )
         velocity *= self._speed_scale(velocity)
         self.configuration.integrate_inplace(velocity, dt)
-        qpos = self.configuration.data.qpos
-        wMb_next = _pose_of(
-            qpos[self._wrist_q : self._wrist_q + 3], qpos[self._wrist_q + 3 : self._wrist_q + 7]
-        )
-        return qpos[self._qpos].copy(), wMb_next
+        return self.hand_state()
 
     def _speed_scale(self, velocity: FloatArray) -> float:
         """Largest factor <= 1 that keeps the wrist and finger speeds within ``max_speed``."""

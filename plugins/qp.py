@@ -58,6 +58,7 @@ class QPAllocator(Allocator):
     """Whole-hand force-allocation QP with actuation consistency (paper Sec. III-C)."""
 
     consistency_default: ClassVar[bool] = True
+    supports_external_wrench: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -177,6 +178,8 @@ class QPAllocator(Allocator):
         J_world: FloatArray,
         p_com_world: FloatArray,
         kinematics: HandKinematics | None = None,
+        *,
+        external_wrench: FloatArray | None = None,
     ) -> Allocation:
         """Contact forces and joint torques for the current contacts.
 
@@ -185,6 +188,8 @@ class QPAllocator(Allocator):
             J_world: (N, 3, n_v) point Jacobians at the contact points, world axes.
             p_com_world: (3,) object centre of mass, world frame [m].
             kinematics: unused (the QP needs only the Jacobians).
+            external_wrench: (6,) known wrench on the object about its COM, world axes
+                [N, N*m] (its weight, say): the QP balances ``G f + w``; None: zero (paper).
 
         Returns:
             The allocation. ``EMPTY`` / ``NO_ACTUATED_CONTACT``: zero forces and torque (zero
@@ -225,7 +230,7 @@ class QPAllocator(Allocator):
         ):
             self._warm.clear()
             return self._result(AllocationStatus.SOLVER_FAILED, n, n_v, solve_time=_since(t0))
-        qp = build_allocation_qp(contacts, J_world, p_com, self.params, owner)
+        qp = build_allocation_qp(contacts, J_world, p_com, self.params, owner, external_wrench)
         kwargs = self._warm_kwargs(qp, contacts) if self.warm_start else {}
         sol = solve_allocation(
             qp, self.backend, screening=self.screening, screen_tol=self.screen_tol, **kwargs
@@ -250,7 +255,7 @@ class QPAllocator(Allocator):
             tau=tau,
             f_local=qp.f_local(lam),
             f_world=qp.f_world(lam),
-            wrench=qp.G_lam @ lam,
+            wrench=qp.G_lam @ lam + qp.w_ext,
             solve_time=dt,
         )
 
@@ -271,7 +276,7 @@ class QPAllocator(Allocator):
                 hit = idx >= 0
                 lam0[hit] = warm.lam[idx[hit]]
                 lam0 = lam0.ravel()
-            out["x0"] = np.concatenate((lam0, qp.G_lam @ lam0))
+            out["x0"] = np.concatenate((lam0, qp.G_lam @ lam0 + qp.w_ext))
         return out
 
     def _remember(self, qp: AllocationQP, contacts: ContactSet, sol: AllocationSolution) -> None:

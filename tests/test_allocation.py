@@ -10,6 +10,7 @@ import qpsolvers
 from wholehand_plugins.fingertip_only import FingertipOnlyAllocator
 from wholehand_plugins.qp import QPAllocator, QPNoConsistencyAllocator
 
+from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus
 from wholehand.allocation.bench import run_allocation_benchmark, synthetic_grasp
 from wholehand.allocation.problem import (
@@ -601,3 +602,61 @@ def test_benchmark_runs_and_writes_plot(tmp_path: Any) -> None:
     assert set(report["best"]) == {"6", "12"}
     assert all(r["n"] == 3 for r in report["results"])
     assert N_EDGES == 4
+
+
+# ------------------------------------------------------------------------------------------------
+# a known external wrench (the object's weight)
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("weight", "f_n_each"), [(2.0, 5.0), (10.0, 5.0 / 0.7)])
+def test_weight_is_carried_by_friction_and_squeeze_grows_when_needed(
+    weight: float, f_n_each: float
+) -> None:
+    # Two antipodal fingertips along x hold a weight along -z: each carries half by friction.
+    # 2 N fits in the 10 N squeeze (0.7 * 5 N = 3.5 N per contact); 10 N needs f_n = 5 / 0.7
+    # per contact, since the pyramid allows |f_z| <= mu f_n. These fingers move along x only,
+    # so actuation consistency would cap their z forces at eps_margin: it is off here.
+    cs, J, com = antipodal()
+    alloc = QPAllocator(solver="daqp", solver_settings=settings_for("daqp"), consistency=False)
+    w_ext = np.array([0.0, 0.0, -weight, 0.0, 0.0, 0.0])
+    out = alloc.allocate(cs, J, com, external_wrench=w_ext)
+    assert out.status is AllocationStatus.OK
+    # Balanced up to the ridge's price (reg * lambda, see wholehand.allocation.problem).
+    np.testing.assert_allclose(out.residual_wrench, 0.0, atol=2e-5)
+    np.testing.assert_allclose(out.f_world[:, 2], [weight / 2, weight / 2], atol=2e-5)
+    np.testing.assert_allclose(out.f_local[:, 0], [f_n_each, f_n_each], rtol=1e-4)
+    np.testing.assert_allclose(out.tau, [-0.01 * f_n_each, -0.01 * f_n_each], rtol=1e-4)
+
+
+@pytest.mark.parametrize("case", CASES[:3])
+def test_edge_form_equals_direct_form_with_a_weight(case: tuple[int, int, float]) -> None:
+    n, seed, tmax = case
+    cs, J, com = synthetic_grasp(seed, n).cycle()
+    w_ext = np.array([0.0, 0.0, -1.5, 0.01, 0.0, 0.0])
+    params = AllocationParams.checked("test", tau_max=tmax, reg=1e-8)
+    qp = build_allocation_qp(cs, J, com, params, w_ext=w_ext)
+    edge = qpsolvers.solve_problem(qp.to_problem(), solver="daqp", primal_tol=1e-10)
+    direct = qpsolvers.solve_problem(direct_problem(qp), solver="daqp", primal_tol=1e-10)
+    assert edge.found and direct.found
+    lam = edge.x[: qp.n_lambda]
+    f = direct.x.reshape(-1, 3)
+    np.testing.assert_allclose(edge.x[qp.n_lambda :], qp.G_lam @ lam + w_ext, atol=1e-8)
+    w_edge = qp.G_lam @ lam + w_ext
+    w_direct = qp.G @ direct.x + w_ext
+    # The residual parts of the two optima agree up to the ridge's bound (module docstring).
+    assert abs(w_edge @ w_edge - w_direct @ w_direct) < 1e-4
+    assert f[:, 0].sum() >= params.f_n_min - 1e-6
+
+
+def test_weight_needs_an_allocator_that_can_balance_it(allegro) -> None:
+    from wholehand.loop.regulation import ForceRegulation
+    from wholehand.models.objects import ObjectModel
+
+    cube = ObjectModel.box((0.05, 0.05, 0.05))
+    feedforward = registry.load("allocators", "feedforward")
+    with pytest.raises(ConfigError, match="cannot balance the object's weight"):
+        ForceRegulation(allegro, cube, None, feedforward, weight=(0, 0, -1))  # type: ignore[arg-type]
+    qp = registry.load("allocators", "qp")
+    with pytest.raises(ConfigError, match="weight must be 3 finite numbers"):
+        ForceRegulation(allegro, cube, None, qp, weight=(0.0, -1.0))  # type: ignore[arg-type]

@@ -114,10 +114,16 @@ class Allocator(abc.ABC):
       solve: it returns no torque (``tau=None``) and says why in :attr:`Allocation.status`; the
       loop keeps the last feasible torque.
     - :meth:`reset` (optional): forget what is carried between cycles (warm starts).
+    - Known external wrench (optional): a class that sets :attr:`supports_external_wrench`
+      also takes ``allocate(..., external_wrench=w)``, w (6,) the wrench on the object about
+      its COM, world axes [N, N*m] (e.g. its weight), and balances ``G f + w`` instead of
+      ``G f``.
     """
 
     needs_ground_truth: ClassVar[bool] = False
     """True for allocators whose :meth:`start` reads ``context.ground_truth()``."""
+    supports_external_wrench: ClassVar[bool] = False
+    """True for allocators whose :meth:`allocate` takes ``external_wrench``."""
 
     def start(self, context: CycleContext) -> None:  # noqa: B027 - an optional hook
         """Called on the first cycle of force regulation, before the first :meth:`allocate`."""

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -341,6 +341,9 @@ class AllocationQP:
     """(n_t, 4N) torque rows on ``lambda``: ``tau[dofs[torque_rows]] = T_lam @ lambda`` [N*m]."""
     null: ActuationNullSpace | None
     """Basis of ``Null(J_act^T)``; None when consistency is off or no contact is actuated."""
+    w_ext: FloatArray = field(default_factory=lambda: np.zeros(N_WRENCH))
+    """(6,) known external wrench on the object about its COM, world axes [N, N*m] (e.g. its
+    weight); the objective is the net wrench ``||G f + w_ext||^2`` (zero: the paper's)."""
 
     @functools.cached_property
     def G(self) -> FloatArray:  # noqa: N802 - the paper's symbol
@@ -419,7 +422,7 @@ class AllocationQP:
         """The full QP in the solved (edge, wrench-split) form as a :class:`qpsolvers.Problem`.
 
         ``x = [lambda; w]``; ``P = diag(reg, ..., reg, 1, ..., 1)``, ``q = 0``; equality
-        ``G_lam lambda - w = 0``; inequalities ``-sum(lambda) <= -f_n_min``, ``+-T_lam lambda
+        ``G_lam lambda - w = -w_ext``; inequalities ``-sum(lambda) <= -f_n_min``, ``+-T_lam lambda
         <= tau_max``, ``+-C lambda <= eps_margin``; bounds ``lambda >= 0``.
 
         Args:
@@ -451,11 +454,11 @@ class AllocationQP:
                 spa.csc_matrix(Gi),
                 hv,
                 spa.csc_matrix(A),
-                np.zeros(N_WRENCH),
+                -self.w_ext,
                 lb,
                 ub,
             )
-        return qpsolvers.Problem(np.diag(P), np.zeros(n), Gi, hv, A, np.zeros(N_WRENCH), lb, ub)
+        return qpsolvers.Problem(np.diag(P), np.zeros(n), Gi, hv, A, -self.w_ext, lb, ub)
 
 
 def build_allocation_qp(
@@ -464,6 +467,7 @@ def build_allocation_qp(
     p_com_world: FloatArray,
     params: AllocationParams,
     owner: str = "build_allocation_qp",
+    w_ext: FloatArray | None = None,
 ) -> AllocationQP:
     """The allocation QP of the current contacts.
 
@@ -474,6 +478,8 @@ def build_allocation_qp(
         p_com_world: (3,) object centre of mass in the world [m].
         params: QP constants.
         owner: Name used in error messages.
+        w_ext: (6,) known external wrench on the object about its COM, world axes [N, N*m];
+            None: zero (the paper's quasi-static balance).
 
     Raises:
         ConfigError: ``J_world``, ``p_com_world``, ``tau_max`` or ``actuated_dofs`` do not match
@@ -535,15 +541,26 @@ def build_allocation_qp(
         torque_rows=torque_rows,
         T_lam=T_lam,
         null=null,
+        **({} if w_ext is None else {"w_ext": _wrench(w_ext, owner)}),
     )
+
+
+def _wrench(w_ext: npt.ArrayLike, owner: str) -> FloatArray:
+    w = np.asarray(w_ext, dtype=np.float64)
+    if w.shape != (N_WRENCH,) or not np.isfinite(w).all():
+        raise ConfigError(
+            f"{owner}: external wrench must be 6 finite numbers [N, N*m], got {w_ext!r}"
+        )
+    return w
 
 
 def direct_problem(qp: AllocationQP, reg: float | None = None) -> qpsolvers.Problem:
     """The paper's form on local forces ``f`` (3N,) as a dense :class:`qpsolvers.Problem`.
 
-    ``min 1/2 ||G f||^2 + reg/2 ||f||^2`` subject to ``f_n >= 0`` (bounds), four friction rows
-    per contact, the minimum squeeze, the torque rows and the consistency rows (same ``N_u`` as
-    ``qp``). A reference for tests and A/B comparisons, not used in the control loop.
+    ``min 1/2 ||G f + w_ext||^2 + reg/2 ||f||^2`` subject to ``f_n >= 0`` (bounds), four
+    friction rows per contact, the minimum squeeze, the torque rows and the consistency rows
+    (same ``N_u`` as ``qp``). A reference for tests and A/B comparisons, not used in the control
+    loop.
 
     Args:
         qp: Structured problem of the cycle.
@@ -581,4 +598,5 @@ def direct_problem(qp: AllocationQP, reg: float | None = None) -> qpsolvers.Prob
         rows += [C, -C]
         h += [np.full(qp.n_null, p.eps_margin)] * 2
     lb = np.tile([0.0, -np.inf, -np.inf], n)
-    return qpsolvers.Problem(P, np.zeros(3 * n), np.vstack(rows), np.concatenate(h), lb=lb)
+    q = qp.G.T @ qp.w_ext
+    return qpsolvers.Problem(P, q, np.vstack(rows), np.concatenate(h), lb=lb)

@@ -540,8 +540,9 @@ def dense_qp(qp: AllocationQP, torque_sel: IntArray, null_sel: IntArray) -> Dens
     if nn:
         A[k + nt :, :nl] = qp.null_rows(null_sel)
         lim[nt:] = qp.params.eps_margin
-    lower = np.concatenate((np.zeros(N_WRENCH), [qp.params.f_n_min], -lim))
-    upper = np.concatenate((np.zeros(N_WRENCH), [np.inf], lim))
+    # G lambda - w = -w_ext: w is then the net wrench G f + w_ext, whose norm is minimised.
+    lower = np.concatenate((-qp.w_ext, [qp.params.f_n_min], -lim))
+    upper = np.concatenate((-qp.w_ext, [np.inf], lim))
     p_diag = np.concatenate((np.full(nl, qp.params.reg), np.ones(N_WRENCH)))
     lb = np.concatenate((np.zeros(nl), np.full(N_WRENCH, -np.inf)))
     return DenseQP(p_diag, A, lower, upper, N_WRENCH, lb, np.full(n, np.inf))

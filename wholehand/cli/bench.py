@@ -60,6 +60,38 @@ def _cmd_soak(args: argparse.Namespace) -> int:
     return 0 if ok and result["recovered"] == result["n_injected"] else 1
 
 
+def _cmd_reach(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from wholehand.reaching.episode import EpisodeSpec, run_episode
+
+    cycle: dict[str, list[float]] = {}
+    reacher: list[float] = []
+    for seed in range(args.seed, args.seed + args.episodes):
+        spec = EpisodeSpec(hand=args.hand, object=args.object, seed=seed)
+        summary = run_episode(spec, samples=True)
+        for kind, values in summary["cycle_samples_us"].items():
+            cycle.setdefault(kind, []).extend(values)
+        reacher.extend(summary["reacher_samples_us"])
+
+    def stats(values: list[float]) -> dict[str, float]:
+        v = np.asarray(values)
+        return {
+            "p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
+            "max": float(v.max()), "n": int(v.size),
+        }  # fmt: skip
+
+    result = {
+        "hand": args.hand,
+        "object": args.object,
+        "episodes": args.episodes,
+        "reacher_step_us": stats(reacher),
+        "cycle_us": {kind: stats(v) for kind, v in cycle.items()},
+    }
+    print(json.dumps(result, indent=2))
+    return 0
+
+
 def _cmd_thin_walls(args: argparse.Namespace) -> int:
     from wholehand.models.walls_bench import run_thin_wall_benchmark
 
@@ -119,3 +151,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--points", type=int, default=4000, help="points per shape")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_thin_walls)
+
+    p = bsub.add_parser(
+        "reach",
+        help="reacher QP and whole-cycle latency (reaching, regulation) over seeded episodes",
+    )
+    p.add_argument("--hand", default="allegro_right")
+    p.add_argument("--object", default="077_rubiks_cube")
+    p.add_argument("--episodes", type=int, default=3, help="seeded episodes")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
+    p.set_defaults(func=_cmd_reach)

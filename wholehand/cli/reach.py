@@ -22,6 +22,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, default=14.0, help="longest episode [s]")
     p.add_argument("--push", type=float, default=None, help="push while held [N] (default 3)")
     p.add_argument("--twist", type=float, default=None, help="twist while held [N*m] (0.1)")
+    p.add_argument(
+        "--no-balance-weight",
+        action="store_true",
+        help="the paper's quasi-static balance: the QP ignores the object's weight",
+    )
     p.add_argument("--reacher", default="mink", help="reacher plug-in")
     p.add_argument("--allocator", default="qp", help="allocator plug-in")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -44,7 +49,8 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         extra["twist_torque"] = args.twist
     spec = EpisodeSpec(
         hand=args.hand, object=args.object, seed=args.seed, duration=args.duration,
-        reacher=args.reacher, allocator=args.allocator, **extra,
+        reacher=args.reacher, allocator=args.allocator,
+        balance_weight=not args.no_balance_weight, **extra,
     )  # fmt: skip
     summary = run_episode(spec)
     if args.save:
@@ -77,6 +83,9 @@ def format_summary(s: dict[str, Any]) -> str:
     lines.append("")
     for kind, stats in s["cycle_us"].items():
         lines.append(f"{kind} cycle: p50 {stats['p50']:.0f} us, p99 {stats['p99']:.0f} us")
+    if s["reacher_us"]:
+        r = s["reacher_us"]
+        lines.append(f"reacher step: p50 {r['p50']:.0f} us, p99 {r['p99']:.0f} us")
     warnings = {k: v for k, v in s["mujoco_warnings"].items() if v}
     if warnings:
         lines.append(f"MuJoCo warnings: {warnings}")

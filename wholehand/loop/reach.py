@@ -17,6 +17,8 @@ leaves the wrist where it is.
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -55,6 +57,8 @@ so the fingers press on the object instead of stopping a millimetre short (a sto
 angles are those of a settled grasp, within 0-3 mm of the surface in the estimate)."""
 SQUEEZE_PALM_ERROR: float = 0.01
 """The squeeze starts once the palm is within this distance of its grasp pose [m]."""
+TIMES_KEPT = 100_000
+"""Reacher step times kept (the latest), for benchmarks."""
 MAX_LEAD: float = 0.3
 """Farthest the finger reference may run ahead of the measured joint angles [rad]."""
 
@@ -130,6 +134,8 @@ class ReachStage(Stage):
         self._kin = HandKinematics(hand)
         self._since = 0.0
         self._q_ref = np.zeros(hand.nq)
+        self.reacher_times: deque[float] = deque(maxlen=TIMES_KEPT)
+        """Wall time of the latest reacher steps [s]."""
         finger_of = {}
         for finger, links in hand.config.fingers.items():
             for link in links:
@@ -171,7 +177,9 @@ class ReachStage(Stage):
         # ahead of the reading would give the servo almost no error to act on. It may lead the
         # reading by MAX_LEAD at most, so a finger blocked by the object does not wind it up.
         q_ref = np.clip(self._q_ref, obs.q - MAX_LEAD, obs.q + MAX_LEAD)
+        started = time.perf_counter()
         q_next, wMb_next = self.reacher.step(q_ref, obs.wMb, wMo, goal, context.dt)
+        self.reacher_times.append(time.perf_counter() - started)
         self._q_ref = q_next
         now = context.kinematics
         palm_error = np.linalg.norm(

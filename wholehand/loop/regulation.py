@@ -18,6 +18,7 @@ import time
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from wholehand.allocation.base import Allocator
 from wholehand.contacts.base import ContactEstimator
@@ -26,6 +27,8 @@ from wholehand.loop.command import Command
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
+
+FloatArray = npt.NDArray[np.float64]
 
 UNIT_TOL = 1e-3
 """Largest deviation of a contact normal's squared length from 1 that counts as a unit vector."""
@@ -49,6 +52,9 @@ class ForceRegulation(Stage):
         estimate_at: ``"object_stamp"``: contacts at q(stamp_object) (paper); ``"current"``: at
             the current q.
         name: the stage's name.
+        weight: the object's known weight, world axes [N] (e.g. ``m * (0, 0, -9.81)``): the
+            allocator balances it with the contact forces (``G f + w = 0``, a force at the
+            centre of mass). None: the paper's quasi-static balance of no external wrench.
 
     Status: the allocation's (``ok``, ``empty``, ``infeasible``, ``hold``, ...). When the
     allocation gives no torque the stage gives no command and the loop keeps the last feasible
@@ -68,7 +74,14 @@ class ForceRegulation(Stage):
         allocator: Allocator,
         estimate_at: EstimateAt = "object_stamp",
         name: str = "regulate",
+        weight: npt.ArrayLike | None = None,
     ) -> None:
+        if weight is not None and not allocator.supports_external_wrench:
+            raise ConfigError(
+                f"ForceRegulation: allocator {type(allocator).__name__} cannot balance the "
+                "object's weight (supports_external_wrench is False); use the qp allocator or "
+                "leave compensation off"
+            )
         if estimate_at not in ESTIMATE_AT:
             raise ConfigError(
                 f"ForceRegulation: estimate_at={estimate_at!r} is unknown; use one of "
@@ -79,6 +92,14 @@ class ForceRegulation(Stage):
         self.estimate_at = estimate_at
         self.name = name
         self._com_h = np.r_[np.asarray(obj.com, dtype=float), 1.0]
+        self._extra: dict[str, FloatArray] = {}
+        if weight is not None:
+            force = np.asarray(weight, dtype=float).reshape(-1)
+            if force.shape != (3,) or not np.isfinite(force).all():
+                raise ConfigError(
+                    f"ForceRegulation: weight must be 3 finite numbers [N], got {weight!r}"
+                )
+            self._extra["external_wrench"] = np.r_[force, 0.0, 0.0, 0.0]
         self.degenerate_normals = 0
         """Contacts dropped because their normal was not a unit vector."""
 
@@ -105,7 +126,8 @@ class ForceRegulation(Stage):
             contacts = contacts.in_joint_frames(then).moved_to(now)
         estimated = time.perf_counter()
         J = now.actuation_jacobians(self.hand.link_joint[contacts.link], contacts.p_world)
-        allocation = self.allocator.allocate(contacts, J, (wMo @ self._com_h)[:3], now)
+        p_com = (wMo @ self._com_h)[:3]
+        allocation = self.allocator.allocate(contacts, J, p_com, now, **self._extra)
         tau = allocation.tau
         command = None if tau is None else Command.torques(self.hand.joint_torques(tau))
         return StageOutput(

@@ -9,8 +9,9 @@ spring-damper on the object) holds the object out in the air:
 3. while held: a push (``push_force`` for ``pulse``) and a twist (``twist_torque``);
 4. the person snatches the object, pulling it ``snatch`` away at the height it was first held
    (picking it up if it was dropped), and holds it there;
-5. the hand loses the grasp, reaches again and regrasps; the person lets go once more and the
-   episode ends after ``hold_after`` of holding, or at ``duration``.
+5. the hand loses the grasp, reaches again and regrasps; the person lets go once more (or
+   after ``SNATCH_GIVE_UP`` if the hand kept the object) and the episode is complete once the
+   hand has then held it for ``hold_after``; otherwise it ends at ``duration``.
 
 Until table-top grasps exist (the stored grasps wrap around the object, so most would put a
 finger under it on a table), the object is grasped in the air; the table is there to be avoided
@@ -28,6 +29,7 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand import registry
+from wholehand.backends.mujoco_scene import GRAVITY_VECTOR
 from wholehand.backends.table import Table
 from wholehand.errors import ConfigError
 from wholehand.grasps.generate import style_arrays
@@ -36,6 +38,7 @@ from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.reach import GRASP, PREGRASP, REGULATE, HoldStage, ReachPlanner, ReachStage
 from wholehand.loop.regulation import ForceRegulation
+from wholehand.loop.stage import Stage
 from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.objects import ObjectModel, load_object
@@ -76,14 +79,20 @@ class EpisodeSpec:
     """How far the snatch pulls the object [m]."""
     hold_after: float = 1.0
     """Holding time after the regrasp that ends the episode [s]."""
+    balance_weight: bool = True
+    """Force regulation balances the object's known weight (``ForceRegulation(weight=...)``);
+    False: the paper's quasi-static balance of no external wrench."""
 
 
-PERSON_STIFFNESS = (1000.0, 20.0)
-"""The person's grip on the object: [N/m], [N*m/rad]."""
-PERSON_DAMPING = (20.0, 0.2)
-"""[N*s/m], [N*m*s/rad]."""
+PERSON_BANDWIDTH = 50.0
+"""Natural frequency of the person's grip on the object [rad/s]: stiffness ``m w^2`` (``I w^2``
+about the axes), critically damped, so that light and heavy objects follow alike and the
+explicitly applied spring stays stable (``2 w dt`` well below 2 at 1 ms steps)."""
+
 GAP = 1.0
 """Pause between successive perturbations [s]."""
+SNATCH_GIVE_UP = 2.0
+"""If the hand still holds the object this long after the snatch, the person lets go [s]."""
 PERTURBATIONS = ("person moves", "push", "twist", "person snatches")
 """Events that count as perturbations."""
 
@@ -102,6 +111,8 @@ class Person(Observer):
     backend: Any
     wMo_hold: FloatArray
     rng: np.random.Generator
+    mass_inertia: tuple[float, float]
+    """Object mass [kg] and its largest principal moment of inertia [kg*m^2]."""
     events: list[Event] = field(default_factory=list)
     state: str = "holding"
     since: float = 0.0
@@ -112,7 +123,11 @@ class Person(Observer):
         self._grip(self.wMo_hold)
 
     def _grip(self, wMo: FloatArray) -> None:
-        self.backend.set_object_spring(wMo, PERSON_STIFFNESS, PERSON_DAMPING)
+        w = PERSON_BANDWIDTH
+        mass, inertia = self.mass_inertia
+        stiffness = (mass * w**2, inertia * w**2)
+        damping = (2.0 * mass * w, 2.0 * inertia * w)
+        self.backend.set_object_spring(wMo, stiffness, damping)
 
     def _note(self, t: float, what: str) -> None:
         self.events.append(Event(round(t, 4), what))
@@ -133,10 +148,19 @@ class Person(Observer):
             self._grip(target)
             self._note(t, f"person moves the object by {100 * spec.displace:.0f} cm and 20 deg")
             self.state, self.since = "moved", t
-        elif state in ("moved", "snatched") and held_for >= spec.release_after:
+        elif state == "moved" and held_for >= spec.release_after:
             self.backend.set_object_spring(None)
             self._note(t, "person lets go")
-            self.state, self.since = ("released" if state == "moved" else "regrasped"), t
+            self.state, self.since = "released", t
+        elif state == "snatched" and held_for >= spec.release_after and self.held_since is not None:
+            if self.held_since > self.since:  # a grasp made after the snatch
+                self.backend.set_object_spring(None)
+                self._note(t, "person lets go")
+                self.state, self.since = "regrasped", t
+            elif t - self.since >= SNATCH_GIVE_UP:
+                self.backend.set_object_spring(None)
+                self._note(t, "person lets go: the hand kept the object through the snatch")
+                self.state, self.since = "regrasped", t
         elif state == "released" and t - self.since >= GAP:
             force = spec.push_force * self._horizontal()
             self.backend.apply_object_wrench(force, np.zeros(3))
@@ -161,7 +185,7 @@ class Person(Observer):
             self._grip(target)
             self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
             self.state, self.since = "snatched", t
-        elif state == "regrasped" and t - self.since >= spec.hold_after:
+        elif state == "regrasped" and held_for >= spec.hold_after:
             self.done = True
             return "episode complete"
         return None
@@ -176,8 +200,10 @@ def _plans(hand: HandModel, obj: ObjectModel) -> list[GraspPlan]:
     return found
 
 
-def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
-    """Run one episode; returns its summary (events, transitions, counts, timings)."""
+def run_episode(spec: EpisodeSpec, samples: bool = False) -> dict[str, Any]:
+    """Run one episode; returns its summary (events, transitions, counts, timings), with every
+    cycle's and reacher step's compute time [us] (``cycle_samples_us``, ``reacher_samples_us``)
+    if ``samples``."""
     if not (math.isfinite(spec.rate) and spec.rate > 0):
         raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
     hand, obj = load_hand(spec.hand), load_object(spec.object)
@@ -204,20 +230,28 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
     planner = ReachPlanner(plans, usable)
     closing = style_arrays(hand, hand.config.grasp_styles["power"])[1]
-    regulation = ForceRegulation(hand, obj, estimator, load_allocator(spec.allocator, hand, {}))
-    stages = {
-        PREGRASP: ReachStage(hand, reacher, planner, estimator, "pregrasp"),
-        GRASP: ReachStage(hand, reacher, planner, estimator, "grasp", closing=closing),
+    weight = obj.mass * np.asarray(GRAVITY_VECTOR) if spec.balance_weight else None
+    allocator = load_allocator(spec.allocator, hand, {})
+    regulation = ForceRegulation(hand, obj, estimator, allocator, weight=weight)
+    reaching = (
+        ReachStage(hand, reacher, planner, estimator, "pregrasp"),
+        ReachStage(hand, reacher, planner, estimator, "grasp", closing=closing),
+    )
+    stages: dict[str, Stage] = {
+        PREGRASP: reaching[0],
+        GRASP: reaching[1],
         REGULATE: HoldStage(regulation, GraspLossCheck(hand, obj)),
     }
-    person = Person(spec, backend, wMo, rng)
+    inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
+    person = Person(spec, backend, wMo, rng, (obj.mass, inertia))
     timer = _CycleTimes()
     loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=[person, timer])
     report = loop.run(spec.duration)
     losses = [t for t in report.transitions if t.source == REGULATE and t.target == PREGRASP]
     grasps = [t for t in report.transitions if t.target == REGULATE]
     recovered = sum(any(g.t > loss.t for g in grasps) for loss in losses)
-    return {
+    reacher_us = [1e6 * t for stage in reaching for t in stage.reacher_times]
+    summary: dict[str, Any] = {
         "spec": asdict(spec),
         "complete": person.done,
         "duration_s": backend.time,
@@ -229,9 +263,14 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
         "events": [asdict(e) for e in person.events],
         "transitions": [t.__dict__ for t in report.transitions],
         "cycle_us": timer.summary(),
+        "reacher_us": _percentiles(reacher_us),
         "loop": report.as_dict(),
         "mujoco_warnings": backend.warnings(),
     }
+    if samples:
+        summary["cycle_samples_us"] = timer.times
+        summary["reacher_samples_us"] = reacher_us
+    return summary
 
 
 class _CycleTimes(Observer):
@@ -246,8 +285,14 @@ class _CycleTimes(Observer):
         return None
 
     def summary(self) -> dict[str, dict[str, float]]:
-        return {
-            kind: {"p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99))}
-            for kind, v in self.times.items()
-            if v
-        }
+        return {kind: _percentiles(v) for kind, v in self.times.items() if v}
+
+
+def _percentiles(values: list[float]) -> dict[str, float]:
+    if not values:
+        return {}
+    v = np.asarray(values)
+    return {
+        "p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
+        "max": float(v.max()), "n": int(v.size),
+    }  # fmt: skip

@@ -12,11 +12,19 @@ from wholehand.studies.contacts import ContactsStudy
 from wholehand.studies.k_sweep import KSweepStudy
 from wholehand.studies.perturbation import PerturbationStudy
 from wholehand.studies.pose_error import PoseErrorStudy
+from wholehand.studies.reach import ReachStudy
 from wholehand.studies.runner import TIMING_COLUMNS, StudyResult, run_study
 
 STUDIES: dict[str, type[Study]] = {
     cls.name: cls
-    for cls in (PerturbationStudy, PoseErrorStudy, KSweepStudy, ConsistencyStudy, ContactsStudy)
+    for cls in (
+        PerturbationStudy,
+        PoseErrorStudy,
+        KSweepStudy,
+        ConsistencyStudy,
+        ContactsStudy,
+        ReachStudy,
+    )  # fmt: skip
 }
 """Study name -> class, in the paper's priority order."""
 

@@ -161,8 +161,10 @@ def run_job(job: TrialJob) -> dict[str, Any]:
 def _register_kinds() -> None:
     if "net_force" not in JOB_KINDS:
         from wholehand.studies.consistency import net_force_row
+        from wholehand.studies.reach import episode_row
 
         JOB_KINDS["net_force"] = net_force_row
+        JOB_KINDS["episode"] = episode_row
 
 
 def _warm_caches(jobs: list[TrialJob]) -> None:

@@ -1,0 +1,138 @@
+"""Reach-grasp-hold-regrasp episodes (paper Sec. III-D and Table I), many seeds, five objects.
+
+Each job is one ``wholehand reach`` episode (:mod:`wholehand.reaching.episode`) on one of the
+paper's five objects, with the force regulation as in the paper (``qp``: no external wrench
+balanced) or balancing the object's known weight (``qp+weight``). Per method: acquisition
+success (a first grasp was made), time to grasp, losses per perturbation, regrasp success
+(losses followed by a new grasp) and episodes completed (held at the end).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wholehand.loop.outcome import DIVERGED_PREFIX
+from wholehand.loop.trial import TrialSpec
+from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, derive_seed, group_rows
+
+METHODS = {"qp": False, "qp+weight": True}
+"""Method label -> whether force regulation balances the object's weight."""
+
+
+@dataclass(frozen=True)
+class ReachConfig:
+    objects: tuple[str, ...]
+    episodes: int
+    """Seeded episodes per object and method."""
+    methods: tuple[str, ...] = tuple(METHODS)
+
+
+CONFIGS = {
+    "full": ReachConfig(PAPER_OBJECTS, 10),
+    "quick": ReachConfig(PAPER_OBJECTS, 1),
+    "tiny": ReachConfig(("077_rubiks_cube",), 1, ("qp+weight",)),
+}
+
+
+def episode_row(job: TrialJob) -> dict[str, Any]:
+    """Run the job's episode; its outcome columns."""
+    from wholehand.reaching.episode import EpisodeSpec, run_episode
+
+    s = job.spec
+    started = time.perf_counter()
+    summary = run_episode(
+        EpisodeSpec(
+            hand=s.hand, object=s.object, seed=s.seed, rate=s.control_rate,
+            allocator=str(s.allocator), balance_weight=METHODS[job.labels["method"]],
+        )
+    )  # fmt: skip
+    warnings = summary["mujoco_warnings"]
+    diverged = warnings.get("bad_qacc", 0) + warnings.get("bad_qpos", 0)
+    loop = summary["loop"]
+    cycles = max(int(loop["cycles"]), 1)
+    return {
+        "held": bool(summary["complete"]),
+        "acquired": summary["grasps"] > 0,
+        "time_to_grasp_s": summary["time_to_grasp_s"],
+        "grasps": summary["grasps"],
+        "losses": summary["losses"],
+        "recovered": summary["recovered"],
+        "perturbations": summary["perturbations"],
+        "duration_s": round(float(summary["duration_s"]), 6),
+        "cycles": int(loop["cycles"]),
+        "stage_errors": int(loop["n_errors"]),
+        "failure_stage": "" if summary["complete"] else "episode",
+        "error": f"{DIVERGED_PREFIX}: {warnings}" if diverged else "",
+        "wall_time_s": time.perf_counter() - started,
+        "cycle_mean_us": 1e6 * (time.perf_counter() - started) / cycles,
+    }
+
+
+class ReachStudy(Study):
+    name = "reach"
+    description = (
+        "seeded reach-grasp-hold-regrasp episodes with gravity on the paper's five objects: "
+        "acquisition, time to grasp, losses per perturbation, regrasps (Sec. III-D, Table I)"
+    )
+
+    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
+        cfg = CONFIGS[self.check_size(size)]
+        jobs: list[TrialJob] = []
+        for oi, obj in enumerate(cfg.objects):
+            for episode in range(cfg.episodes):
+                episode_seed = derive_seed(seed, oi, episode)
+                for method in cfg.methods:
+                    spec = TrialSpec(hand=hand, object=obj, seed=episode_seed, gravity=True)
+                    labels = {"method": method, "episode": episode}
+                    jobs.append(TrialJob(len(jobs), spec, labels, "episode"))
+        return jobs
+
+    def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
+        groups = []
+        valid = [r for r in rows if not r.get("error")]
+        for (method,), group in group_rows(valid, "method").items():
+            times = [float(r["time_to_grasp_s"]) for r in group if r["acquired"]]
+            losses = sum(int(r["losses"]) for r in group)
+            perturbations = sum(int(r["perturbations"]) for r in group)
+            groups.append({
+                "method": method,
+                "episodes": len(group),
+                "acquired": sum(bool(r["acquired"]) for r in group),
+                "time_to_grasp_s_median": float(np.median(times)) if times else float("nan"),
+                "perturbations": perturbations,
+                "losses": losses,
+                "losses_per_perturbation": losses / perturbations if perturbations else 0.0,
+                "recovered": sum(int(r["recovered"]) for r in group),
+                "completed": sum(bool(r["held"]) for r in group),
+            })  # fmt: skip
+        return {"groups": groups, "n_excluded": len(rows) - len(valid)}
+
+    def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
+        import matplotlib.pyplot as plt
+
+        g = summary["groups"]
+        names = ("acquired", "completed")
+        fig, axes = plt.subplots(1, 2, figsize=(8, 3.2))
+        xs = np.arange(len(g))
+        width = 0.8 / len(names)
+        for i, name in enumerate(names):
+            share = [100.0 * x[name] / max(x["episodes"], 1) for x in g]
+            axes[0].bar(xs + (i - 0.5) * width, share, width, label=name)
+        axes[0].set_ylabel("episodes [%]")
+        axes[0].set_ylim(0, 105)
+        axes[0].legend(fontsize=7)
+        axes[1].bar(xs - 0.2, [x["losses"] for x in g], 0.4, label="losses")
+        axes[1].bar(xs + 0.2, [x["recovered"] for x in g], 0.4, label="recovered")
+        axes[1].set_ylabel("count")
+        axes[1].legend(fontsize=7)
+        for ax in axes:
+            ax.set_xticks(xs, [x["method"] for x in g])
+        fig.tight_layout()
+        fig.savefig(path, dpi=120)
+        plt.close(fig)

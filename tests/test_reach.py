@@ -258,7 +258,11 @@ def test_a_seeded_episode_grasps_loses_and_regrasps() -> None:
     from wholehand.cli.reach import format_summary
     from wholehand.reaching.episode import EpisodeSpec, run_episode
 
-    summary = run_episode(EpisodeSpec(seed=0))
+    summary = run_episode(EpisodeSpec(seed=0), record=True)
+    record = summary.pop("record")
+    base = np.asarray(record.rows["p_base"])
+    assert len(base) == summary["loop"]["cycles"]
+    assert np.linalg.norm(base[-1] - base[0]) > 0.05  # the wrist moved, and the record shows it
     stages = [(t["source"], t["target"]) for t in summary["transitions"]]
     assert stages[:2] == [(PREGRASP, GRASP), (GRASP, "regulate")]
     assert (REGULATE, PREGRASP) in stages  # lost (to the snatch) ...
@@ -294,3 +298,87 @@ def test_reach_study_rows_and_summary(tmp_path) -> None:
     assert group["episodes"] == 1 and group["acquired"] == int(row["acquired"])
     assert group["recovered"] <= group["losses"] <= group["perturbations"]
     assert (tmp_path / "reach.png").stat().st_size > 0
+
+
+# --- three facts about mink's collision limit, and what the reacher does about each -------------
+def test_mesh_distance_is_to_the_hull_so_the_object_collides_as_its_parts(allegro) -> None:
+    # A probe at the centre of a cup's cavity is inside the cup's convex hull (MuJoCo's distance
+    # to a mesh geom is to its hull) but clear of every convex part of its decomposition.
+    import mujoco
+    from wholehand_plugins.mink_reacher import build_reach_model
+
+    from wholehand.backends.convex import convex_decomposition
+    from wholehand.models.objects import load_object
+
+    cup = load_object("065-f_cups")
+    spec = mujoco.MjSpec()
+    hull = cup.mesh.convex_hull
+    parts = convex_decomposition(cup.mesh, name=cup.name).parts()
+    for name, (v, f) in [
+        ("hull", (hull.vertices, hull.faces)),
+        *[(f"part{i}", p) for i, p in enumerate(parts)],
+    ]:
+        mesh = spec.add_mesh(name=name)
+        mesh.uservert = np.asarray(v, dtype=np.float32).ravel().tolist()
+        mesh.userface = np.asarray(f, dtype=np.int32).ravel().tolist()
+        spec.worldbody.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name)
+    lo, hi = cup.mesh.bounds
+    probe = spec.worldbody.add_body(name="probe", mocap=True, pos=(0.5 * (lo + hi)).tolist())
+    probe.add_geom(name="probe", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.005, 0, 0])
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    fromto = np.zeros(6)
+
+    def distance(geom: str) -> float:
+        return mujoco.mj_geomDistance(
+            model, data, model.geom(geom).id, model.geom("probe").id, 0.2, fromto
+        )
+
+    assert distance("hull") < 0.0
+    assert min(distance(f"part{i}") for i in range(len(parts))) > 0.005
+    _, _, object_geoms = build_reach_model(allegro, cup, None)
+    assert len(object_geoms) == len(parts) > 1
+
+
+def test_mink_drops_world_geom_pairs_with_the_hand_root_but_keeps_the_mocap_object(
+    allegro, cube
+) -> None:
+    # The hand's root hangs from the world body, so mink's parent-child filter drops its pairs
+    # with any geom of the world body (a table there); a mocap object keeps them. TableLimit
+    # therefore handles the table, and the object is a mocap body.
+    import mink
+    import mujoco
+    from wholehand_plugins.mink_reacher import build_reach_model
+
+    model, hand_geoms, object_geoms = build_reach_model(allegro, cube, Table())
+    palm = [g for g in hand_geoms if g.startswith(allegro.palm_link)]
+    palm_ids = {model.geom(g).id for g in palm}
+    table = mink.CollisionAvoidanceLimit(model, [(palm, ["table"])])
+    obj = mink.CollisionAvoidanceLimit(model, [(palm, object_geoms)])
+    assert palm_ids and not table.geom_id_pairs
+    assert {min(p) for p in obj.geom_id_pairs} | {max(p) for p in obj.geom_id_pairs} >= palm_ids
+    assert model.body_mocapid[model.body("object").id] >= 0
+    assert mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "table") >= 0
+
+
+def test_a_target_behind_the_object_does_not_pull_the_hand_through_it(allegro, cube) -> None:
+    # Large steps could jump past a limit that only acts within its detection distance; the
+    # reacher's speed cap keeps steps (1.5 mm at 200 Hz) far below it (4 cm), so the hand
+    # stops at the object instead of passing through to a target on its far side.
+    reacher = registry.load("reachers", "mink", hand=allegro, obj=cube, table=None)
+    wMo = np.eye(4)
+    q = allegro.neutral()
+    wMb = np.eye(4)
+    wMb[:3, 3] = [0.0, 0.0, 0.2]
+    through = wMb.copy()
+    through[2, 3] = -0.2
+    targets = tip_and_palm_poses(allegro, q, through)
+    kin = HandKinematics(allegro)
+    closest = np.inf
+    for _ in range(400):
+        q, wMb = reacher.step(q, wMb, wMo, ReachTargets(targets, q, allegro.palm_link), 0.005)
+        kin.update(q, wMb)
+        points = kin.transform_points(allegro.samples.p_joint, allegro.samples.joint)
+        closest = min(closest, float(cube.sdf.query(points).min()))
+    assert -0.001 < closest < 0.01, closest  # came to the object, never more than 1 mm into it

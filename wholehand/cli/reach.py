@@ -31,6 +31,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--allocator", default="qp", help="allocator plug-in")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--save", default=None, help="write the summary (JSON) here")
+    p.add_argument("--record", default=None, help="write the run record (.npz) here")
+    p.add_argument("--record-html", default=None, help="write a standalone HTML animation here")
     p.set_defaults(func=_cmd_reach)
 
 
@@ -52,7 +54,15 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         reacher=args.reacher, allocator=args.allocator,
         balance_weight=not args.no_balance_weight, **extra,
     )  # fmt: skip
-    summary = run_episode(spec)
+    recording = bool(args.record or args.record_html)
+    summary = run_episode(spec, record=recording)
+    record = summary.pop("record", None)
+    if args.record:
+        print(f"run record: {record.save(Path(args.record))}")
+    if args.record_html:
+        from wholehand.viz.replay import write_html
+
+        print(f"animation: {write_html(record, args.record_html)}")
     if args.save:
         path = Path(args.save)
         path.parent.mkdir(parents=True, exist_ok=True)

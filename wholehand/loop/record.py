@@ -34,7 +34,8 @@ class RunRecord:
     ``estimate_time``, ``cycle_time`` (C,) [s]; ``status`` (C,) the cycle's status by name;
     ``held`` (C,) bool;
     ``p_object`` (C, 3) object origin in the world [m]; ``r_object`` (C, 3) object orientation as a
-    rotation vector [rad]; ``q`` (C, n_q) joint positions.
+    rotation vector [rad]; ``q`` (C, n_q) joint positions; ``p_base``, ``r_base`` (C, 3) the hand
+    base's pose likewise (it moves on a floating wrist).
 
     The estimated contacts of every cycle are stored ragged: ``contact_p``, ``contact_n`` (M, 3)
     positions [m] and object normals, ``contact_f`` (M, 3) commanded forces on the object [N],
@@ -49,8 +50,11 @@ class RunRecord:
 
     FIELDS = (
         "t", "stamp_object", "phase", "stage", "n_contacts", "residual_wrench", "tau", "qp_time",
-        "estimate_time", "cycle_time", "status", "held", "p_object", "r_object", "q",
+        "estimate_time", "cycle_time", "status", "held", "p_object", "r_object", "q", "p_base",
+        "r_base",
     )  # fmt: skip
+    OPTIONAL_FIELDS = ("p_base", "r_base")
+    """Fields that records of older versions lack (loaded as the hand's mount pose, None)."""
     CONTACT_FIELDS = ("contact_p", "contact_n", "contact_f", "contact_link")
     _CONTACT_SHAPES = {
         "contact_p": (0, 3),
@@ -60,8 +64,11 @@ class RunRecord:
     }
 
     def append(self, **values: Any) -> None:
-        """Add one cycle: every name of FIELDS and CONTACT_FIELDS as a keyword."""
+        """Add one cycle: every name of FIELDS and CONTACT_FIELDS as a keyword (those of
+        OPTIONAL_FIELDS may be left out, then for every cycle)."""
         for key in self.FIELDS + self.CONTACT_FIELDS:
+            if key in self.OPTIONAL_FIELDS and key not in values:
+                continue
             self.rows.setdefault(key, []).append(values[key])
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -106,7 +113,8 @@ class RunRecord:
                 meta=json.loads(str(data["meta"])), phases=[str(s) for s in data["phases"]]
             )
             for key in cls.FIELDS:
-                record.rows[key] = list(data[key])
+                if key in data or key not in cls.OPTIONAL_FIELDS:
+                    record.rows[key] = list(data[key])
             offsets = data["contact_offset"]
             for key in cls.CONTACT_FIELDS:
                 flat = data[key]
@@ -196,6 +204,7 @@ class Recorder(Observer):
         contacts, allocation = out.contacts, out.allocation
         q = _nan_unless(truth.q, (cycle.context.hand.nq,))
         wMo = _nan_unless(truth.wMo, (4, 4))
+        base = _nan_unless(truth.wMb, (4, 4))
         self.record.append(
             t=truth.stamp_q,
             stamp_object=cycle.context.obs.stamp_object,
@@ -212,6 +221,8 @@ class Recorder(Observer):
             p_object=wMo[:3, 3].copy(),
             r_object=pin.log3(wMo[:3, :3]) if np.isfinite(wMo).all() else np.full(3, np.nan),
             q=q,
+            p_base=base[:3, 3].copy(),
+            r_base=pin.log3(base[:3, :3]) if np.isfinite(base).all() else np.full(3, np.nan),
             contact_p=_EMPTY3 if contacts is None else contacts.p_world,
             contact_n=_EMPTY3 if contacts is None else contacts.n_world,
             contact_f=_EMPTY3 if allocation is None else allocation.f_world,

@@ -7,8 +7,8 @@ spring-damper on the object) holds the object out in the air:
    direction and turns it about the vertical (the hand must follow);
 2. once the hand has held it for ``release_after``, the person lets go (gravity on);
 3. while held: a push (``push_force`` for ``pulse``) and a twist (``twist_torque``);
-4. the person snatches the object, pulling it ``snatch`` away at the height it was first held
-   (picking it up if it was dropped), and holds it there;
+4. the person snatches the object, pulling it ``snatch`` away from the palm, no lower than it
+   was first held (picking it up if it was dropped), and holds it there;
 5. the hand loses the grasp, reaches again and regrasps; the person lets go once more (or
    after ``SNATCH_GIVE_UP`` if the hand kept the object) and the episode is complete once the
    hand has then held it for ``hold_after``; otherwise it ends at ``duration``.
@@ -35,8 +35,9 @@ from wholehand.errors import ConfigError
 from wholehand.grasps.generate import style_arrays
 from wholehand.grasps.store import load_grasps
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.grasp_loss import GraspLossCheck
+from wholehand.loop.grasp_loss import GraspLossCheck, GraspLossMonitor
 from wholehand.loop.reach import GRASP, PREGRASP, REGULATE, HoldStage, ReachPlanner, ReachStage
+from wholehand.loop.record import Recorder
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import Stage
 from wholehand.loop.trial import load_allocator
@@ -91,6 +92,10 @@ explicitly applied spring stays stable (``2 w dt`` well below 2 at 1 ms steps)."
 
 GAP = 1.0
 """Pause between successive perturbations [s]."""
+SNATCH_BANDWIDTH = 150.0
+"""The snatch's grip [rad/s]: three times stiffer than the holding grip, so it pulls any of the
+paper's objects out of a 0.2 N*m hand (the pull at 15 cm is 0.15 m * m * w^2: 170 N for 50 g);
+``2 w dt`` = 0.3 keeps the explicit spring stable."""
 SNATCH_GIVE_UP = 2.0
 """If the hand still holds the object this long after the snatch, the person lets go [s]."""
 PERTURBATIONS = ("person moves", "push", "twist", "person snatches")
@@ -113,6 +118,7 @@ class Person(Observer):
     rng: np.random.Generator
     mass_inertia: tuple[float, float]
     """Object mass [kg] and its largest principal moment of inertia [kg*m^2]."""
+    palm_link: str
     events: list[Event] = field(default_factory=list)
     state: str = "holding"
     since: float = 0.0
@@ -122,8 +128,7 @@ class Person(Observer):
     def on_start(self, loop: ControlLoop) -> None:
         self._grip(self.wMo_hold)
 
-    def _grip(self, wMo: FloatArray) -> None:
-        w = PERSON_BANDWIDTH
+    def _grip(self, wMo: FloatArray, w: float = PERSON_BANDWIDTH) -> None:
         mass, inertia = self.mass_inertia
         stiffness = (mass * w**2, inertia * w**2)
         damping = (2.0 * mass * w, 2.0 * inertia * w)
@@ -179,10 +184,16 @@ class Person(Observer):
             self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
             self.state, self.since = "twisted", t
         elif state == "twisted" and t - self.since >= GAP:
-            target = cycle.truth.wMo.copy()  # pulled away, and back up if it had been dropped
-            target[:3, 3] += spec.snatch * self._horizontal()
-            target[2, 3] = self.wMo_hold[2, 3]
-            self._grip(target)
+            # Pulled out of the hand: away from the palm (a pull into the palm would be held
+            # by the wrist, not the grip) and no lower than where it was first held.
+            target = cycle.truth.wMo.copy()
+            palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
+            away = target[:3, 3] - palm
+            away[2] = max(away[2], 0.0)
+            norm = float(np.linalg.norm(away))
+            target[:3, 3] += spec.snatch * (away / norm if norm > 1e-6 else self._horizontal())
+            target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
+            self._grip(target, SNATCH_BANDWIDTH)
             self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
             self.state, self.since = "snatched", t
         elif state == "regrasped" and held_for >= spec.hold_after:
@@ -200,10 +211,11 @@ def _plans(hand: HandModel, obj: ObjectModel) -> list[GraspPlan]:
     return found
 
 
-def run_episode(spec: EpisodeSpec, samples: bool = False) -> dict[str, Any]:
+def run_episode(spec: EpisodeSpec, samples: bool = False, record: bool = False) -> dict[str, Any]:
     """Run one episode; returns its summary (events, transitions, counts, timings), with every
     cycle's and reacher step's compute time [us] (``cycle_samples_us``, ``reacher_samples_us``)
-    if ``samples``."""
+    if ``samples``, and the :class:`~wholehand.loop.record.RunRecord` of every cycle
+    (``record``, not JSON) if ``record``."""
     if not (math.isfinite(spec.rate) and spec.rate > 0):
         raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
     hand, obj = load_hand(spec.hand), load_object(spec.object)
@@ -243,14 +255,21 @@ def run_episode(spec: EpisodeSpec, samples: bool = False) -> dict[str, Any]:
         REGULATE: HoldStage(regulation, GraspLossCheck(hand, obj)),
     }
     inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
-    person = Person(spec, backend, wMo, rng, (obj.mass, inertia))
+    person = Person(spec, backend, wMo, rng, (obj.mass, inertia), hand.palm_link)
     timer = _CycleTimes()
-    loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=[person, timer])
+    observers: list[Observer] = [person, timer]
+    recorder = None
+    if record:
+        loss = GraspLossMonitor(hand, obj, stop_on_loss=False)
+        recorder = Recorder(loss, meta={"spec": asdict(spec), "kind": "reach episode"})
+        observers += [loss, recorder]
+    loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=observers)
     report = loop.run(spec.duration)
     losses = [t for t in report.transitions if t.source == REGULATE and t.target == PREGRASP]
     grasps = [t for t in report.transitions if t.target == REGULATE]
     recovered = sum(any(g.t > loss.t for g in grasps) for loss in losses)
     reacher_us = [1e6 * t for stage in reaching for t in stage.reacher_times]
+    causes = [_cause(person.events, loss.t) for loss in losses]
     summary: dict[str, Any] = {
         "spec": asdict(spec),
         "complete": person.done,
@@ -259,6 +278,7 @@ def run_episode(spec: EpisodeSpec, samples: bool = False) -> dict[str, Any]:
         "grasps": len(grasps),
         "time_to_grasp_s": grasps[0].t if grasps else None,
         "losses": len(losses),
+        "loss_causes": causes,
         "recovered": recovered,
         "events": [asdict(e) for e in person.events],
         "transitions": [t.__dict__ for t in report.transitions],
@@ -270,7 +290,28 @@ def run_episode(spec: EpisodeSpec, samples: bool = False) -> dict[str, Any]:
     if samples:
         summary["cycle_samples_us"] = timer.times
         summary["reacher_samples_us"] = reacher_us
+    if recorder is not None:
+        summary["record"] = recorder.record
     return summary
+
+
+CAUSES = {
+    "person lets go": "gravity",
+    "push": "push",
+    "twist": "twist",
+    "person snatches": "snatch",
+    "person moves": "move",
+}
+"""Event text prefix -> the cause a loss after it is put down to."""
+
+
+def _cause(events: list[Event], t: float) -> str:
+    """The kind of the latest event before ``t`` [s] ("none" if there was none)."""
+    before = [e for e in events if e.t <= t]
+    if not before:
+        return "none"
+    what = before[-1].what
+    return next((cause for prefix, cause in CAUSES.items() if what.startswith(prefix)), "other")
 
 
 class _CycleTimes(Observer):

@@ -49,7 +49,9 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
     summary = run_episode(
         EpisodeSpec(
             hand=s.hand, object=s.object, seed=s.seed, rate=s.control_rate,
-            allocator=str(s.allocator), balance_weight=METHODS[job.labels["method"]],
+            allocator=str(s.allocator),
+            # --methods puts plain allocator names here: those run the paper's balance
+            balance_weight=METHODS.get(job.labels["method"], False),
         )
     )  # fmt: skip
     warnings = summary["mujoco_warnings"]
@@ -62,6 +64,8 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
         "time_to_grasp_s": summary["time_to_grasp_s"],
         "grasps": summary["grasps"],
         "losses": summary["losses"],
+        "losses_snatch": summary["loss_causes"].count("snatch"),
+        "loss_causes": " ".join(summary["loss_causes"]),
         "recovered": summary["recovered"],
         "perturbations": summary["perturbations"],
         "duration_s": round(float(summary["duration_s"]), 6),
@@ -71,6 +75,28 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
         "error": f"{DIVERGED_PREFIX}: {warnings}" if diverged else "",
         "wall_time_s": time.perf_counter() - started,
         "cycle_mean_us": 1e6 * (time.perf_counter() - started) / cycles,
+    }
+
+
+def _counts(group: list[dict[str, Any]]) -> dict[str, Any]:
+    """Episode counts of a group of rows: acquisition, time to grasp, losses (all, and those
+    not caused by the snatch, which is meant to take the object), regrasps, completions."""
+    times = [float(r["time_to_grasp_s"]) for r in group if r["acquired"]]
+    losses = sum(int(r["losses"]) for r in group)
+    snatch = sum(int(r["losses_snatch"]) for r in group)
+    perturbations = sum(int(r["perturbations"]) for r in group)
+    recovered = sum(int(r["recovered"]) for r in group)
+    return {
+        "episodes": len(group),
+        "acquired": sum(bool(r["acquired"]) for r in group),
+        "time_to_grasp_s_median": float(np.median(times)) if times else float("nan"),
+        "perturbations": perturbations,
+        "losses": losses,
+        "losses_not_snatch": losses - snatch,
+        "losses_per_perturbation": losses / perturbations if perturbations else 0.0,
+        "recovered": recovered,
+        "regrasp_success": recovered / losses if losses else float("nan"),
+        "completed": sum(bool(r["held"]) for r in group),
     }
 
 
@@ -94,24 +120,16 @@ class ReachStudy(Study):
         return jobs
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
-        groups = []
         valid = [r for r in rows if not r.get("error")]
-        for (method,), group in group_rows(valid, "method").items():
-            times = [float(r["time_to_grasp_s"]) for r in group if r["acquired"]]
-            losses = sum(int(r["losses"]) for r in group)
-            perturbations = sum(int(r["perturbations"]) for r in group)
-            groups.append({
-                "method": method,
-                "episodes": len(group),
-                "acquired": sum(bool(r["acquired"]) for r in group),
-                "time_to_grasp_s_median": float(np.median(times)) if times else float("nan"),
-                "perturbations": perturbations,
-                "losses": losses,
-                "losses_per_perturbation": losses / perturbations if perturbations else 0.0,
-                "recovered": sum(int(r["recovered"]) for r in group),
-                "completed": sum(bool(r["held"]) for r in group),
-            })  # fmt: skip
-        return {"groups": groups, "n_excluded": len(rows) - len(valid)}
+        groups = [
+            {"method": method, **_counts(group)}
+            for (method,), group in group_rows(valid, "method").items()
+        ]
+        by_object = [
+            {"method": method, "object": obj, **_counts(group)}
+            for (method, obj), group in group_rows(valid, "method", "object").items()
+        ]
+        return {"groups": groups, "by_object": by_object, "n_excluded": len(rows) - len(valid)}
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
         import matplotlib.pyplot as plt

@@ -47,6 +47,17 @@ def object_pose(record: RunRecord, cycle: int) -> FloatArray:
     return M
 
 
+def base_pose(record: RunRecord, cycle: int) -> FloatArray | None:
+    """(4, 4) hand base pose at one cycle; None for records without it (base at its mount)."""
+    a = record.rows
+    if not a.get("p_base"):
+        return None
+    M = np.eye(4)
+    M[:3, :3] = pin.exp3(np.asarray(a["r_base"][cycle], dtype=float))
+    M[:3, 3] = np.asarray(a["p_base"][cycle], dtype=float)
+    return M
+
+
 def frame_cycles(record: RunRecord, fps: float = REPLAY_FPS) -> IntArray:
     """Cycles shown at ``fps`` frames per second of sim time (first and last always included)."""
     t = np.asarray(record.rows.get("t", []), dtype=float)
@@ -110,7 +121,10 @@ def build_animation(viewer: SceneViewer, record: RunRecord, fps: float = REPLAY_
     q = record.rows["q"]
     for frame, i in enumerate(cycles):
         c = record.contacts_at(int(i))
-        poses = viewer.poses(q[int(i)], object_pose(record, int(i)), c["contact_p"], c["contact_f"])
+        poses = viewer.poses(
+            q[int(i)], object_pose(record, int(i)), c["contact_p"], c["contact_f"],
+            base_pose(record, int(i)),
+        )  # fmt: skip
         for path, pose in poses.items():
             clip = clips.get(path)
             if clip is None:
@@ -177,8 +191,9 @@ def replay_live(
     for i in frame_cycles(record, fps):
         c = record.contacts_at(int(i))
         viewer.update(
-            record.rows["q"][int(i)], object_pose(record, int(i)), c["contact_p"], c["contact_f"]
-        )
+            record.rows["q"][int(i)], object_pose(record, int(i)), c["contact_p"], c["contact_f"],
+            base_pose(record, int(i)),
+        )  # fmt: skip
         wait = (t[i] - t[0]) / speed - (time.perf_counter() - start)
         if wait > 0:
             time.sleep(wait)

@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
 from wholehand.backends.mujoco_scene import SceneOptions, add_object_geoms
-from wholehand.backends.table import Table
+from wholehand.backends.table import TABLE_GEOM, Table
 from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
@@ -40,6 +40,10 @@ WRIST_JOINT = "wrist_free"
 """Name of the free joint at the hand base in the IK model."""
 OBJECT_MOCAP = "object"
 """Name of the object's mocap body in the IK model."""
+
+ARM_POSTURE_COST = 0.01
+"""Posture cost of an assembly's arm joints [1/rad]: a light pull toward the target posture's
+arm angles (the stage passes the current ones), to settle the arm's redundancy."""
 
 _HAND, _OBJECT, _TABLE = 1, 2, 4  # contype bits (mink's pair filter reads them)
 
@@ -61,28 +65,38 @@ def _pose_of(pos: FloatArray, quat: FloatArray) -> FloatArray:
 
 def build_reach_model(
     hand: HandModel, obj: ObjectModel, table: Table | None
-) -> tuple[mujoco.MjModel, list[str], list[str]]:
-    """The IK model (hand on a free joint, mocap object, table) and the names of its hand and
-    object collision geoms."""
+) -> tuple[mujoco.MjModel, list[str], list[str], list[str]]:
+    """The IK model and the names of its hand, object and arm collision geoms.
+
+    A hand alone gets a free joint at its base (a floating wrist); an assembly's arm root is
+    fixed at the mount pose. The object is a mocap body; the table sits on a mocap body of its
+    own, since mink drops the pairs of a geom of the world body (or of any body welded to it)
+    with a body hanging from the world (the arm's first link, a floating hand's root).
+    """
     spec = load_hand_spec(hand)
     spec.modelname = f"reach_{hand.name}"
     weld_locked_joints(spec, hand)
-    roots = list(spec.worldbody.bodies)
-    roots[0].add_freejoint(name=WRIST_JOINT)
-    hand_geoms = []
+    root = list(spec.worldbody.bodies)[0]
+    if hand.arm_dofs.any():
+        root.pos = np.asarray(hand.wMb)[:3, 3].tolist()
+        root.quat = _quat_of(np.asarray(hand.wMb)).tolist()
+    else:
+        root.add_freejoint(name=WRIST_JOINT)
+    links = set(hand.link_names)
+    hand_geoms, arm_geoms = [], []
     for body in spec.bodies:
         for k, geom in enumerate(body.geoms):
             geom.name = geom.name or f"{body.name}/collision_{k}"
             geom.contype, geom.conaffinity = _HAND, _OBJECT | _TABLE
-            hand_geoms.append(geom.name)
+            (hand_geoms if body.name in links else arm_geoms).append(geom.name)
     obj_body = spec.worldbody.add_body(name=OBJECT_MOCAP, mocap=True)
     add_object_geoms(spec, obj_body, obj, SceneOptions(), float(obj.friction))
     object_geoms = [g.name for g in obj_body.geoms]
     for geom in obj_body.geoms:
         geom.contype, geom.conaffinity = _OBJECT, _HAND
-    if table is not None:  # for the viewer and geom queries; TableLimit keeps the hand above it
-        table.add_to(spec.worldbody, _TABLE, _HAND)
-    return spec.compile(), hand_geoms, object_geoms
+    if table is not None:
+        table.add_to(spec.worldbody.add_body(name="table", mocap=True), _TABLE, _HAND)
+    return spec.compile(), hand_geoms, object_geoms, arm_geoms
 
 
 class TableLimit(mink.Limit):
@@ -150,7 +164,8 @@ class MinkReacher(Reacher):
         near, far: palm-to-target distances [m] between which the fingertip weight rises.
         posture_cost: cost of the posture task [1/rad].
         gain: task gain (fraction of the error corrected per period).
-        max_speed: speed limits: wrist [m/s], wrist rotation [rad/s], finger joints [rad/s].
+        max_speed: speed limits: wrist [m/s], wrist rotation [rad/s] (an assembly: every arm
+            joint [rad/s]), finger joints [rad/s].
         clearance: least hand-table and hand-object distance [m] (mink's
             ``minimum_distance_from_collisions``).
         detection: distance below which a pair is constrained [m].
@@ -186,11 +201,14 @@ class MinkReacher(Reacher):
         if min(max_speed) <= 0.0:
             raise ConfigError(f"MinkReacher: max_speed must be > 0, got {max_speed}")
         self.hand, self.obj, self.table = hand, obj, table
-        self.model, hand_geoms, object_geoms = build_reach_model(hand, obj, table)
+        self.model, hand_geoms, object_geoms, arm_geoms = build_reach_model(hand, obj, table)
         self.configuration = mink.Configuration(self.model)
         m = self.model
-        joint = m.joint(WRIST_JOINT)
-        self._wrist_q, self._wrist_v = int(joint.qposadr[0]), int(joint.dofadr[0])
+        self.floating = not hand.arm_dofs.any()
+        self._wrist_q = self._wrist_v = -1
+        if self.floating:
+            joint = m.joint(WRIST_JOINT)
+            self._wrist_q, self._wrist_v = int(joint.qposadr[0]), int(joint.dofadr[0])
         self._qpos = np.array([m.joint(n).qposadr[0] for n in hand.joint_names], dtype=np.intp)
         self._dof = np.array([m.joint(n).dofadr[0] for n in hand.joint_names], dtype=np.intp)
         self._mocap = int(m.body_mocapid[m.body(OBJECT_MOCAP).id])
@@ -202,12 +220,17 @@ class MinkReacher(Reacher):
         self._tasks: dict[str, mink.FrameTask] = {}
         posture_weights = np.zeros(m.nv)
         posture_weights[self._dof] = posture_cost
+        self._arm = self._dof[hand.arm_dofs]  # IK dofs of an assembly's arm joints
+        posture_weights[self._arm] = ARM_POSTURE_COST
         self.posture = mink.PostureTask(m, cost=posture_weights, gain=self.gain)
         self.limits: list[Any] = [mink.ConfigurationLimit(m)]
         collide: dict[str, Any] = {"gain": 0.85, "minimum_distance_from_collisions": clearance}
         collide["collision_detection_distance"] = detection
         if table is not None:
             self.limits.append(TableLimit(self, table, 0.85, clearance, detection))
+            if arm_geoms:
+                pairs = [(arm_geoms, [TABLE_GEOM])]
+                self.limits.append(mink.CollisionAvoidanceLimit(m, pairs, **collide))
         self.object_limit = mink.CollisionAvoidanceLimit(m, [(hand_geoms, object_geoms)], **collide)
 
     def _task(self, link: str) -> mink.FrameTask:
@@ -216,15 +239,18 @@ class MinkReacher(Reacher):
         return self._tasks[link]
 
     def hand_state(self) -> tuple[FloatArray, FloatArray]:
-        """The IK model's current hand joint angles (n_q,) and base pose (4, 4)."""
+        """The IK model's current joint angles (n_q,) and base pose (4, 4)."""
         qpos = self.configuration.data.qpos
         w = self._wrist_q
+        if not self.floating:
+            return qpos[self._qpos].copy(), np.asarray(self.hand.wMb, dtype=float).copy()
         return qpos[self._qpos].copy(), _pose_of(qpos[w : w + 3], qpos[w + 3 : w + 7])
 
     def _set_state(self, q: FloatArray, wMb: FloatArray, wMo: FloatArray) -> None:
         data = self.configuration.data
-        data.qpos[self._wrist_q : self._wrist_q + 3] = wMb[:3, 3]
-        data.qpos[self._wrist_q + 3 : self._wrist_q + 7] = _quat_of(wMb)
+        if self.floating:
+            data.qpos[self._wrist_q : self._wrist_q + 3] = wMb[:3, 3]
+            data.qpos[self._wrist_q + 3 : self._wrist_q + 7] = _quat_of(wMb)
         data.qpos[self._qpos] = q
         data.mocap_pos[self._mocap] = wMo[:3, 3]
         data.mocap_quat[self._mocap] = _quat_of(wMo)
@@ -267,11 +293,17 @@ class MinkReacher(Reacher):
         return self.hand_state()
 
     def _speed_scale(self, velocity: FloatArray) -> float:
-        """Largest factor <= 1 that keeps the wrist and finger speeds within ``max_speed``."""
+        """Largest factor <= 1 that keeps the wrist (or arm joint) and finger speeds within
+        ``max_speed``."""
         v = self._wrist_v
-        linear = float(np.linalg.norm(velocity[v : v + 3]))
-        angular = float(np.linalg.norm(velocity[v + 3 : v + 6]))
-        joints = float(np.max(np.abs(velocity[self._dof]), initial=0.0))
+        hand = self._dof[~self.hand.arm_dofs]
+        if self.floating:
+            linear = float(np.linalg.norm(velocity[v : v + 3]))
+            angular = float(np.linalg.norm(velocity[v + 3 : v + 6]))
+        else:  # an arm: no wrist twist; its joints share the wrist's rotational limit
+            linear = 0.0
+            angular = float(np.max(np.abs(velocity[self._arm]), initial=0.0))
+        joints = float(np.max(np.abs(velocity[hand]), initial=0.0))
         speeds = (linear, angular, joints)
         ratios = [s / max(x, 1e-12) for s, x in zip(self.max_speed, speeds, strict=True)]
         return min(1.0, *ratios)

@@ -337,29 +337,36 @@ def test_mesh_distance_is_to_the_hull_so_the_object_collides_as_its_parts(allegr
 
     assert distance("hull") < 0.0
     assert min(distance(f"part{i}") for i in range(len(parts))) > 0.005
-    _, _, object_geoms = build_reach_model(allegro, cup, None)
+    _, _, object_geoms, _ = build_reach_model(allegro, cup, None)
     assert len(object_geoms) == len(parts) > 1
 
 
-def test_mink_drops_world_geom_pairs_with_the_hand_root_but_keeps_the_mocap_object(
+def test_mink_drops_pairs_with_a_world_geom_so_table_and_object_are_mocap_bodies(
     allegro, cube
 ) -> None:
-    # The hand's root hangs from the world body, so mink's parent-child filter drops its pairs
-    # with any geom of the world body (a table there); a mocap object keeps them. TableLimit
-    # therefore handles the table, and the object is a mocap body.
+    # mink's parent-child filter drops every pair of a body hanging from the world (a floating
+    # hand's root, an arm's first link) with a geom of the world body; a mocap body keeps them.
     import mink
     import mujoco
     from wholehand_plugins.mink_reacher import build_reach_model
 
-    model, hand_geoms, object_geoms = build_reach_model(allegro, cube, Table())
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_BOX, size=[1, 1, 0.01])
+    hand = spec.worldbody.add_body(name="hand", pos=[0, 0, 0.5])
+    hand.add_freejoint()
+    hand.add_geom(name="palm", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0])
+    on_mocap = spec.worldbody.add_body(name="stand", mocap=True)
+    on_mocap.add_geom(name="top", type=mujoco.mjtGeom.mjGEOM_BOX, size=[1, 1, 0.01])
+    model = spec.compile()
+    assert not mink.CollisionAvoidanceLimit(model, [(["palm"], ["floor"])]).geom_id_pairs
+    assert mink.CollisionAvoidanceLimit(model, [(["palm"], ["top"])]).geom_id_pairs
+
+    model, hand_geoms, object_geoms, _ = build_reach_model(allegro, cube, Table())
+    for body in ("table", "object"):
+        assert model.body_mocapid[model.body(body).id] >= 0
     palm = [g for g in hand_geoms if g.startswith(allegro.palm_link)]
-    palm_ids = {model.geom(g).id for g in palm}
-    table = mink.CollisionAvoidanceLimit(model, [(palm, ["table"])])
-    obj = mink.CollisionAvoidanceLimit(model, [(palm, object_geoms)])
-    assert palm_ids and not table.geom_id_pairs
-    assert {min(p) for p in obj.geom_id_pairs} | {max(p) for p in obj.geom_id_pairs} >= palm_ids
-    assert model.body_mocapid[model.body("object").id] >= 0
-    assert mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "table") >= 0
+    assert mink.CollisionAvoidanceLimit(model, [(palm, ["table"])]).geom_id_pairs
+    assert mink.CollisionAvoidanceLimit(model, [(palm, object_geoms)]).geom_id_pairs
 
 
 def test_a_target_behind_the_object_does_not_pull_the_hand_through_it(allegro, cube) -> None:

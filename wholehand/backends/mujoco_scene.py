@@ -8,8 +8,8 @@ spec:
   or is a mocap body that can be moved kinematically (``base="mocap"``);
 - every joint gets the damping and armature of ``[simulation]`` in hand.toml (the URDF's own
   ``<dynamics>`` damping and friction are dropped) and keeps its URDF position limits;
-- every actuated joint gets a ``motor`` actuator, ctrl = force = torque [N*m], with ``ctrlrange``
-  and ``forcerange`` +-``hand.tau_max``;
+- every actuated joint, and every arm joint of an assembly, gets a ``motor`` actuator,
+  ctrl = force = torque [N*m], with ``ctrlrange`` and ``forcerange`` +-``hand.tau_max``;
 - URDF ``<mimic>`` couplings are joint equality constraints (MuJoCo's URDF importer makes them),
   as stiff as the contacts (``solref``); the followers have no actuator, so an actuator torque
   drives the leader and its followers together;
@@ -245,7 +245,7 @@ def _edit_hand(
         geom.gap = 0.0
     for equality in spec.equalities:  # couplings: an MJCF's own, or URDF <mimic> as imported
         equality.solref = list(opts.solref)
-    for dof in np.flatnonzero(hand.actuated_dofs):
+    for dof in np.flatnonzero(hand.actuated_dofs | hand.arm_dofs):
         name = hand.joint_names[int(dof)]
         tau = float(hand.tau_max[int(dof)])
         act = spec.add_actuator(
@@ -516,7 +516,7 @@ def build_scene(
         if n:
             model = _compile(spec, what)
             maps = _index_maps(model, hand)
-    tau_max = np.where(hand.actuated_dofs, hand.tau_max, 0.0).astype(float)
+    tau_max = np.where(hand.actuated_dofs | hand.arm_dofs, hand.tau_max, 0.0).astype(float)
     return HandObjectScene(
         spec=spec,
         model=model,

@@ -44,7 +44,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
             if j["follows"]:
                 how = f"follows {j['follows']}"
             else:
-                how = "motor" if j["actuated"] else "passive"
+                how = "motor" if j["actuated"] else "arm (position)" if j["arm"] else "passive"
             print(
                 f"  {j['name']:<24} {j['lower']:>8.3f} {j['upper']:>8.3f}  "
                 f"{j['torque_limit']:>12.3g}  {how}"

@@ -79,7 +79,7 @@ def format_summary(s: dict[str, Any]) -> str:
     spec = s["spec"]
     lines = [
         f"episode: {spec['hand']} holding {spec['object']}, seed {spec['seed']} "
-        "(MuJoCo, gravity on, floating wrist, table)",
+        f"(MuJoCo, gravity on, {s.get('mount', 'floating wrist')}, table)",
         "",
         "  duration [s]  perturbations  grasps  losses  recovered  complete",
         f"  {s['duration_s']:12.2f}  {s['perturbations']:13d}  {s['grasps']:6d}  "

@@ -214,7 +214,7 @@ class ControlLoop:
         self.command = initial_command or Command.torques(np.zeros(hand.nv))
         """The last feasible command (the one memory of it)."""
         self.report = LoopReport()
-        self._tau_max = np.where(hand.actuated_dofs, hand.tau_max, 0.0)
+        self._tau_max = np.where(hand.actuated_dofs | hand.arm_dofs, hand.tau_max, 0.0)
         self._kin_now = HandKinematics(hand)
         self._kin_then = HandKinematics(hand)
         self._started: set[str] = set()

@@ -17,6 +17,7 @@ leaves the wrist where it is.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import deque
 from collections.abc import Callable
@@ -24,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
+import pinocchio as pin
 
 from wholehand import defaults
 from wholehand.contacts.base import ContactEstimator
@@ -31,6 +33,7 @@ from wholehand.loop.command import Command, JointTargets
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.models.gravity import GravityCompensation
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.reaching.base import Reacher, ReachTargets
@@ -96,10 +99,33 @@ class ReachPlanner:
 
 
 def _targets(
-    hand: HandModel, kin: HandKinematics, q: FloatArray, wMb: FloatArray, links: list[str]
+    kin: HandKinematics, q: FloatArray, wMb: FloatArray, links: list[str]
 ) -> dict[str, FloatArray]:
     kin.update(q, wMb)
     return {link: kin.frame_pose(link) for link in links}
+
+
+def root_link(hand: HandModel) -> str:
+    """Name of the hand's root link (the frame its stored grasps place, ``oMb``)."""
+    model = hand.model
+    return next(f.name for f in model.frames if f.parentJoint == 0 and f.type == pin.FrameType.BODY)
+
+
+class ArmServo:
+    """The position servo of an assembly's arm joints, with gravity feed-forward.
+
+    Commands ``tau = g(q)`` on the arm joints plus the backend's PD law toward the targets
+    (gains from ``[assembly] arm_gains``); the hand's own joints are left to the caller.
+    """
+
+    def __init__(self, hand: HandModel) -> None:
+        self.dofs = np.flatnonzero(hand.arm_dofs)
+        self.kp, self.kd = hand.config.arm_gains
+        self.gravity = GravityCompensation(hand)
+
+    def feedforward(self, q: FloatArray, wMb: FloatArray) -> FloatArray:
+        """(n_arm,) gravity torques of the arm joints [N*m] at ``q``."""
+        return self.gravity.torques(q, wMb)[self.dofs]
 
 
 class ReachStage(Stage):
@@ -120,6 +146,7 @@ class ReachStage(Stage):
         touch_distance: float = TOUCH_DISTANCE,
         timeout: float = GRASP_TIMEOUT,
         closing: FloatArray | None = None,
+        grasp_hand: HandModel | None = None,
     ) -> None:
         if kind not in ("pregrasp", "grasp"):
             raise ValueError(f"ReachStage: kind must be 'pregrasp' or 'grasp', got {kind!r}")
@@ -128,10 +155,26 @@ class ReachStage(Stage):
         self.name = PREGRASP if kind == "pregrasp" else GRASP
         self.switch_distance, self.touch_distance = switch_distance, touch_distance
         self.timeout = timeout
-        self.squeeze = SQUEEZE * np.sign(closing if closing is not None else np.zeros(hand.nv))
+        # An assembly's plans and targets are the hand's alone: joint angles in its order, base
+        # poses of its root link. _hand_q places them in the assembly's q.
+        self.grasp_hand = grasp_hand or hand
+        self._hand_q = np.array(
+            [hand.model.joints[hand.model.getJointId(n)].idx_q for n in self.grasp_hand.joint_names]
+        )
+        self._root = root_link(self.grasp_hand)
+        squeeze = np.zeros(hand.nv)
+        if closing is not None:
+            squeeze[self._hand_q] = SQUEEZE * np.sign(closing)
+        self.squeeze = squeeze
         self.tips = [links[-1] for links in hand.config.fingers.values()]
         self.links = [hand.palm_link, *self.tips]
-        self._kin = HandKinematics(hand)
+        self._kin = HandKinematics(self.grasp_hand)
+        self.arm = ArmServo(hand) if hand.arm_dofs.any() else None
+        kp = np.full(hand.nv, FINGER_KP)
+        kd = np.full(hand.nv, FINGER_KD)
+        if self.arm is not None:
+            kp[self.arm.dofs], kd[self.arm.dofs] = self.arm.kp, self.arm.kd
+        self._kp, self._kd = kp, kd
         self._since = 0.0
         self._q_ref = np.zeros(hand.nq)
         self.reacher_times: deque[float] = deque(maxlen=TIMES_KEPT)
@@ -149,7 +192,13 @@ class ReachStage(Stage):
         self._q_ref = context.obs.q.copy()
         if self.kind == "pregrasp":
             assert context.obs.wMo is not None
-            self.planner.choose(context.obs.wMo, context.obs.wMb)
+            self.planner.choose(context.obs.wMo, self.grasp_base(context))
+
+    def grasp_base(self, context: CycleContext) -> FloatArray:
+        """(4, 4) world pose of the frame the plans place (the hand's root link)."""
+        if self.grasp_hand is self.hand:
+            return context.obs.wMb
+        return context.kinematics.frame_pose(self._root)
 
     def fingers_touching(self, context: CycleContext) -> set[str]:
         """Fingers with a sample within ``touch_distance`` of the object (geometric estimate)."""
@@ -164,15 +213,17 @@ class ReachStage(Stage):
         assert wMo is not None
         plan = self.planner.chosen
         if plan is None:
-            plan = self.planner.choose(wMo, obs.wMb)
+            plan = self.planner.choose(wMo, self.grasp_base(context))
             if plan is None:
                 return StageOutput(None, "no_plan")
         if self.kind == "pregrasp":
             q_goal, oMb_goal = plan.q_pre, plan.oMb_pre
         else:
             q_goal, oMb_goal = plan.q_grasp, plan.oMb_grasp
-        targets = _targets(self.hand, self._kin, q_goal, wMo @ oMb_goal, self.links)
-        goal = ReachTargets(targets, q_goal, self.hand.palm_link, self.kind == "pregrasp")
+        targets = _targets(self._kin, q_goal, wMo @ oMb_goal, self.links)
+        posture = self._q_ref.copy()
+        posture[self._hand_q] = q_goal
+        goal = ReachTargets(targets, posture, self.hand.palm_link, self.kind == "pregrasp")
         # The reacher integrates the servo's reference, not the reading: a reference one step
         # ahead of the reading would give the servo almost no error to act on. It may lead the
         # reading by MAX_LEAD at most, so a finger blocked by the object does not wind it up.
@@ -188,11 +239,12 @@ class ReachStage(Stage):
         q_servo = q_next
         if self.kind == "grasp" and palm_error < SQUEEZE_PALM_ERROR:
             q_servo = np.clip(q_next + self.squeeze, self.hand.q_lower, self.hand.q_upper)
-        command = Command(
-            np.zeros(self.hand.nv),
-            (JointTargets(self._dofs, q_servo, None, FINGER_KP, FINGER_KD, name="fingers"),),
-            base=wMb_next,
-        )
+        tau = np.zeros(self.hand.nv)
+        if self.arm is not None:
+            tau[self.arm.dofs] = self.arm.feedforward(obs.q, obs.wMb)
+        servo = JointTargets(self._dofs, q_servo, None, self._kp, self._kd, name="joints")
+        base = wMb_next if self.arm is None else None
+        command = Command(tau, (servo,), base=base)
         errors = [np.linalg.norm(now.frame_pose(t)[:3, 3] - targets[t][:3, 3]) for t in self.tips]
         error = float(np.mean(errors))
         if self.kind == "pregrasp" and error < self.switch_distance:
@@ -200,7 +252,7 @@ class ReachStage(Stage):
             return StageOutput(command, "reaching", next=GRASP, reason=reason)
         if self.kind == "pregrasp" and context.t - self._since > PREGRASP_TIMEOUT:
             self.planner.fail()
-            self.planner.choose(wMo, obs.wMb)
+            self.planner.choose(wMo, self.grasp_base(context))
             self._since = context.t
             reason = f"pre-grasp not reached within {PREGRASP_TIMEOUT} s: grasp {plan.grasp_id}"
             return StageOutput(command, "replan", reason=reason)
@@ -224,13 +276,24 @@ class HoldStage(Stage):
 
     def __init__(self, regulation: ForceRegulation, loss: GraspLossCheck) -> None:
         self.regulation, self.loss = regulation, loss
+        hand = regulation.hand
+        self.arm = ArmServo(hand) if hand.arm_dofs.any() else None
+        self._hold = np.zeros(0)
 
     def start(self, context: CycleContext) -> None:
         self.regulation.start(context)
+        if self.arm is not None:
+            self._hold = context.obs.q[self.arm.dofs].copy()  # the arm stays where it grasped
 
     def step(self, context: CycleContext) -> StageOutput:
         assert context.obs.wMo is not None
         if not self.loss.held(context.kinematics, context.obs.wMo):
             reason = "grasp lost: the hull of fingertips and palm left the object's box"
             return StageOutput(None, "lost", next=PREGRASP, reason=reason)
-        return self.regulation.step(context)
+        out = self.regulation.step(context)
+        if self.arm is None or out.command is None:
+            return out
+        tau = out.command.tau.copy()
+        tau[self.arm.dofs] = self.arm.feedforward(context.obs.q, context.obs.wMb)
+        servo = JointTargets(self.arm.dofs, self._hold, None, self.arm.kp, self.arm.kd, "arm")
+        return dataclasses.replace(out, command=Command(tau, (servo,)))

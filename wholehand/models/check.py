@@ -201,6 +201,7 @@ def check_hand(name_or_path: str | Path) -> HandReport:
                 "lower": float(hand.q_lower[i]),
                 "upper": float(hand.q_upper[i]),
                 "actuated": bool(hand.actuated_dofs[v]),
+                "arm": bool(hand.arm_dofs[v]),
                 "torque_limit": float(hand.tau_max[v]),
                 "follows": None if mimic is None else mimic.leader,
             }

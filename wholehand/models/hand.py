@@ -77,7 +77,8 @@ class HandModel:
         link_fingertip: (L,) True for the distal links named in hand.toml.
         link_finger: (L,) finger name of each link ("" for links on no finger).
         actuated_dofs: (n_v,) True for torque-controlled velocity dimensions.
-        tau_max: (n_v,) torque limits [N*m] (0 for dofs that are not actuated).
+        tau_max: (n_v,) torque limits [N*m]: hand motors (``actuated_dofs``) and an assembly's
+            arm joints (``arm_dofs``, the URDF's effort limits); 0 elsewhere.
         wMb: (4, 4) mount pose of the hand base in the world.
         samples: the surface samples (see :class:`SurfaceSamples`).
     """
@@ -296,6 +297,17 @@ class HandModel:
             idx = model.joints[model.getJointId(name)].idx_v
             self.actuated_dofs[idx] = True
             self.tau_max[idx] = cfg.torque_limits.get(name, cfg.torque_limit_default)
+        self.arm_dofs = np.zeros(model.nv, dtype=bool)
+        """(n_v,) True for an assembly's arm joints: position-controlled, not allocated."""
+        for name in cfg.arm_joints:
+            if name in actuated:
+                raise ConfigError(
+                    f"{cfg.path}: arm joint {name!r} is also an actuated hand joint; the arm's "
+                    "joints are position-controlled"
+                )
+            idx = model.joints[model.getJointId(name)].idx_v
+            self.arm_dofs[idx] = True
+            self.tau_max[idx] = float(model.effortLimit[idx])
         idx_v = [model.joints[model.getJointId(n)].idx_v for n in moving]
         actuators = [moving[idx_v.index(int(i))] for i in np.flatnonzero(self.actuated_dofs)]
         self.coupling, self.coupling_offset = coupling_matrix(moving, idx_v, actuators, self.mimics)

@@ -117,6 +117,13 @@ class HandConfig:
     """``urdf`` or ``mjcf``: which key of hand.toml named :attr:`model_path`."""
     torque_limit_set: bool = False
     """True when hand.toml sets ``[joints] torque_limit`` (False: the paper's default)."""
+    arm_joints: tuple[str, ...] = ()
+    """An assembly's arm joints (:mod:`wholehand.models.assembly`): position-controlled, with
+    the URDF's effort limits; empty for a hand alone."""
+    arm_gains: tuple[float, float] = (0.0, 0.0)
+    """Position [N*m/rad] and velocity [N*m*s/rad] gains of the arm joints' servo."""
+    hand_toml: Path | None = None
+    """An assembly's hand alone (its hand.toml): grasps and grasp targets are the hand's."""
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -170,6 +177,8 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    if "assembly" in raw:
+        return _assembly_config(raw, path)
 
     known = {
         "name", "urdf", "mjcf", "palm_link", "passive_links", "sample_surface", "thumb",
@@ -279,6 +288,50 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         grasp_styles=grasp_styles,
         mount_xyz=xyz,
         mount_rpy=rpy,
+    )
+
+
+def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
+    """The config of an arm-hand assembly (:mod:`wholehand.models.assembly`)."""
+    import dataclasses
+    import xml.etree.ElementTree as ET
+
+    from wholehand.models.assembly import merged_urdf, moving_joints, parse_assembly, write_merged
+
+    unknown = sorted(set(raw) - {"name", "assembly", "mount"})
+    if unknown:
+        raise ConfigError(
+            f"{path}: an assembly's hand.toml takes name, [assembly] and [mount]; the hand's own "
+            f"settings belong in the hand's hand.toml, not here: {unknown}"
+        )
+    assembly = parse_assembly(raw["assembly"], path)
+    hand = parse_hand_config(assembly.hand_toml)
+    if hand.model_format != "urdf" or hand.arm_joints:
+        raise ConfigError(f"{path}: [assembly] hand must be a URDF hand, not {hand.path}")
+    name = str(raw.get("name", path.parent.name))
+    text, arm_joints, arm_links = merged_urdf(assembly, hand, name)
+    model_path = write_merged(text)
+    actuated = hand.actuated_joints
+    if actuated is None:  # "every moving joint" of the hand, not of the arm
+        hand_joints = moving_joints(ET.parse(hand.model_path).getroot())
+        actuated = tuple(j for j in hand_joints if j not in hand.locked_joints)
+    mount = raw.get("mount", {})
+    if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
+        raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
+    xyz, rpy = (_three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
+    return dataclasses.replace(
+        hand,
+        path=path.resolve(),
+        name=name,
+        model_path=model_path,
+        package_dirs=(model_path.parent, *hand.package_dirs),
+        actuated_joints=actuated,
+        excluded_links=(*hand.excluded_links, *arm_links),
+        mount_xyz=xyz,
+        mount_rpy=rpy,
+        arm_joints=tuple(arm_joints),
+        arm_gains=(assembly.kp, assembly.kd),
+        hand_toml=assembly.hand_toml,
     )
 
 

@@ -92,6 +92,11 @@ explicitly applied spring stays stable (``2 w dt`` well below 2 at 1 ms steps)."
 
 GAP = 1.0
 """Pause between successive perturbations [s]."""
+ARM_HOME = (0.0, -0.69813, 0.0, 1.570796, 0.0, 0.69813, 0.0)
+"""An assembly's arm starts here [rad]: the Rizon 4's home posture from its upstream
+ros2_control configuration (flange pointing down in front of the arm)."""
+ARM_REACH_XY = (0.45, 0.0)
+"""Where the person holds the object for an arm, in front of the arm's base [m]."""
 SNATCH_BANDWIDTH = 150.0
 """The snatch's grip [rad/s]: three times stiffer than the holding grip, so it pulls any of the
 paper's objects out of a 0.2 N*m hand (the pull at 15 cm is 0.15 m * m * w^2: 170 N for 50 g);
@@ -219,35 +224,50 @@ def run_episode(spec: EpisodeSpec, samples: bool = False, record: bool = False) 
     if not (math.isfinite(spec.rate) and spec.rate > 0):
         raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
     hand, obj = load_hand(spec.hand), load_object(spec.object)
+    # An assembly's grasps, pre-grasps and targets are those of its hand alone.
+    grasp_hand = load_hand(hand.config.hand_toml) if hand.config.hand_toml else hand
     table = Table()
     rng = np.random.default_rng(spec.seed)
-    plans = _plans(hand, obj)
+    plans = _plans(grasp_hand, obj)
     wMo = np.eye(4)
-    wMo[:3, 3] = [0.0, 0.0, table.top + spec.hold_height]
+    wMo[:3, 3] = [*(ARM_REACH_XY if hand.arm_dofs.any() else (0.0, 0.0)), table.top]
+    wMo[2, 3] += spec.hold_height
 
     def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
         return all(
-            lowest_point(hand, q, wMo_now @ oMb) >= table.top + 0.01
+            lowest_point(grasp_hand, q, wMo_now @ oMb) >= table.top + 0.01
             for q, oMb in ((plan.q_grasp, plan.oMb_grasp), (plan.q_pre, plan.oMb_pre))
         )
 
     start = plans[int(rng.integers(len(plans)))]
-    wMb0 = wMo @ start.oMb_pre
-    wMb0[:3, 3] += np.array([0.0, 0.0, 0.1]) + 0.1 * np.r_[rng.normal(size=2), 0.0]
+    if hand.arm_dofs.any():  # an arm: from its home posture, fingers at the pre-shape
+        q0 = np.zeros(hand.nq)
+        for name, value in zip(hand.config.arm_joints, ARM_HOME, strict=False):
+            q0[hand.model.joints[hand.model.getJointId(name)].idx_q] = value
+        for name in grasp_hand.joint_names:
+            i = grasp_hand.model.joints[grasp_hand.model.getJointId(name)].idx_q
+            q0[hand.model.joints[hand.model.getJointId(name)].idx_q] = start.q_pre[i]
+        placement: dict[str, Any] = {"q_init": q0}
+    else:  # a floating wrist: above the pre-grasp, offset at random
+        wMb0 = wMo @ start.oMb_pre
+        wMb0[:3, 3] += np.array([0.0, 0.0, 0.1]) + 0.1 * np.r_[rng.normal(size=2), 0.0]
+        placement = {"q_init": start.q_pre, "wMb": wMb0, "base": "mocap"}
     backend = registry.load(
-        "backends", "mujoco", hand=hand, obj=obj, q_init=start.q_pre, wMo_init=wMo,
-        gravity=True, wMb=wMb0, base="mocap", table=table,
+        "backends", "mujoco", hand=hand, obj=obj, wMo_init=wMo, gravity=True, table=table,
+        **placement,
     )  # fmt: skip
     estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj)
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
     planner = ReachPlanner(plans, usable)
-    closing = style_arrays(hand, hand.config.grasp_styles["power"])[1]
+    closing = style_arrays(grasp_hand, grasp_hand.config.grasp_styles["power"])[1]
     weight = obj.mass * np.asarray(GRAVITY_VECTOR) if spec.balance_weight else None
     allocator = load_allocator(spec.allocator, hand, {})
     regulation = ForceRegulation(hand, obj, estimator, allocator, weight=weight)
     reaching = (
-        ReachStage(hand, reacher, planner, estimator, "pregrasp"),
-        ReachStage(hand, reacher, planner, estimator, "grasp", closing=closing),
+        ReachStage(hand, reacher, planner, estimator, "pregrasp", grasp_hand=grasp_hand),
+        ReachStage(
+            hand, reacher, planner, estimator, "grasp", closing=closing, grasp_hand=grasp_hand
+        ),
     )
     stages: dict[str, Stage] = {
         PREGRASP: reaching[0],
@@ -273,6 +293,7 @@ def run_episode(spec: EpisodeSpec, samples: bool = False, record: bool = False) 
     summary: dict[str, Any] = {
         "spec": asdict(spec),
         "complete": person.done,
+        "mount": "arm" if hand.arm_dofs.any() else "floating wrist",
         "duration_s": backend.time,
         "perturbations": sum(e.what.startswith(PERTURBATIONS) for e in person.events),
         "grasps": len(grasps),

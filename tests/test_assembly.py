@@ -1,0 +1,178 @@
+"""Arm-hand assemblies by config: the merged model against the arm and the hand loaded apart,
+gravity torques against finite differences of the potential energy, a gravity-compensated arm
+holding still in MuJoCo, the Rizon 4 build, and bad [assembly] tables."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wholehand import registry
+from wholehand.errors import AssetError, ConfigError
+from wholehand.loop.command import Command, JointTargets
+from wholehand.models.gravity import GravityCompensation
+from wholehand.models.hand import load_hand
+from wholehand.models.hand_config import shipped_hands_dir
+from wholehand.models.objects import ObjectModel
+
+ROBOTS = shipped_hands_dir()
+ARM_URDF = ROBOTS / "flexiv_rizon4" / "rizon4.urdf"
+UPSTREAM = Path(__file__).resolve().parents[2] / "shared/assets/flexiv_rizon4/flexiv_description"
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return load_hand("flexiv_rizon4_allegro_right")
+
+
+def test_assembly_is_the_arm_plus_the_hand(rig, allegro) -> None:
+    assert rig.nq == 7 + allegro.nq
+    assert int(rig.arm_dofs.sum()) == 7 and not (rig.arm_dofs & rig.actuated_dofs).any()
+    np.testing.assert_array_equal(rig.tau_max[rig.arm_dofs], [123, 123, 64, 64, 39, 39, 39])
+    assert sorted(rig.link_names) == sorted(allegro.link_names)  # arm links: no contact samples
+    assert int(rig.actuated_dofs.sum()) == int(allegro.actuated_dofs.sum())
+    assert rig.config.hand_toml == allegro.config.path
+    assert rig.palm_link == allegro.palm_link and rig.config.fingers == allegro.config.fingers
+
+
+def test_hand_links_sit_on_the_flange_as_mounted(rig, allegro) -> None:
+    # Ground truth from the arm and the hand loaded apart: palm = flange * mount * (hand FK).
+    arm = pin.buildModelFromUrdf(str(ARM_URDF))
+    arm_data = arm.createData()
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        q_arm = rng.uniform(arm.lowerPositionLimit, arm.upperPositionLimit)
+        q_hand = rng.uniform(allegro.q_lower, allegro.q_upper)
+        pin.framesForwardKinematics(arm, arm_data, q_arm)
+        flange = arm_data.oMf[arm.getFrameId("flange")].homogeneous
+        mount = np.eye(4)
+        mount[2, 3] = 0.095
+        hand_data = allegro.model.createData()
+        pin.framesForwardKinematics(allegro.model, hand_data, q_hand)
+        q = np.zeros(rig.nq)
+        for name, value in zip(arm.names[1:], q_arm, strict=True):
+            q[rig.model.joints[rig.model.getJointId(name)].idx_q] = value
+        for name in allegro.joint_names:
+            q_i = allegro.model.joints[allegro.model.getJointId(name)].idx_q
+            q[rig.model.joints[rig.model.getJointId(name)].idx_q] = q_hand[q_i]
+        rig_data = rig.model.createData()
+        pin.framesForwardKinematics(rig.model, rig_data, q)
+        for link in ("link_3.0_tip", "link_15.0_tip", allegro.palm_link):
+            expected = flange @ mount @ hand_data.oMf[allegro.model.getFrameId(link)].homogeneous
+            got = rig_data.oMf[rig.model.getFrameId(link)].homogeneous
+            np.testing.assert_allclose(got, expected, atol=1e-12)
+
+
+def test_gravity_torques_are_the_gradient_of_the_potential_energy(rig) -> None:
+    comp = GravityCompensation(rig)
+    rng = np.random.default_rng(1)
+    q = rng.uniform(rig.q_lower, rig.q_upper)
+    wMb = np.eye(4)
+    wMb[:3, :3] = pin.exp3(np.array([0.3, -0.2, 0.5]))  # gravity turns with the base
+    model = pin.Model(rig.model)
+    model.gravity.linear = wMb[:3, :3].T @ np.array([0.0, 0.0, -9.81])
+    data = model.createData()
+
+    def energy(x: np.ndarray) -> float:
+        return float(pin.computePotentialEnergy(model, data, x))
+
+    h = 1e-6
+    fd = np.array([(energy(q + h * e) - energy(q - h * e)) / (2 * h) for e in np.eye(rig.nq)])
+    np.testing.assert_allclose(comp.torques(q, wMb), fd, atol=1e-5)
+
+
+def test_a_gravity_compensated_arm_holds_still_and_an_uncompensated_one_sags(rig) -> None:
+    q0 = rig.neutral().copy()
+    arm = np.flatnonzero(rig.arm_dofs)
+    q0[arm] = [0.0, -0.7, 0.0, 1.57, 0.0, 0.7, 0.0]
+    far = np.eye(4)
+    far[:3, 3] = [2.0, 2.0, 0.1]
+    obj = ObjectModel.box((0.05, 0.05, 0.05))
+    backend = registry.load(
+        "backends", "mujoco", hand=rig, obj=obj, q_init=q0, wMo_init=far, gravity=True
+    )
+    comp = GravityCompensation(rig)
+    kp, kd = rig.config.arm_gains
+    drift = {}
+    for feedforward in (True, False):
+        backend.reset(q0, far)
+        for _ in range(200):
+            obs = backend.observe()
+            tau = np.zeros(rig.nv)
+            if feedforward:
+                tau[arm] = comp.torques(obs.q, obs.wMb)[arm]
+            servo = JointTargets(arm, q0[arm], None, kp, kd, name="arm")
+            backend.apply(Command(tau, (servo,)))
+            backend.step(0.005)
+        drift[feedforward] = np.abs(backend.observe().q[arm] - q0[arm])
+    # Joints 1-6 carry the arm; joint 7 turns with the unheld fingers' reactions.
+    assert drift[True][:6].max() < 1e-3
+    assert drift[False][1] > 0.1  # the shoulder sags under the arm's own weight
+    assert not any(backend.warnings().values())
+
+
+def test_rizon4_build_reproduces_the_shipped_urdf(tmp_path: Path) -> None:
+    pytest.importorskip("xacro")
+    if not UPSTREAM.is_dir():
+        pytest.skip(f"upstream files not at {UPSTREAM}")
+    from importlib import util
+
+    spec = util.spec_from_file_location("build", ROBOTS / "flexiv_rizon4" / "build_urdf.py")
+    assert spec is not None and spec.loader is not None
+    build = util.module_from_spec(spec)
+    spec.loader.exec_module(build)
+    out = build.build(UPSTREAM, tmp_path)
+    assert out.read_text() == ARM_URDF.read_text()
+    for stl in (ROBOTS / "flexiv_rizon4" / "meshes").glob("*.stl"):
+        assert (tmp_path / "meshes" / stl.name).read_bytes() == stl.read_bytes()
+
+
+def write_assembly(folder: Path, assembly: str, extra: str = "") -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copytree(ROBOTS / "flexiv_rizon4", folder / "arm", dirs_exist_ok=True)
+    (folder / "hand.toml").write_text(f'name = "rig"\n{extra}\n[assembly]\n{assembly}\n')
+    return folder
+
+
+GOOD = 'arm = "arm/rizon4.urdf"\nhand = "allegro_right"\nflange = "flange"'
+
+
+@pytest.mark.parametrize(
+    ("assembly", "extra", "error", "message"),
+    [
+        ('arm = "arm/rizon4.urdf"\nhand = "allegro_right"', "", ConfigError, "lacks .'flange'."),
+        (GOOD + "\ncolour = 1", "", ConfigError, "unknown keys .'colour'."),
+        (GOOD.replace('"flange"', '"wrist"'), "", ConfigError, "flange 'wrist' is not a link"),
+        (GOOD.replace("arm/rizon4", "arm/none"), "", AssetError, "arm URDF .* does not exist"),
+        (GOOD.replace("allegro_right", "no_hand"), "", ConfigError, "no hand named 'no_hand'"),
+        (GOOD, 'palm_link = "palm"', ConfigError, "belong in the hand's hand.toml"),
+        (GOOD + "\narm_gains = { kp = -1 }", "", ConfigError, "arm_gains.kp must be > 0"),
+        (GOOD + '\nmount = { xyz = "up" }', "", ConfigError, "mount.xyz must be 3 finite"),
+    ],
+)
+def test_bad_assembly_tables_are_named(tmp_path, assembly, extra, error, message) -> None:
+    folder = write_assembly(tmp_path / "rig", assembly, extra)
+    with pytest.raises(error, match=message):
+        load_hand(folder)
+
+
+def test_an_arm_reaches_grasps_loses_and_regrasps() -> None:
+    from wholehand.reaching.episode import EpisodeSpec, run_episode
+
+    summary = run_episode(EpisodeSpec(hand="flexiv_rizon4_allegro_right", seed=0), record=True)
+    record = summary.pop("record")
+    stages = [(t["source"], t["target"]) for t in summary["transitions"]]
+    assert stages[:2] == [("reach_pregrasp", "reach_grasp"), ("reach_grasp", "regulate")]
+    assert summary["mount"] == "arm"
+    assert summary["losses"] >= 1 and summary["recovered"] >= 1 and summary["complete"]
+    assert summary["loop"]["n_errors"] == 0 and not any(summary["mujoco_warnings"].values())
+    # The base never moves (the arm's root is fixed); the arm's joints carry the hand.
+    base = np.asarray(record.rows["p_base"])
+    np.testing.assert_allclose(base, base[:1].repeat(len(base), axis=0))
+    q = np.asarray(record.rows["q"])
+    rig = load_hand("flexiv_rizon4_allegro_right")
+    assert np.abs(q[:, rig.arm_dofs] - q[0, rig.arm_dofs]).max() > 0.1

@@ -1,0 +1,36 @@
+"""Joint torques that hold a hand (or an arm-hand assembly) against gravity (Pinocchio)."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from wholehand.models.hand import HandModel
+
+FloatArray = npt.NDArray[np.float64]
+
+GRAVITY_WORLD: tuple[float, float, float] = (0.0, 0.0, -9.81)
+"""Gravity in the world frame [m/s^2]."""
+
+
+class GravityCompensation:
+    """``g(q)``: the joint torques [N*m] that balance the links' weights at rest.
+
+    Works on a private copy of the hand's Pinocchio model, whose gravity is set in the base
+    frame from the base pose at each call (the base of a hand on a floating wrist turns).
+
+    Args:
+        hand: the hand or assembly.
+        g_world: gravity in the world frame [m/s^2].
+    """
+
+    def __init__(self, hand: HandModel, g_world: tuple[float, float, float] = GRAVITY_WORLD):
+        self.model = pin.Model(hand.model)
+        self.data = self.model.createData()
+        self.g_world = np.asarray(g_world, dtype=float)
+
+    def torques(self, q: FloatArray, wMb: FloatArray) -> FloatArray:
+        """(n_v,) torques [N*m] at joint positions ``q`` (n_q,) with the base at ``wMb``."""
+        self.model.gravity.linear = np.asarray(wMb, dtype=float)[:3, :3].T @ self.g_world
+        return np.array(pin.computeGeneralizedGravity(self.model, self.data, np.asarray(q)))

@@ -231,7 +231,12 @@ class MinkReacher(Reacher):
             if arm_geoms:
                 pairs = [(arm_geoms, [TABLE_GEOM])]
                 self.limits.append(mink.CollisionAvoidanceLimit(m, pairs, **collide))
-        self.object_limit = mink.CollisionAvoidanceLimit(m, [(hand_geoms, object_geoms)], **collide)
+        # The arm's links keep clear of the object too, even at the grasp stage.
+        object_pairs = [(hand_geoms, object_geoms)]
+        self.object_limit = mink.CollisionAvoidanceLimit(m, object_pairs, **collide)
+        if arm_geoms:
+            arm_pairs = [(arm_geoms, object_geoms)]
+            self.limits.append(mink.CollisionAvoidanceLimit(m, arm_pairs, **collide))
 
     def _task(self, link: str) -> mink.FrameTask:
         if link not in self._tasks:

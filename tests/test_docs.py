@@ -46,8 +46,31 @@ def test_adding_a_hand_from_its_urdf_to_a_held_grasp_and_a_study(tmp_path, monke
 def test_the_reference_hand_toml_names_every_key_the_parser_knows():
     from wholehand.models import hand_config
 
-    reference = _blocks("toml")[1]
+    reference = _blocks("toml")[-1]
     source = Path(hand_config.__file__).read_text()
     known = re.search(r"known = \{(.*?)\}", source, flags=re.S).group(1)
     for key in re.findall(r'"(\w+)"', known):
         assert re.search(rf"^\[?{key}\b", reference, flags=re.M), key
+
+
+def test_the_arm_assembly_of_the_page_loads_and_checks(tmp_path, monkeypatch, capsys):
+    from wholehand.models.hand import load_hand
+
+    shipped = shipped_hands_dir()
+    hand = tmp_path / "my_hands" / "hx5"
+    hand.mkdir(parents=True)
+    shutil.copy(shipped / "robotis_hx5_d20_right" / "hx5_d20_right.urdf", hand)
+    shutil.copytree(shipped / "robotis_hx5_d20_right" / "meshes", hand / "meshes")
+    (hand / "hand.toml").write_text(_blocks("toml")[0])
+    arm = tmp_path / "my_arm"
+    shutil.copytree(shipped / "flexiv_rizon4", arm)
+    (arm / "rizon4.urdf").rename(arm / "arm.urdf")
+    rig = tmp_path / "my_arm_my_hand"
+    rig.mkdir()
+    (rig / "hand.toml").write_text(_blocks("toml")[1])
+    monkeypatch.chdir(tmp_path)
+    model = load_hand("my_arm_my_hand")
+    assert int(model.arm_dofs.sum()) == 7 and model.nq == 27
+    assert main(["hand", "check", "my_arm_my_hand"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("arm (position)") == 7 and "NOT usable" not in out

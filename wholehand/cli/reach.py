@@ -33,6 +33,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--save", default=None, help="write the summary (JSON) here")
     p.add_argument("--record", default=None, help="write the run record (.npz) here")
     p.add_argument("--record-html", default=None, help="write a standalone HTML animation here")
+    p.add_argument("--view", action="store_true", help="watch it live in meshcat (prints the URL)")
+    p.add_argument("--view-every", type=int, default=8, help="--view: draw every n-th cycle")
     p.set_defaults(func=_cmd_reach)
 
 
@@ -55,7 +57,12 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         balance_weight=not args.no_balance_weight, **extra,
     )  # fmt: skip
     recording = bool(args.record or args.record_html)
-    summary = run_episode(spec, record=recording)
+    observers = []
+    if args.view:
+        from wholehand.cli.run import live_view
+
+        observers.append(live_view(spec, args.view_every))
+    summary = run_episode(spec, record=recording, observers=observers)
     record = summary.pop("record", None)
     if args.record:
         print(f"run record: {record.save(Path(args.record))}")

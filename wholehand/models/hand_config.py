@@ -34,6 +34,9 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     fingers = ["thumb", "index", "middle"]      # keys of [fingers]: exactly these must touch
     palm_gap = [0.015, 0.035]                   # object-to-palm gap range at placement [m]
 
+An arm with a hand on its flange is a hand.toml with only ``name``, ``[assembly]`` and ``[mount]``
+(:mod:`wholehand.models.assembly`).
+
 Names are checked against the URDF when the hand is loaded (:mod:`wholehand.models.hand`).
 """
 

@@ -8,7 +8,8 @@ spring-damper on the object) holds the object out in the air:
 2. once the hand has held it for ``release_after``, the person lets go (gravity on);
 3. while held: a push (``push_force`` for ``pulse``) and a twist (``twist_torque``);
 4. the person snatches the object, pulling it ``snatch`` away from the palm, no lower than it
-   was first held (picking it up if it was dropped), and holds it there;
+   was first held, and holds it there; if the hand had already dropped it, the person picks it
+   up and holds it out ``snatch`` beside where it was first held;
 5. the hand loses the grasp, reaches again and regrasps; the person lets go once more (or
    after ``SNATCH_GIVE_UP`` if the hand kept the object) and the episode is complete once the
    hand has then held it for ``hold_after``; otherwise it ends at ``duration``.
@@ -21,6 +22,7 @@ and to catch a dropped object.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -92,6 +94,9 @@ explicitly applied spring stays stable (``2 w dt`` well below 2 at 1 ms steps)."
 
 GAP = 1.0
 """Pause between successive perturbations [s]."""
+TABLE_SIZE = (1.5, 1.5)
+"""Side lengths of the episode's table [m]: wide enough that a dropped object pushed about by
+the hand stays on it."""
 ARM_HOME = (0.0, -0.69813, 0.0, 1.570796, 0.0, 0.69813, 0.0)
 """An assembly's arm starts here [rad]: the Rizon 4's home posture from its upstream
 ros2_control configuration (flange pointing down in front of the arm)."""
@@ -189,17 +194,22 @@ class Person(Observer):
             self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
             self.state, self.since = "twisted", t
         elif state == "twisted" and t - self.since >= GAP:
-            # Pulled out of the hand: away from the palm (a pull into the palm would be held
-            # by the wrist, not the grip) and no lower than where it was first held.
             target = cycle.truth.wMo.copy()
-            palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
-            away = target[:3, 3] - palm
-            away[2] = max(away[2], 0.0)
-            norm = float(np.linalg.norm(away))
-            target[:3, 3] += spec.snatch * (away / norm if norm > 1e-6 else self._horizontal())
-            target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
+            if cycle.stage == REGULATE:  # pulled out of the hand, away from the palm (a pull
+                # into the palm would be held by the wrist, not the grip), not downward
+                palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
+                away = target[:3, 3] - palm
+                away[2] = max(away[2], 0.0)
+                norm = float(np.linalg.norm(away))
+                target[:3, 3] += spec.snatch * (away / norm if norm > 1e-6 else self._horizontal())
+                target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
+            else:  # dropped earlier: picked up and held out beside where it was first held
+                target[:3, 3] = self.wMo_hold[:3, 3] + spec.snatch * self._horizontal()
             self._grip(target, SNATCH_BANDWIDTH)
-            self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
+            if cycle.stage == REGULATE:
+                self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
+            else:
+                self._note(t, "person picks the dropped object up and holds it out")
             self.state, self.since = "snatched", t
         elif state == "regrasped" and held_for >= spec.hold_after:
             self.done = True
@@ -216,21 +226,27 @@ def _plans(hand: HandModel, obj: ObjectModel) -> list[GraspPlan]:
     return found
 
 
-def run_episode(spec: EpisodeSpec, samples: bool = False, record: bool = False) -> dict[str, Any]:
+def run_episode(
+    spec: EpisodeSpec,
+    samples: bool = False,
+    record: bool = False,
+    observers: Sequence[Observer] = (),
+) -> dict[str, Any]:
     """Run one episode; returns its summary (events, transitions, counts, timings), with every
     cycle's and reacher step's compute time [us] (``cycle_samples_us``, ``reacher_samples_us``)
     if ``samples``, and the :class:`~wholehand.loop.record.RunRecord` of every cycle
-    (``record``, not JSON) if ``record``."""
+    (``record``, not JSON) if ``record``. ``observers`` see every cycle too (a viewer)."""
     if not (math.isfinite(spec.rate) and spec.rate > 0):
         raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
     hand, obj = load_hand(spec.hand), load_object(spec.object)
     # An assembly's grasps, pre-grasps and targets are those of its hand alone.
     grasp_hand = load_hand(hand.config.hand_toml) if hand.config.hand_toml else hand
-    table = Table()
     rng = np.random.default_rng(spec.seed)
+    held_at = ARM_REACH_XY if hand.arm_dofs.any() else (0.0, 0.0)
+    table = Table(centre=held_at, size=TABLE_SIZE)  # under the object, catching drops
     plans = _plans(grasp_hand, obj)
     wMo = np.eye(4)
-    wMo[:3, 3] = [*(ARM_REACH_XY if hand.arm_dofs.any() else (0.0, 0.0)), table.top]
+    wMo[:3, 3] = [*held_at, table.top]
     wMo[2, 3] += spec.hold_height
 
     def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
@@ -277,13 +293,13 @@ def run_episode(spec: EpisodeSpec, samples: bool = False, record: bool = False) 
     inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
     person = Person(spec, backend, wMo, rng, (obj.mass, inertia), hand.palm_link)
     timer = _CycleTimes()
-    observers: list[Observer] = [person, timer]
+    watchers: list[Observer] = [person, timer, *observers]
     recorder = None
     if record:
         loss = GraspLossMonitor(hand, obj, stop_on_loss=False)
         recorder = Recorder(loss, meta={"spec": asdict(spec), "kind": "reach episode"})
-        observers += [loss, recorder]
-    loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=observers)
+        watchers += [loss, recorder]
+    loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=watchers)
     report = loop.run(spec.duration)
     losses = [t for t in report.transitions if t.source == REGULATE and t.target == PREGRASP]
     grasps = [t for t in report.transitions if t.target == REGULATE]
@@ -322,6 +338,7 @@ CAUSES = {
     "twist": "twist",
     "person snatches": "snatch",
     "person moves": "move",
+    "person picks": "pickup",
 }
 """Event text prefix -> the cause a loss after it is put down to."""
 

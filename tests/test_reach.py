@@ -215,6 +215,8 @@ def test_hold_stage_reports_a_loss_only_when_the_object_left_the_hand(allegro, c
     plan = plans[0]
 
     class Regulation:
+        hand = allegro
+
         def start(self, ctx):
             pass
 

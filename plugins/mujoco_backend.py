@@ -26,6 +26,8 @@ from wholehand.backends.base import (
 )
 from wholehand.backends.mujoco_scene import (
     DEFAULT_TIMESTEP,
+    WRIST_JOINT,
+    WRIST_TARGET,
     HandObjectScene,
     SceneOptions,
     SimContacts,
@@ -158,6 +160,9 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         self.data = mujoco.MjData(self.model)
         self._warned: set[str] = set()
         self.history = JointHistory(hand.nq, history)
+        self._wrist_q = -1
+        if opts.base == "floating":
+            self._wrist_q = int(self.model.joint(WRIST_JOINT).qposadr[0])
         self._targets: _PDTerms | None = None
         self._spring: tuple[FloatArray, FloatArray, FloatArray] | None = None
         wMo = self.object_pose_in_model() if wMo_init is None else wMo_init
@@ -187,6 +192,9 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
 
     def _base_pose(self) -> FloatArray:
         m, body = self.model, self.scene.base_body
+        if self._wrist_q >= 0:  # a floating base: its free joint
+            a = self._wrist_q
+            return _pose_from(self.data.qpos[a : a + 3], self.data.qpos[a + 3 : a + 7])
         mocap = int(m.body_mocapid[body])
         if mocap >= 0:
             return _pose_from(self.data.mocap_pos[mocap], self.data.mocap_quat[mocap])
@@ -319,6 +327,11 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         d.qpos[s.qpos_index] = q
         d.qpos[s.object_qpos : s.object_qpos + 3] = wMo[:3, 3]
         d.qpos[s.object_qpos + 3 : s.object_qpos + 7] = _quat_of(wMo)
+        if self._wrist_q >= 0:  # a floating base starts on its target
+            start = self._base_pose() if wMb is None else check_pose(wMb, "wMb")
+            d.qpos[self._wrist_q : self._wrist_q + 3] = start[:3, 3]
+            d.qpos[self._wrist_q + 3 : self._wrist_q + 7] = _quat_of(start)
+            wMb = start
         if wMb is not None:
             self.set_base_pose(wMb)
         mujoco.mj_forward(self.model, d)
@@ -335,14 +348,18 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         mujoco.mj_forward(self.model, self.data)
 
     def set_base_pose(self, wMb: FloatArray) -> None:
-        """Move a mocap hand base (``base="mocap"``) to ``wMb`` (4, 4); it takes effect at the
-        next step."""
-        if self.scene.options.base != "mocap":
+        """Move a mocap hand base (``base="mocap"``) to ``wMb`` (4, 4), or the target a
+        floating base is welded to (``base="floating"``); it takes effect at the next step."""
+        if self.scene.options.base == "fixed":
             raise ConfigError(
-                "MujocoBackend.set_base_pose needs base='mocap'; this hand is welded at hand.wMb"
+                "MujocoBackend.set_base_pose needs base='mocap' or 'floating'; this hand is "
+                "welded at hand.wMb"
             )
         wMb = check_pose(wMb, "wMb")
-        mocap = int(self.model.body_mocapid[self.scene.base_body])
+        body = self.scene.base_body
+        if self._wrist_q >= 0:
+            body = self.model.body(WRIST_TARGET).id
+        mocap = int(self.model.body_mocapid[body])
         self.data.mocap_pos[mocap] = wMb[:3, 3]
         self.data.mocap_quat[mocap] = _quat_of(wMb)
 

@@ -391,3 +391,47 @@ def test_a_target_behind_the_object_does_not_pull_the_hand_through_it(allegro, c
         points = kin.transform_points(allegro.samples.p_joint, allegro.samples.joint)
         closest = min(closest, float(cube.sdf.query(points).min()))
     assert -0.001 < closest < 0.01, closest  # came to the object, never more than 1 mm into it
+
+
+def test_a_floating_wrist_holds_the_hand_up_and_yields_when_pressed_on_an_object(
+    allegro,
+) -> None:
+    # The floating base is welded softly to a moved target: it carries the hand's weight
+    # (sub-millimetre sag) and follows the target. Driven 6 cm into a box lying on the table it
+    # yields, where a kinematic (mocap) wrist crushes the box through the table and MuJoCo
+    # diverges (the cause of the diverged reach episodes).
+    from wholehand.models.objects import ObjectModel
+
+    table = Table(top=0.0)
+    box = ObjectModel.box((0.06, 0.06, 0.06), mass=0.2)
+    wMo = resting_pose(box.mesh.bounds, table, (0.0, 0.0))
+    wMb = np.eye(4)
+    wMb[:3, :3] = [[0, 0, -1], [0, 1, 0], [1, 0, 0]]  # palm (x) facing down
+    wMb[:3, 3] = [0.0, 0.0, 0.2]
+    outcome = {}
+    for base in ("floating", "mocap"):
+        backend = registry.load(
+            "backends", "mujoco", hand=allegro, obj=box, wMo_init=wMo, gravity=True, wMb=wMb,
+            base=base, table=table,
+        )  # fmt: skip
+        if base == "floating":
+            backend.apply(Command(np.zeros(allegro.nv)))
+            backend.step(0.3)
+            assert abs(backend.observe().wMb[2, 3] - 0.2) < 1e-3
+            moved = wMb.copy()
+            moved[0, 3] += 0.05
+            backend.apply(Command(np.zeros(allegro.nv), base=moved))
+            backend.step(0.3)
+            np.testing.assert_allclose(backend.observe().wMb[:3, 3], moved[:3, 3], atol=1e-3)
+        pressed = wMb.copy()
+        pressed[2, 3] = 0.0  # the palm 6 cm into the box, at the table top
+        for _ in range(100):
+            backend.apply(Command(np.zeros(allegro.nv), base=pressed))
+            backend.step(0.005)
+        outcome[base] = (backend.observe(), backend.warnings()["bad_qacc"])
+    obs, diverged = outcome["floating"]
+    assert diverged == 0
+    assert obs.wMo[2, 3] > 0.0  # the box is still above the table top (penetrating < 3 cm)
+    assert obs.wMb[2, 3] > pressed[2, 3] + 0.04  # the wrist gave way
+    obs, diverged = outcome["mocap"]
+    assert diverged > 0 and obs.wMo[2, 3] < 0.0

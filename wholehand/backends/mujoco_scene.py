@@ -85,7 +85,11 @@ TABLE_BIT = 4
 """contype bit of the table (it collides with the hand and the object)."""
 
 CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
-BASES = ("fixed", "mocap")
+BASES = ("fixed", "mocap", "floating")
+WRIST_TARGET = "wrist_target"
+"""Name of the mocap body a ``floating`` base is welded to."""
+WRIST_JOINT = "wrist_free"
+"""Name of a ``floating`` base's free joint."""
 COLLISIONS = ("decomposition", "hull")
 
 
@@ -109,8 +113,12 @@ class SceneOptions:
     """Contact (time constant [s], damping ratio)."""
     solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
     """Contact impedance (MuJoCo's default)."""
-    base: Literal["fixed", "mocap"] = "fixed"
-    """Hand base welded at ``hand.wMb`` ("fixed") or moved kinematically ("mocap")."""
+    base: Literal["fixed", "mocap", "floating"] = "fixed"
+    """Hand base welded at ``hand.wMb`` ("fixed"), moved kinematically ("mocap"), or free and
+    held by a soft weld to a moved target ("floating": a wrist of finite stiffness, so a hand
+    pressed onto an object lying on the table yields instead of crushing it)."""
+    wrist_solref: tuple[float, float] = (0.01, 1.0)
+    """(time constant [s], damping ratio) of a floating base's weld to its target."""
     self_collision: bool = True
     """Collide hand links with each other. Excluded always: parent-child pairs, the base with
     its children, and pairs already touching in the neutral or zero configuration."""
@@ -224,6 +232,10 @@ def _edit_hand(
     base.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # the quaternion just set
     if opts.base == "mocap":
         base.mocap = True
+    elif opts.base == "floating":
+        target = spec.worldbody.add_body(name=WRIST_TARGET, mocap=True)
+        _set_pose(target, wMb)
+        target.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
     weld_locked_joints(spec, hand)
     for joint in spec.joints:
         joint.damping = [hand.config.damping, 0.0, 0.0]  # linear viscous damping only
@@ -245,6 +257,16 @@ def _edit_hand(
         geom.gap = 0.0
     for equality in spec.equalities:  # couplings: an MJCF's own, or URDF <mimic> as imported
         equality.solref = list(opts.solref)
+    if opts.base == "floating":  # after the joint edits: the free joint gets no damping
+        base.add_freejoint(name=WRIST_JOINT)
+        weld = spec.add_equality(
+            type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY,
+            name1=WRIST_TARGET, name2=base.name,
+        )  # fmt: skip
+        weld.solref = list(opts.wrist_solref)
+        # anchor (3), relative pose (position 3, quaternion 4), torque scale, unused: the base
+        # sits exactly on its target (MjSpec's default data is not a zero offset)
+        weld.data = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
     for dof in np.flatnonzero(hand.actuated_dofs | hand.arm_dofs):
         name = hand.joint_names[int(dof)]
         tau = float(hand.tau_max[int(dof)])
@@ -421,7 +443,11 @@ def _index_maps(model: mujoco.MjModel, hand: HandModel) -> dict[str, Any]:
         "object_qpos": int(model.jnt_qposadr[jid]),
         "object_qvel": int(model.jnt_dofadr[jid]),
         "base_body": next(
-            b for b in range(1, model.nbody) if model.body_parentid[b] == 0 and b != object_body
+            b
+            for b in range(1, model.nbody)
+            if model.body_parentid[b] == 0
+            and b != object_body
+            and model.body(b).name != WRIST_TARGET
         ),
     }
 

@@ -73,7 +73,8 @@ class Command:
     """Position-controlled groups (disjoint)."""
     base: FloatArray | None = None
     """(4, 4) pose to move the hand base to, world frame, for a hand on a floating wrist
-    (the MuJoCo backend's ``base="mocap"``); None: the base stays where it is."""
+    (the MuJoCo backend's ``base="floating"`` or ``"mocap"``); None: the base stays where it
+    is."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tau", np.asarray(self.tau, dtype=float))

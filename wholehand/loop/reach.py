@@ -62,6 +62,8 @@ SQUEEZE_PALM_ERROR: float = 0.01
 """The squeeze starts once the palm is within this distance of its grasp pose [m]."""
 TIMES_KEPT = 100_000
 """Reacher step times kept (the latest), for benchmarks."""
+MAX_WRIST_LEAD: float = 0.02
+"""Farthest a floating wrist's reference may run ahead of the measured wrist [m]."""
 MAX_LEAD: float = 0.3
 """Farthest the finger reference may run ahead of the measured joint angles [rad]."""
 
@@ -177,6 +179,7 @@ class ReachStage(Stage):
         self._kp, self._kd = kp, kd
         self._since = 0.0
         self._q_ref = np.zeros(hand.nq)
+        self._wMb_ref = np.eye(4)
         self.reacher_times: deque[float] = deque(maxlen=TIMES_KEPT)
         """Wall time of the latest reacher steps [s]."""
         finger_of = {}
@@ -190,6 +193,7 @@ class ReachStage(Stage):
     def start(self, context: CycleContext) -> None:
         self._since = context.t
         self._q_ref = context.obs.q.copy()
+        self._wMb_ref = context.obs.wMb.copy()
         if self.kind == "pregrasp":
             assert context.obs.wMo is not None
             self.planner.choose(context.obs.wMo, self.grasp_base(context))
@@ -228,10 +232,15 @@ class ReachStage(Stage):
         # ahead of the reading would give the servo almost no error to act on. It may lead the
         # reading by MAX_LEAD at most, so a finger blocked by the object does not wind it up.
         q_ref = np.clip(self._q_ref, obs.q - MAX_LEAD, obs.q + MAX_LEAD)
+        # Likewise the wrist of a floating hand (a target it is welded to): its reference,
+        # unless the wrist has been held back by more than MAX_WRIST_LEAD.
+        wMb_ref = self._wMb_ref
+        if np.linalg.norm(wMb_ref[:3, 3] - obs.wMb[:3, 3]) > MAX_WRIST_LEAD:
+            wMb_ref = obs.wMb
         started = time.perf_counter()
-        q_next, wMb_next = self.reacher.step(q_ref, obs.wMb, wMo, goal, context.dt)
+        q_next, wMb_next = self.reacher.step(q_ref, wMb_ref, wMo, goal, context.dt)
         self.reacher_times.append(time.perf_counter() - started)
-        self._q_ref = q_next
+        self._q_ref, self._wMb_ref = q_next, wMb_next
         now = context.kinematics
         palm_error = np.linalg.norm(
             now.frame_pose(self.hand.palm_link)[:3, 3] - targets[self.hand.palm_link][:3, 3]

@@ -267,7 +267,7 @@ def run_episode(
     else:  # a floating wrist: above the pre-grasp, offset at random
         wMb0 = wMo @ start.oMb_pre
         wMb0[:3, 3] += np.array([0.0, 0.0, 0.1]) + 0.1 * np.r_[rng.normal(size=2), 0.0]
-        placement = {"q_init": start.q_pre, "wMb": wMb0, "base": "mocap"}
+        placement = {"q_init": start.q_pre, "wMb": wMb0, "base": "floating"}
     backend = registry.load(
         "backends", "mujoco", hand=hand, obj=obj, wMo_init=wMo, gravity=True, table=table,
         **placement,

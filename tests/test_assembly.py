@@ -37,6 +37,7 @@ def test_assembly_is_the_arm_plus_the_hand(rig, allegro) -> None:
     assert int(rig.actuated_dofs.sum()) == int(allegro.actuated_dofs.sum())
     assert rig.config.hand_toml == allegro.config.path
     assert rig.palm_link == allegro.palm_link and rig.config.fingers == allegro.config.fingers
+    assert rig.config.arm_home == (0.0, -0.69813, 0.0, 1.570796, 0.0, 0.69813, 0.0)
 
 
 def test_hand_links_sit_on_the_flange_as_mounted(rig, allegro) -> None:
@@ -152,6 +153,8 @@ GOOD = 'arm = "arm/rizon4.urdf"\nhand = "allegro_right"\nflange = "flange"'
         (GOOD, 'palm_link = "palm"', ConfigError, "belong in the hand's hand.toml"),
         (GOOD + "\narm_gains = { kp = -1 }", "", ConfigError, "arm_gains.kp must be > 0"),
         (GOOD + '\nmount = { xyz = "up" }', "", ConfigError, "mount.xyz must be 3 finite"),
+        (GOOD + "\nhome = [0.0, 1.0]", "", ConfigError, "home has 2 angles; the arm has 7"),
+        (GOOD + '\nhome = ["up"]', "", ConfigError, "home must be a list of angles"),
     ],
 )
 def test_bad_assembly_tables_are_named(tmp_path, assembly, extra, error, message) -> None:

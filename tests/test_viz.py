@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+import umsgpack
 
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
@@ -311,3 +312,17 @@ def test_live_page_renders_in_chromium(tmp_path, hand, obj, record):
         assert (grey & scene).sum() > 300, "no hand pixels on the live page"
     finally:
         viewer.vis.window.server_proc.kill()
+
+
+def test_a_table_is_drawn_where_it_stands(hand, obj):
+    from meshcat.servers.tree import find_node
+
+    from wholehand.backends.table import Table
+
+    viewer = SceneViewer.offline(hand, obj)
+    viewer.draw_table(Table(top=0.1, centre=(0.2, -0.1), thickness=0.04))
+    node = find_node(viewer.vis.window.tree, ["meshcat", "wholehand", "table"])
+    assert node.object is not None
+    matrix = np.asarray(umsgpack.unpackb(node.transform)["matrix"], dtype=float)
+    # meshcat stores the 4x4 transform column by column; the box's centre is 2 cm below the top
+    np.testing.assert_allclose(matrix.reshape(4, 4).T[:3, 3], [0.2, -0.1, 0.08], atol=1e-6)

@@ -60,8 +60,11 @@ def _cmd_reach(args: argparse.Namespace) -> int:
     observers = []
     if args.view:
         from wholehand.cli.run import live_view
+        from wholehand.models.hand import load_hand
+        from wholehand.reaching.episode import episode_table
 
-        observers.append(live_view(spec, args.view_every))
+        table = episode_table(load_hand(spec.hand))
+        observers.append(live_view(spec, args.view_every, table))
     summary = run_episode(spec, record=recording, observers=observers)
     record = summary.pop("record", None)
     if args.record:

@@ -16,6 +16,7 @@ from wholehand.loop.outcome import outcome_of
 from wholehand.loop.record import RunRecord
 
 if TYPE_CHECKING:
+    from wholehand.backends.table import Table
     from wholehand.loop.control_loop import Cycle, Observer
     from wholehand.models.objects import ObjectModel
 
@@ -216,9 +217,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def live_view(spec: Any, every: int) -> Observer:
+def live_view(spec: Any, every: int, table: Table | None = None) -> Observer:
     """A loop observer drawing every ``every``-th cycle in a live meshcat viewer (true object
-    pose, the contacts and forces the controller used)."""
+    pose, the contacts and forces the controller used), and ``table`` if given."""
     from wholehand.loop.control_loop import Observer
     from wholehand.models.hand import load_hand
     from wholehand.models.objects import load_object
@@ -226,6 +227,8 @@ def live_view(spec: Any, every: int) -> Observer:
 
     hand, obj = load_hand(spec.hand), load_object(spec.object)
     viewer = SceneViewer.live(hand, obj)
+    if table is not None:
+        viewer.draw_table(table)
 
     class LiveView(Observer):
         def on_cycle(self, cycle: Cycle) -> str | None:

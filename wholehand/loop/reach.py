@@ -3,6 +3,7 @@
     reach_pregrasp --(mean fingertip error < 2 cm)--> reach_grasp
     reach_grasp --(thumb and two other fingers touch, by the geometric estimate)--> regulate
     reach_grasp --(no such touch within GRASP_TIMEOUT)--> reach_pregrasp (another grasp)
+    reach_pregrasp --(pre-grasp not reached within PREGRASP_TIMEOUT)--> another grasp
     regulate --(hull of fingertips and palm leaves the object's bounding box)--> reach_pregrasp
 
 Every target follows the tracked object pose, so the hand reacts to the object moving before
@@ -10,9 +11,10 @@ contact. On entering ``reach_pregrasp`` the plan (a stored grasp and its pre-gra
 :mod:`wholehand.reaching.pregrasp`) whose pre-grasp is nearest the current palm is chosen
 among those usable at the object's current pose.
 
-Reaching commands a floating wrist (``Command.base``) and the finger joints as position targets
-that the backend's servo tracks within the torque limits; force regulation commands torques and
-leaves the wrist where it is.
+Reaching commands a floating wrist (``Command.base``) or an assembly's arm joints, and the finger
+joints, as position targets that the backend's servo tracks within the torque limits (the arm
+with gravity feed-forward, :class:`ArmServo`). Force regulation commands the hand's torques and
+leaves the wrist where it is (an arm holds the posture it grasped at).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import pinocchio as pin
 
 from wholehand import defaults
 from wholehand.contacts.base import ContactEstimator
+from wholehand.errors import ConfigError
 from wholehand.loop.command import Command, JointTargets
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.regulation import ForceRegulation
@@ -151,7 +154,7 @@ class ReachStage(Stage):
         grasp_hand: HandModel | None = None,
     ) -> None:
         if kind not in ("pregrasp", "grasp"):
-            raise ValueError(f"ReachStage: kind must be 'pregrasp' or 'grasp', got {kind!r}")
+            raise ConfigError(f"ReachStage: kind must be 'pregrasp' or 'grasp', got {kind!r}")
         self.hand, self.reacher, self.planner, self.estimator = hand, reacher, planner, estimator
         self.kind = kind
         self.name = PREGRASP if kind == "pregrasp" else GRASP

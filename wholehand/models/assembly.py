@@ -7,6 +7,7 @@
     flange = "flange"                         # the arm link the hand hangs from
     mount = { xyz = [0, 0, 0], rpy = [0, 0, 0] }   # the hand's root link in the flange frame
     arm_gains = { kp = 300.0, kd = 20.0 }     # position servo of every arm joint
+    home = [0.0, -0.7, 0.0, 1.57, 0.0, 0.7, 0.0]   # the arm's start posture [rad], URDF order
     [mount]                                   # the arm's root in the world
     xyz = [0, 0, 0]
 
@@ -33,7 +34,7 @@ from wholehand.models.mesh_files import resolve_mesh_uri
 if TYPE_CHECKING:
     from wholehand.models.hand_config import HandConfig
 
-ASSEMBLY_KEYS = {"arm", "hand", "flange", "mount", "arm_gains"}
+ASSEMBLY_KEYS = {"arm", "hand", "flange", "mount", "arm_gains", "home"}
 """Keys of the ``[assembly]`` table."""
 DEFAULT_ARM_GAINS = (300.0, 20.0)
 """Position gain [N*m/rad] and velocity gain [N*m*s/rad] of the arm's joint servo."""
@@ -50,6 +51,8 @@ class Assembly:
     mount_rpy: tuple[float, float, float]
     kp: float
     kd: float
+    home: tuple[float, ...] = ()
+    """The arm's start posture [rad], its moving joints in URDF order (empty: zeros)."""
 
 
 def parse_assembly(table: Any, where: Path) -> Assembly:
@@ -64,7 +67,7 @@ def parse_assembly(table: Any, where: Path) -> Assembly:
         raise ConfigError(
             f"{where}: [assembly] "
             + (f"has unknown keys {unknown}" if unknown else f"lacks {missing}")
-            + "; its keys are arm, hand, flange (required), mount, arm_gains"
+            + "; its keys are arm, hand, flange (required), mount, arm_gains, home"
         )
     arm = (where.parent / str(table["arm"])).resolve()
     if not arm.is_file():
@@ -84,7 +87,15 @@ def parse_assembly(table: Any, where: Path) -> Assembly:
     for name, value in (("kp", kp), ("kd", kd)):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
             raise ConfigError(f"{where}: [assembly] arm_gains.{name} must be > 0, got {value!r}")
-    return Assembly(arm, hand_toml, str(table["flange"]), xyz, rpy, float(kp), float(kd))
+    home = table.get("home", [])
+    if not isinstance(home, list) or not all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in home
+    ):
+        raise ConfigError(f"{where}: [assembly] home must be a list of angles [rad], got {home!r}")
+    return Assembly(
+        arm, hand_toml, str(table["flange"]), xyz, rpy, float(kp), float(kd),
+        tuple(float(v) for v in home),
+    )  # fmt: skip
 
 
 def _three(value: Any, key: str, where: Path) -> tuple[float, float, float]:

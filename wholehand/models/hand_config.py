@@ -127,6 +127,8 @@ class HandConfig:
     """Position [N*m/rad] and velocity [N*m*s/rad] gains of the arm joints' servo."""
     hand_toml: Path | None = None
     """An assembly's hand alone (its hand.toml): grasps and grasp targets are the hand's."""
+    arm_home: tuple[float, ...] = ()
+    """An assembly's arm start posture [rad], in the order of :attr:`arm_joints`."""
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -313,6 +315,11 @@ def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
         raise ConfigError(f"{path}: [assembly] hand must be a URDF hand, not {hand.path}")
     name = str(raw.get("name", path.parent.name))
     text, arm_joints, arm_links = merged_urdf(assembly, hand, name)
+    if assembly.home and len(assembly.home) != len(arm_joints):
+        raise ConfigError(
+            f"{path}: [assembly] home has {len(assembly.home)} angles; the arm has "
+            f"{len(arm_joints)} moving joints {arm_joints}"
+        )
     model_path = write_merged(text)
     actuated = hand.actuated_joints
     if actuated is None:  # "every moving joint" of the hand, not of the arm
@@ -335,6 +342,7 @@ def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
         arm_joints=tuple(arm_joints),
         arm_gains=(assembly.kp, assembly.kd),
         hand_toml=assembly.hand_toml,
+        arm_home=assembly.home or tuple(0.0 for _ in arm_joints),
     )
 
 

@@ -97,9 +97,6 @@ GAP = 1.0
 TABLE_SIZE = (1.5, 1.5)
 """Side lengths of the episode's table [m]: wide enough that a dropped object pushed about by
 the hand stays on it."""
-ARM_HOME = (0.0, -0.69813, 0.0, 1.570796, 0.0, 0.69813, 0.0)
-"""An assembly's arm starts here [rad]: the Rizon 4's home posture from its upstream
-ros2_control configuration (flange pointing down in front of the arm)."""
 ARM_REACH_XY = (0.45, 0.0)
 """Where the person holds the object for an arm, in front of the arm's base [m]."""
 SNATCH_BANDWIDTH = 150.0
@@ -217,6 +214,11 @@ class Person(Observer):
         return None
 
 
+def episode_table(hand: HandModel) -> Table:
+    """The episode's table: under where the person holds the object, wide enough to catch it."""
+    return Table(centre=ARM_REACH_XY if hand.arm_dofs.any() else (0.0, 0.0), size=TABLE_SIZE)
+
+
 def _plans(hand: HandModel, obj: ObjectModel) -> list[GraspPlan]:
     q_open = style_arrays(hand, hand.config.grasp_styles["power"])[0]
     plans = [plan_pregrasp(hand, obj, g, q_open) for g in load_grasps(hand.name, obj.name, "power")]
@@ -242,8 +244,8 @@ def run_episode(
     # An assembly's grasps, pre-grasps and targets are those of its hand alone.
     grasp_hand = load_hand(hand.config.hand_toml) if hand.config.hand_toml else hand
     rng = np.random.default_rng(spec.seed)
-    held_at = ARM_REACH_XY if hand.arm_dofs.any() else (0.0, 0.0)
-    table = Table(centre=held_at, size=TABLE_SIZE)  # under the object, catching drops
+    table = episode_table(hand)
+    held_at = table.centre
     plans = _plans(grasp_hand, obj)
     wMo = np.eye(4)
     wMo[:3, 3] = [*held_at, table.top]
@@ -258,7 +260,7 @@ def run_episode(
     start = plans[int(rng.integers(len(plans)))]
     if hand.arm_dofs.any():  # an arm: from its home posture, fingers at the pre-shape
         q0 = np.zeros(hand.nq)
-        for name, value in zip(hand.config.arm_joints, ARM_HOME, strict=False):
+        for name, value in zip(hand.config.arm_joints, hand.config.arm_home, strict=True):
             q0[hand.model.joints[hand.model.getJointId(name)].idx_q] = value
         for name in grasp_hand.joint_names:
             i = grasp_hand.model.joints[grasp_hand.model.getJointId(name)].idx_q
@@ -297,7 +299,8 @@ def run_episode(
     recorder = None
     if record:
         loss = GraspLossMonitor(hand, obj, stop_on_loss=False)
-        recorder = Recorder(loss, meta={"spec": asdict(spec), "kind": "reach episode"})
+        meta = {"spec": asdict(spec), "kind": "reach episode", "table": asdict(table)}
+        recorder = Recorder(loss, meta=meta)
         watchers += [loss, recorder]
     loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=watchers)
     report = loop.run(spec.duration)

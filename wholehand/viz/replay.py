@@ -161,6 +161,10 @@ def write_html(
         hand, obj, colour_scale=record_colour_scale(record, threshold), min_force=threshold,
         distance_colours=distance_colours, legend=False,
     )  # fmt: skip
+    if record.meta.get("table"):
+        from wholehand.backends.table import Table
+
+        viewer.draw_table(Table(**record.meta["table"]))
     if record.rows.get("t"):
         viewer.set_camera(np.asarray(record.rows["p_object"][0], dtype=float))
         if distance_colours:

@@ -27,7 +27,7 @@ import base64
 import io
 import logging
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import meshcat
 import meshcat.geometry as mg
@@ -42,6 +42,9 @@ from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
+
+if TYPE_CHECKING:
+    from wholehand.backends.table import Table
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +72,8 @@ DISTANCE_RANGE_M = 0.05
 HAND_RGB = (0.25, 0.25, 0.28)
 """Hand colour where the URDF gives none."""
 OBJECT_RGB = (0.2, 0.75, 0.7)
+TABLE_RGB = (0.55, 0.45, 0.35)
+"""Colour of a table."""
 """Object colour (teal, away from the force colour map)."""
 OBJECT_OPACITY = 0.55
 BACKGROUND_RGB = (1.0, 1.0, 1.0)
@@ -444,6 +449,17 @@ class SceneViewer:
         )
         if legend:
             self._draw_legend()
+
+    def draw_table(self, table: Table) -> None:
+        """Draw a table (:class:`~wholehand.backends.table.Table`), world frame."""
+        node = self.vis[f"{ROOT}/table"]
+        node.set_object(
+            mg.Box((2.0 * table.half_extents).tolist()),
+            mg.MeshLambertMaterial(color=_hex(TABLE_RGB)),
+        )
+        M = np.eye(4)
+        M[:3, 3] = table.box_centre
+        node.set_transform(M)
 
     def _draw_legend(self) -> None:
         png = self.colour_scale.legend_png()

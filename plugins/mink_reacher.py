@@ -45,6 +45,9 @@ ARM_POSTURE_COST = 0.01
 """Posture cost of an assembly's arm joints [1/rad]: a light pull toward the target posture's
 arm angles (the stage passes the current ones), to settle the arm's redundancy."""
 
+SELF_CLEARANCE = 0.002
+"""Least distance between two fingers with ``self_collision`` on [m]."""
+
 _HAND, _OBJECT, _TABLE = 1, 2, 4  # contype bits (mink's pair filter reads them)
 
 
@@ -87,7 +90,7 @@ def build_reach_model(
     for body in spec.bodies:
         for k, geom in enumerate(body.geoms):
             geom.name = geom.name or f"{body.name}/collision_{k}"
-            geom.contype, geom.conaffinity = _HAND, _OBJECT | _TABLE
+            geom.contype, geom.conaffinity = _HAND, _HAND | _OBJECT | _TABLE
             (hand_geoms if body.name in links else arm_geoms).append(geom.name)
     obj_body = spec.worldbody.add_body(name=OBJECT_MOCAP, mocap=True)
     add_object_geoms(spec, obj_body, obj, SceneOptions(), float(obj.friction))
@@ -97,6 +100,18 @@ def build_reach_model(
     if table is not None:
         table.add_to(spec.worldbody.add_body(name="table", mocap=True), _TABLE, _HAND)
     return spec.compile(), hand_geoms, object_geoms, arm_geoms
+
+
+def finger_pairs(hand: HandModel, model: mujoco.MjModel) -> list[tuple[list[str], list[str]]]:
+    """(geoms of finger i, geoms of finger j) for every pair of fingers of ``hand.config``."""
+    geoms = {}
+    for finger, links in hand.config.fingers.items():
+        bodies = {model.body(link).id for link in links if link in hand.link_names}
+        names = [model.geom(g).name for g in range(model.ngeom) if model.geom_bodyid[g] in bodies]
+        if names:
+            geoms[finger] = names
+    fingers = sorted(geoms)
+    return [(geoms[a], geoms[b]) for i, a in enumerate(fingers) for b in fingers[i + 1 :]]
 
 
 class TableLimit(mink.Limit):
@@ -171,6 +186,8 @@ class MinkReacher(Reacher):
         detection: distance below which a pair is constrained [m].
         solver: a qpsolvers solver name.
         damping: Levenberg-Marquardt damping of the IK QP.
+        self_collision: keep the fingers ``SELF_CLEARANCE`` apart (each pair of fingers' links;
+            off by default, as in the measured studies).
     """
 
     def __init__(
@@ -191,6 +208,7 @@ class MinkReacher(Reacher):
         detection: float = 0.04,
         solver: str = "daqp",
         damping: float = 1e-3,
+        self_collision: bool = False,
     ) -> None:
         if not 0.0 <= near < far:
             raise ConfigError(f"MinkReacher: need 0 <= near < far [m], got {near}, {far}")
@@ -231,6 +249,14 @@ class MinkReacher(Reacher):
             if arm_geoms:
                 pairs = [(arm_geoms, [TABLE_GEOM])]
                 self.limits.append(mink.CollisionAvoidanceLimit(m, pairs, **collide))
+        if self_collision:
+            pairs = finger_pairs(hand, m)
+            self.limits.append(
+                mink.CollisionAvoidanceLimit(
+                    m, pairs, gain=0.85, minimum_distance_from_collisions=SELF_CLEARANCE,
+                    collision_detection_distance=detection,
+                )
+            )  # fmt: skip
         # The arm's links keep clear of the object too, even at the grasp stage.
         object_pairs = [(hand_geoms, object_geoms)]
         self.object_limit = mink.CollisionAvoidanceLimit(m, object_pairs, **collide)

@@ -435,3 +435,43 @@ def test_a_floating_wrist_holds_the_hand_up_and_yields_when_pressed_on_an_object
     assert obs.wMb[2, 3] > pressed[2, 3] + 0.04  # the wrist gave way
     obs, diverged = outcome["mocap"]
     assert diverged > 0 and obs.wMo[2, 3] < 0.0
+
+
+@pytest.mark.parametrize("self_collision", [False, True])
+def test_self_collision_keeps_two_fingers_apart(allegro, cube, self_collision) -> None:
+    # The index and middle fingertips are both sent to the middle tip's place: without the
+    # limit they run into each other; with it they stop SELF_CLEARANCE apart.
+    import mujoco
+    from wholehand_plugins.mink_reacher import SELF_CLEARANCE
+
+    reacher = registry.load(
+        "reachers", "mink", hand=allegro, obj=cube, self_collision=self_collision
+    )
+    q = allegro.neutral()
+    wMb = np.eye(4)
+    wMb[:3, 3] = [0.0, 0.0, 0.5]
+    targets = tip_and_palm_poses(allegro, q, wMb)
+    targets["link_3.0_tip"] = targets["link_7.0_tip"].copy()
+    far = np.eye(4)
+    far[:3, 3] = [1.0, 1.0, 1.0]
+    for _ in range(300):
+        q, wMb = reacher.step(q, wMb, far, ReachTargets(targets, q, allegro.palm_link), 0.005)
+    model, data = reacher.model, reacher.configuration.data
+    fromto = np.zeros(6)
+    index = [
+        g
+        for g in range(model.ngeom)
+        if model.body(model.geom_bodyid[g]).name in ("link_3.0", "link_3.0_tip")
+    ]
+    middle = [
+        g
+        for g in range(model.ngeom)
+        if model.body(model.geom_bodyid[g]).name in ("link_7.0", "link_7.0_tip")
+    ]
+    gap = min(
+        mujoco.mj_geomDistance(model, data, a, b, 0.05, fromto) for a in index for b in middle
+    )
+    if self_collision:  # the fingers never touch; the damper stops within 1 mm of the clearance
+        assert 0.5 * SELF_CLEARANCE < gap < 2.0 * SELF_CLEARANCE
+    else:
+        assert gap < -0.01

@@ -122,6 +122,9 @@ class TableLimit(mink.Limit):
     rotation about it lowers another corner unconstrained (measured: a palm box 7.5 mm into the
     table). Here every sample within ``detection`` of the plane gets its own row,
     ``-dz/dq v <= gain (z - top - clearance) / dt``, the lowest ``per_link`` of each link.
+    Only the links whose bounding sphere (about their joint's origin) comes that near the
+    plane have their samples transformed: away from the table the limit costs one pass of
+    forward kinematics.
     """
 
     def __init__(
@@ -140,6 +143,15 @@ class TableLimit(mink.Limit):
         self._body = np.array([m.body(name).id for name in hand.link_names], dtype=np.intp)
         self._kin = HandKinematics(hand)
         self._jac = np.zeros((3, m.nv))
+        samples = hand.samples
+        self._rows = [np.flatnonzero(samples.link == i) for i in range(len(hand.link_names))]
+        self._joint = np.asarray(hand.link_joint, dtype=np.intp)
+        self._radius = np.array(
+            [
+                np.linalg.norm(samples.p_joint[r], axis=1).max() if r.size else 0.0
+                for r in self._rows
+            ]
+        )
 
     def compute_qp_inequalities(
         self, configuration: mink.Configuration, dt: float
@@ -148,8 +160,17 @@ class TableLimit(mink.Limit):
         q, wMb = self.reacher.hand_state()
         self._kin.update(q, wMb)
         samples = hand.samples
-        points = self._kin.transform_points(samples.p_joint, samples.joint)
-        near = np.flatnonzero(points[:, 2] < top + self.clearance + self.detection)
+        reach = top + self.clearance + self.detection
+        origins = self._kin.transform_points(np.zeros((len(self._joint), 3)), self._joint)
+        links = np.flatnonzero(origins[:, 2] - self._radius < reach)
+        if links.size == 0:
+            return mink.limits.Constraint()
+        candidates = np.concatenate([self._rows[i] for i in links])
+        points = np.zeros((len(samples.link), 3))
+        points[candidates] = self._kin.transform_points(
+            samples.p_joint[candidates], samples.joint[candidates]
+        )
+        near = candidates[points[candidates, 2] < reach]
         if near.size == 0:
             return mink.limits.Constraint()
         rows = []

@@ -44,6 +44,7 @@ from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import Stage
 from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel, load_hand
+from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel, load_object
 from wholehand.reaching.pregrasp import GraspPlan, lowest_point, plan_pregrasp
 
@@ -275,6 +276,10 @@ def run_episode(
         **placement,
     )  # fmt: skip
     estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj)
+    # The first estimate loads its compiled kernel (~0.1 s): done here, not in the first cycle.
+    warm = HandKinematics(hand)
+    warm.update(backend.observe().q, backend.observe().wMb)
+    estimator.estimate(warm, wMo)
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
     planner = ReachPlanner(plans, usable)
     closing = style_arrays(grasp_hand, grasp_hand.config.grasp_styles["power"])[1]

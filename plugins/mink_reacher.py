@@ -1,19 +1,25 @@
-"""Reacher ``mink``: a joint-velocity IK QP over the floating wrist and the fingers (mink).
+"""Reacher ``mink``: a joint-velocity IK QP over a floating wrist or an arm, and the fingers.
 
 Tasks: a frame task (position and orientation) for the palm and for every fingertip target; the
 fingertip weights rise from ``tip_weight_far`` to 1 as the palm nears its target (from
 ``far`` to ``near`` metres away), the palm's stay fixed, so the hand first carries its open
-fingers to the object and then shapes them; a posture task toward the target joint angles.
-Limits: joint positions (mink's ``ConfigurationLimit``), hand-table clearance for every hand
-surface sample near the table (:class:`TableLimit`) and hand-object clearance from MuJoCo geom
-distances (mink's ``CollisionAvoidanceLimit``). The object collides as the
-convex parts of its decomposition (a mesh geom's distance is to its convex hull, which would
-fill cavities), on a mocap body that follows the tracked pose. The hand-object limit is dropped
-when ``targets.avoid_object`` is False (the grasp stage). The QP's velocity is scaled down as a
-whole to the speed limits, which keeps every collision bound that was not violated already.
+fingers to the object and then shapes them; a posture task toward the target joint angles
+(lightly on an arm's joints). Limits:
 
-The IK runs on its own MuJoCo model: the hand with a free joint at its base, the object and the
-table; never the simulation's.
+- joint positions (mink's ``ConfigurationLimit``);
+- hand-table clearance for every hand surface sample near the table (:class:`TableLimit`);
+- hand-object clearance from MuJoCo geom distances (mink's ``CollisionAvoidanceLimit``) to the
+  convex parts of the object's decomposition (a mesh geom's distance is to its convex hull,
+  which would fill cavities), dropped when ``targets.avoid_object`` is False (the grasp stage);
+- an arm's links: clearance from the table and the object, always;
+- on request, finger-finger clearance (``self_collision``).
+
+The QP's velocity is scaled down as a whole to the speed limits, which keeps every collision
+bound that was not violated already.
+
+The IK runs on its own MuJoCo model (:func:`build_reach_model`), never the simulation's: the
+hand on a free joint (a floating wrist) or the arm fixed at its mount, the object and the table
+on mocap bodies.
 """
 
 from __future__ import annotations

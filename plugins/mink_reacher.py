@@ -32,6 +32,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
+from wholehand.backends.mujoco_poses import mujoco_quat, pose_from_mujoco
 from wholehand.backends.mujoco_scene import SceneOptions, add_object_geoms
 from wholehand.backends.table import TABLE_GEOM, Table
 from wholehand.errors import ConfigError
@@ -57,21 +58,6 @@ SELF_CLEARANCE = 0.002
 _HAND, _OBJECT, _TABLE = 1, 2, 4  # contype bits (mink's pair filter reads them)
 
 
-def _quat_of(M: FloatArray) -> FloatArray:
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(M[:3, :3]).ravel())
-    return quat
-
-
-def _pose_of(pos: FloatArray, quat: FloatArray) -> FloatArray:
-    M = np.eye(4)
-    mat = np.zeros(9)
-    mujoco.mju_quat2Mat(mat, np.asarray(quat, dtype=float))
-    M[:3, :3] = mat.reshape(3, 3)
-    M[:3, 3] = pos
-    return M
-
-
 def build_reach_model(
     hand: HandModel, obj: ObjectModel, table: Table | None
 ) -> tuple[mujoco.MjModel, list[str], list[str], list[str]]:
@@ -88,7 +74,7 @@ def build_reach_model(
     root = list(spec.worldbody.bodies)[0]
     if hand.arm_dofs.any():
         root.pos = np.asarray(hand.wMb)[:3, 3].tolist()
-        root.quat = _quat_of(np.asarray(hand.wMb)).tolist()
+        root.quat = mujoco_quat(np.asarray(hand.wMb)).tolist()
     else:
         root.add_freejoint(name=WRIST_JOINT)
     links = set(hand.link_names)
@@ -266,6 +252,7 @@ class MinkReacher(Reacher):
         posture_weights = np.zeros(m.nv)
         posture_weights[self._dof] = posture_cost
         self._arm = self._dof[hand.arm_dofs]  # IK dofs of an assembly's arm joints
+        self._finger_dof = self._dof[~hand.arm_dofs]
         posture_weights[self._arm] = ARM_POSTURE_COST
         self.posture = mink.PostureTask(m, cost=posture_weights, gain=self.gain)
         self.limits: list[Any] = [mink.ConfigurationLimit(m)]
@@ -302,16 +289,16 @@ class MinkReacher(Reacher):
         w = self._wrist_q
         if not self.floating:
             return qpos[self._qpos].copy(), np.asarray(self.hand.wMb, dtype=float).copy()
-        return qpos[self._qpos].copy(), _pose_of(qpos[w : w + 3], qpos[w + 3 : w + 7])
+        return qpos[self._qpos].copy(), pose_from_mujoco(qpos[w : w + 3], qpos[w + 3 : w + 7])
 
     def _set_state(self, q: FloatArray, wMb: FloatArray, wMo: FloatArray) -> None:
         data = self.configuration.data
         if self.floating:
             data.qpos[self._wrist_q : self._wrist_q + 3] = wMb[:3, 3]
-            data.qpos[self._wrist_q + 3 : self._wrist_q + 7] = _quat_of(wMb)
+            data.qpos[self._wrist_q + 3 : self._wrist_q + 7] = mujoco_quat(wMb)
         data.qpos[self._qpos] = q
         data.mocap_pos[self._mocap] = wMo[:3, 3]
-        data.mocap_quat[self._mocap] = _quat_of(wMo)
+        data.mocap_quat[self._mocap] = mujoco_quat(wMo)
         self.configuration.update()
 
     def tip_weight(self, palm_distance: float) -> float:
@@ -354,14 +341,13 @@ class MinkReacher(Reacher):
         """Largest factor <= 1 that keeps the wrist (or arm joint) and finger speeds within
         ``max_speed``."""
         v = self._wrist_v
-        hand = self._dof[~self.hand.arm_dofs]
         if self.floating:
             linear = float(np.linalg.norm(velocity[v : v + 3]))
             angular = float(np.linalg.norm(velocity[v + 3 : v + 6]))
         else:  # an arm: no wrist twist; its joints share the wrist's rotational limit
             linear = 0.0
             angular = float(np.max(np.abs(velocity[self._arm]), initial=0.0))
-        joints = float(np.max(np.abs(velocity[hand]), initial=0.0))
+        joints = float(np.max(np.abs(velocity[self._finger_dof]), initial=0.0))
         speeds = (linear, angular, joints)
         ratios = [s / max(x, 1e-12) for s, x in zip(self.max_speed, speeds, strict=True)]
         return min(1.0, *ratios)

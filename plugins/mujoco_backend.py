@@ -24,6 +24,7 @@ from wholehand.backends.base import (
     ReportsWarnings,
     Resettable,
 )
+from wholehand.backends.mujoco_poses import mujoco_quat, pose_from_mujoco
 from wholehand.backends.mujoco_scene import (
     DEFAULT_TIMESTEP,
     WRIST_JOINT,
@@ -59,21 +60,6 @@ def _vector(value: Any, n: int, name: str) -> FloatArray:
     if not np.all(np.isfinite(arr)):
         raise ConfigError(f"MujocoBackend: {name} contains NaN or inf: {arr.tolist()}")
     return arr
-
-
-def _pose_from(pos: np.ndarray, quat: np.ndarray) -> FloatArray:
-    M = np.eye(4)
-    R = np.zeros(9)
-    mujoco.mju_quat2Mat(R, np.asarray(quat, dtype=float))
-    M[:3, :3] = R.reshape(3, 3)
-    M[:3, 3] = pos
-    return M
-
-
-def _quat_of(M: FloatArray) -> FloatArray:
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(M[:3, :3]).ravel())
-    return quat
 
 
 _PDTerms = tuple[
@@ -185,7 +171,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
             dq=d.qvel[s.qvel_index].copy(),
             wMb=wMb,
             stamp_q=t,
-            wMo=_pose_from(d.qpos[a : a + 3], d.qpos[a + 3 : a + 7]),
+            wMo=pose_from_mujoco(d.qpos[a : a + 3], d.qpos[a + 3 : a + 7]),
             stamp_object=t,
             history=self.history,
         )
@@ -194,11 +180,11 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         m, body = self.model, self.scene.base_body
         if self._wrist_q >= 0:  # a floating base: its free joint
             a = self._wrist_q
-            return _pose_from(self.data.qpos[a : a + 3], self.data.qpos[a + 3 : a + 7])
+            return pose_from_mujoco(self.data.qpos[a : a + 3], self.data.qpos[a + 3 : a + 7])
         mocap = int(m.body_mocapid[body])
         if mocap >= 0:
-            return _pose_from(self.data.mocap_pos[mocap], self.data.mocap_quat[mocap])
-        return _pose_from(m.body_pos[body], m.body_quat[body])
+            return pose_from_mujoco(self.data.mocap_pos[mocap], self.data.mocap_quat[mocap])
+        return pose_from_mujoco(m.body_pos[body], m.body_quat[body])
 
     def apply(self, command: Command) -> None:
         """Send joint torques [N*m] (Pinocchio order) and joint targets, held until the next
@@ -326,11 +312,11 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         self._spring = None
         d.qpos[s.qpos_index] = q
         d.qpos[s.object_qpos : s.object_qpos + 3] = wMo[:3, 3]
-        d.qpos[s.object_qpos + 3 : s.object_qpos + 7] = _quat_of(wMo)
+        d.qpos[s.object_qpos + 3 : s.object_qpos + 7] = mujoco_quat(wMo)
         if self._wrist_q >= 0:  # a floating base starts on its target
             start = self._base_pose() if wMb is None else check_pose(wMb, "wMb")
             d.qpos[self._wrist_q : self._wrist_q + 3] = start[:3, 3]
-            d.qpos[self._wrist_q + 3 : self._wrist_q + 7] = _quat_of(start)
+            d.qpos[self._wrist_q + 3 : self._wrist_q + 7] = mujoco_quat(start)
             wMb = start
         if wMb is not None:
             self.set_base_pose(wMb)
@@ -361,13 +347,13 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
             body = self.model.body(WRIST_TARGET).id
         mocap = int(self.model.body_mocapid[body])
         self.data.mocap_pos[mocap] = wMb[:3, 3]
-        self.data.mocap_quat[mocap] = _quat_of(wMb)
+        self.data.mocap_quat[mocap] = mujoco_quat(wMb)
 
     def object_pose_in_model(self) -> FloatArray:
         """(4, 4) object pose the model was compiled with (its ``qpos0``)."""
         a = self.scene.object_qpos
         qpos0 = self.model.qpos0
-        return _pose_from(qpos0[a : a + 3], qpos0[a + 3 : a + 7])
+        return pose_from_mujoco(qpos0[a : a + 3], qpos0[a + 3 : a + 7])
 
     def object_velocity(self) -> tuple[FloatArray, FloatArray]:
         """Linear velocity of the object frame origin [m/s] and angular velocity [rad/s], both

@@ -152,7 +152,12 @@ GOOD = 'arm = "arm/rizon4.urdf"\nhand = "allegro_right"\nflange = "flange"'
         (GOOD.replace("allegro_right", "no_hand"), "", ConfigError, "no hand named 'no_hand'"),
         (GOOD, 'palm_link = "palm"', ConfigError, "belong in the hand's hand.toml"),
         (GOOD + "\narm_gains = { kp = -1 }", "", ConfigError, "arm_gains.kp must be > 0"),
-        (GOOD + '\nmount = { xyz = "up" }', "", ConfigError, "mount.xyz must be 3 finite"),
+        (
+            GOOD + '\nmount = { xyz = "up" }',
+            "",
+            ConfigError,
+            "mount.xyz must be a list of 3 finite",
+        ),
         (GOOD + "\nhome = [0.0, 1.0]", "", ConfigError, "home has 2 angles; the arm has 7"),
         (GOOD + '\nhome = ["up"]', "", ConfigError, "home must be a list of angles"),
     ],

@@ -51,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
+from wholehand.backends.mujoco_poses import mujoco_quat
 from wholehand.backends.table import Table
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models.poses import check_pose
@@ -194,10 +195,8 @@ class HandObjectScene:
 
 # --- hand ---------------------------------------------------------------------------------------
 def _set_pose(element: Any, M: FloatArray) -> None:
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(M[:3, :3]).ravel())
     element.pos = M[:3, 3].tolist()
-    element.quat = quat.tolist()
+    element.quat = mujoco_quat(M).tolist()
 
 
 def _check_hand(hand: HandModel) -> None:

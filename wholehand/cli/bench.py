@@ -61,9 +61,7 @@ def _cmd_soak(args: argparse.Namespace) -> int:
 
 
 def _cmd_reach(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import EpisodeSpec, percentiles, run_episode
 
     cycle: dict[str, list[float]] = {}
     reacher: list[float] = []
@@ -74,19 +72,12 @@ def _cmd_reach(args: argparse.Namespace) -> int:
             cycle.setdefault(kind, []).extend(values)
         reacher.extend(summary["reacher_samples_us"])
 
-    def stats(values: list[float]) -> dict[str, float]:
-        v = np.asarray(values)
-        return {
-            "p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
-            "max": float(v.max()), "n": int(v.size),
-        }  # fmt: skip
-
     result = {
         "hand": args.hand,
         "object": args.object,
         "episodes": args.episodes,
-        "reacher_step_us": stats(reacher),
-        "cycle_us": {kind: stats(v) for kind, v in cycle.items()},
+        "reacher_step_us": percentiles(reacher),
+        "cycle_us": {kind: percentiles(v) for kind, v in cycle.items()},
     }
     print(json.dumps(result, indent=2))
     return 0

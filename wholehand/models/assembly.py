@@ -57,7 +57,7 @@ class Assembly:
 
 def parse_assembly(table: Any, where: Path) -> Assembly:
     """Validate an ``[assembly]`` table of the hand.toml at ``where``."""
-    from wholehand.models.hand_config import resolve_hand_config
+    from wholehand.models.hand_config import resolve_hand_config, three_numbers
 
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: [assembly] must be a table, got {table!r}")
@@ -78,7 +78,10 @@ def parse_assembly(table: Any, where: Path) -> Assembly:
     mount = table.get("mount", {})
     if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
         raise ConfigError(f"{where}: [assembly] mount must be {{ xyz = [...], rpy = [...] }}")
-    xyz, rpy = (_three(mount.get(k, [0.0, 0.0, 0.0]), f"mount.{k}", where) for k in ("xyz", "rpy"))
+    xyz, rpy = (
+        three_numbers(mount.get(k, [0.0, 0.0, 0.0]), f"mount.{k}", where, "[assembly]")
+        for k in ("xyz", "rpy")
+    )
     gains = table.get("arm_gains", {})
     if not isinstance(gains, dict) or set(gains) - {"kp", "kd"}:
         raise ConfigError(f"{where}: [assembly] arm_gains must be {{ kp = ..., kd = ... }}")
@@ -96,15 +99,6 @@ def parse_assembly(table: Any, where: Path) -> Assembly:
         arm, hand_toml, str(table["flange"]), xyz, rpy, float(kp), float(kd),
         tuple(float(v) for v in home),
     )  # fmt: skip
-
-
-def _three(value: Any, key: str, where: Path) -> tuple[float, float, float]:
-    ok = isinstance(value, list) and len(value) == 3
-    if not ok or not all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value
-    ):
-        raise ConfigError(f"{where}: [assembly] {key} must be 3 finite numbers, got {value!r}")
-    return (float(value[0]), float(value[1]), float(value[2]))
 
 
 def _read(path: Path) -> ET.Element:

@@ -267,7 +267,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         raise ConfigError(f"{path}: outer_surface_only must be true or false, got {outer!r}")
     sim = raw.get("simulation", {})
     mount = raw.get("mount", {})
-    xyz, rpy = (_three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
+    xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
 
     return HandConfig(
         path=path.resolve(),
@@ -328,7 +328,7 @@ def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
     mount = raw.get("mount", {})
     if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
         raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
-    xyz, rpy = (_three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
+    xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
     return dataclasses.replace(
         hand,
         path=path.resolve(),
@@ -350,15 +350,18 @@ _GRASP_SUBSTYLES = ("precision",)
 """Names of the optional ``[grasping.<name>]`` sub-tables."""
 
 
-def _three_numbers(value: Any, key: str, where: Path) -> tuple[float, float, float]:
+def three_numbers(
+    value: Any, key: str, where: Path, table: str = "[mount]"
+) -> tuple[float, float, float]:
     ok = isinstance(value, list) and len(value) == 3
     if ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         x, y, z = (float(v) for v in value)
         if all(map(math.isfinite, (x, y, z))):
             return x, y, z
     raise ConfigError(
-        f"{where}: [mount] {key} must be a list of 3 finite numbers "
-        f"({'[m]' if key == 'xyz' else '[rad]'}), e.g. {key} = [0.0, 0.0, 0.0]; got {value!r}"
+        f"{where}: {table} {key} must be a list of 3 finite numbers "
+        f"({'[m]' if key.endswith('xyz') else '[rad]'}), e.g. {key} = [0.0, 0.0, 0.0]; "
+        f"got {value!r}"
     )
 
 

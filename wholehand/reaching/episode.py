@@ -46,7 +46,7 @@ from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel, load_object
-from wholehand.reaching.pregrasp import GraspPlan, lowest_point, plan_pregrasp
+from wholehand.reaching.pregrasp import GraspPlan, plan_pregrasp, usable_on_table
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -95,6 +95,8 @@ explicitly applied spring stays stable (``2 w dt`` well below 2 at 1 ms steps)."
 
 GAP = 1.0
 """Pause between successive perturbations [s]."""
+TABLE_MARGIN = 0.01
+"""A plan is usable when its grasp and pre-grasp keep the hand this far above the table [m]."""
 TABLE_SIZE = (1.5, 1.5)
 """Side lengths of the episode's table [m]: wide enough that a dropped object pushed about by
 the hand stays on it."""
@@ -253,10 +255,7 @@ def run_episode(
     wMo[2, 3] += spec.hold_height
 
     def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
-        return all(
-            lowest_point(grasp_hand, q, wMo_now @ oMb) >= table.top + 0.01
-            for q, oMb in ((plan.q_grasp, plan.oMb_grasp), (plan.q_pre, plan.oMb_pre))
-        )
+        return usable_on_table(grasp_hand, plan, wMo_now, table, TABLE_MARGIN)
 
     start = plans[int(rng.integers(len(plans)))]
     if hand.arm_dofs.any():  # an arm: from its home posture, fingers at the pre-shape
@@ -277,8 +276,8 @@ def run_episode(
     )  # fmt: skip
     estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj)
     # The first estimate loads its compiled kernel (~0.1 s): done here, not in the first cycle.
-    warm = HandKinematics(hand)
-    warm.update(backend.observe().q, backend.observe().wMb)
+    warm, first = HandKinematics(hand), backend.observe()
+    warm.update(first.q, first.wMb)
     estimator.estimate(warm, wMo)
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
     planner = ReachPlanner(plans, usable)
@@ -328,7 +327,7 @@ def run_episode(
         "events": [asdict(e) for e in person.events],
         "transitions": [t.__dict__ for t in report.transitions],
         "cycle_us": timer.summary(),
-        "reacher_us": _percentiles(reacher_us),
+        "reacher_us": percentiles(reacher_us),
         "loop": report.as_dict(),
         "mujoco_warnings": backend.warnings(),
     }
@@ -372,10 +371,11 @@ class _CycleTimes(Observer):
         return None
 
     def summary(self) -> dict[str, dict[str, float]]:
-        return {kind: _percentiles(v) for kind, v in self.times.items() if v}
+        return {kind: percentiles(v) for kind, v in self.times.items() if v}
 
 
-def _percentiles(values: list[float]) -> dict[str, float]:
+def percentiles(values: list[float]) -> dict[str, float]:
+    """p50, p99, max and count of ``values`` (empty: {})."""
     if not values:
         return {}
     v = np.asarray(values)

@@ -98,10 +98,13 @@ def lowest_point(hand: HandModel, q: FloatArray, wMb: FloatArray) -> float:
     return float(kin.transform_points(hand.samples.p_joint, hand.samples.joint)[:, 2].min())
 
 
-def usable_on_table(hand: HandModel, plan: GraspPlan, wMo: FloatArray, table: Table) -> bool:
-    """True if neither the grasp nor its pre-grasp reaches below the table top."""
+def usable_on_table(
+    hand: HandModel, plan: GraspPlan, wMo: FloatArray, table: Table, margin: float = 0.0
+) -> bool:
+    """True if neither the grasp nor its pre-grasp comes within ``margin`` [m] of the table
+    top (or below it)."""
     return all(
-        lowest_point(hand, q, wMo @ oMb) >= table.top
+        lowest_point(hand, q, wMo @ oMb) >= table.top + margin
         for q, oMb in ((plan.q_grasp, plan.oMb_grasp), (plan.q_pre, plan.oMb_pre))
     )
 

@@ -61,7 +61,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             print(
                 f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
                 "nothing written (raise --max-candidates or adjust the style in hand.toml). "
-                f"Rejected because:\n{_reasons(rejected)}"
+                f"RejectedMessage because:\n{_reasons(rejected)}"
             )
             continue
         default = grasp_file(args.hand, obj.name, args.type)

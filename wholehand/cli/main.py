@@ -77,6 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     from wholehand.cli import bench as bench_cli
     from wholehand.cli import grasps as grasps_cli
     from wholehand.cli import hand as hand_cli
+    from wholehand.cli import hardware as hardware_cli
     from wholehand.cli import reach as reach_cli
     from wholehand.cli import run as run_cli
     from wholehand.cli import study as study_cli
@@ -89,6 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     hand_cli.add_parser(sub)
     bench_cli.add_parser(sub)
     view_cli.add_parser(sub)
+    hardware_cli.add_parser(sub)
     _verbose_everywhere(parser)
     return parser
 

@@ -39,6 +39,12 @@ keeps the last feasible one), since "no contact" would release the grasp on an e
 
 EstimateAt = Literal["object_stamp", "current"]
 ESTIMATE_AT: tuple[EstimateAt, ...] = ("object_stamp", "current")
+AllocateEvery = Literal["cycle", "pose"]
+ALLOCATE_EVERY: tuple[AllocateEvery, ...] = ("cycle", "pose")
+
+POSE_HELD = "pose_held"
+"""Status of a cycle that allocates nothing because no new pose arrived
+(``allocate_every="pose"``): the loop keeps the torque of the last pose."""
 
 
 class ForceRegulation(Stage):
@@ -55,6 +61,9 @@ class ForceRegulation(Stage):
         weight: the object's known weight, world axes [N] (e.g. ``m * (0, 0, -9.81)``): the
             allocator balances it with the contact forces (``G f + w = 0``, a force at the
             centre of mass). None: the paper's quasi-static balance of no external wrench.
+        allocate_every: ``"cycle"``: allocate every control cycle at the current q, the
+            contacts of the newest pose carried with their links; ``"pose"``: allocate once per
+            new object pose and hold that torque until the next (the paper's hardware loop).
 
     Status: the allocation's (``ok``, ``empty``, ``infeasible``, ``hold``, ...). When the
     allocation gives no torque the stage gives no command and the loop keeps the last feasible
@@ -75,6 +84,7 @@ class ForceRegulation(Stage):
         estimate_at: EstimateAt = "object_stamp",
         name: str = "regulate",
         weight: npt.ArrayLike | None = None,
+        allocate_every: AllocateEvery = "cycle",
     ) -> None:
         if weight is not None and not allocator.supports_external_wrench:
             raise ConfigError(
@@ -87,6 +97,13 @@ class ForceRegulation(Stage):
                 f"ForceRegulation: estimate_at={estimate_at!r} is unknown; use one of "
                 f"{list(ESTIMATE_AT)}"
             )
+        if allocate_every not in ALLOCATE_EVERY:
+            raise ConfigError(
+                f"ForceRegulation: allocate_every={allocate_every!r} is unknown; use one of "
+                f"{list(ALLOCATE_EVERY)}"
+            )
+        self.allocate_every = allocate_every
+        self._allocated_stamp = np.nan
         self.hand, self.obj = hand, obj
         self.estimator, self.allocator = estimator, allocator
         self.estimate_at = estimate_at
@@ -112,6 +129,10 @@ class ForceRegulation(Stage):
         obs = context.obs
         wMo = obs.wMo
         assert wMo is not None  # the loop runs no stage without a pose
+        if self.allocate_every == "pose":
+            if obs.stamp_object == self._allocated_stamp:
+                return StageOutput(None, POSE_HELD)
+            self._allocated_stamp = obs.stamp_object
         now = context.kinematics
         then = context.kinematics_object if self.estimate_at == "object_stamp" else now
         contacts = self.estimator.estimate(then, wMo, stamp=obs.stamp_object)

@@ -1,0 +1,425 @@
+"""The hardware path: config, CDR messages, rmw_zenoh keys and attachments, input checks, the
+safety rules, and the ros2 backend against a fake robot on loopback."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import time
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from wholehand.errors import ConfigError
+from wholehand.hardware import messages as msgs
+from wholehand.hardware.config import (
+    HardwareConfig,
+    SafetyLimits,
+    load_hardware_config,
+    parse_hardware_config,
+)
+from wholehand.hardware.guard import TorqueGuard
+from wholehand.hardware.inputs import JointStateReader, RejectedMessage, read_pose
+from wholehand.hardware.rmw_zenoh import (
+    Attachment,
+    Publisher,
+    Subscriber,
+    open_session,
+    topic_key,
+)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+# --- config -----------------------------------------------------------------------------------
+def test_config_defaults_and_file(tmp_path):
+    config = load_hardware_config()
+    assert config.topics["torque_command"] == "/hand_effort_controller/commands"
+    assert config.stamp_source == "header" and config.safety.pose_timeout == 0.2
+    path = tmp_path / "hw.toml"
+    path.write_text(
+        '[ros2]\ndomain_id = 7\ndistro = "humble"\n[topics]\njoint_states = "/hand/joint_states"\n'
+        '[qos]\nobject_pose = { reliability = "best_effort", depth = 5 }\n'
+        "[safety]\npose_timeout = 0.1\n"
+    )
+    config = load_hardware_config(path)
+    assert config.domain_id == 7 and config.topics["joint_states"] == "/hand/joint_states"
+    assert config.qos_of("object_pose").reliability == "best_effort"
+    assert config.safety.pose_timeout == 0.1 and config.safety.pose_ramp == 0.5
+
+
+@pytest.mark.parametrize(
+    ("raw", "named"),
+    [
+        ({"topic": {}}, "unknown tables ['topic']"),
+        ({"ros2": {"distro": "noetic"}}, "distro 'noetic'"),
+        ({"topics": {"joint_states": "joint_states"}}, "absolute ROS 2 topic name"),
+        ({"topics": {"torque_command": ""}}, "torque_command must name a topic"),
+        ({"qos": {"object_pose": {"reliability": "sometimes"}}}, "reliability"),
+        ({"object_pose": {"stamp_source": "image"}}, "stamp_source"),
+        ({"safety": {"pose_timeout": -1.0}}, "pose_timeout must be > 0"),
+        ({"safety": {"pose_timout": 1.0}}, "unknown keys ['pose_timout']"),
+        ({"joints": {"ignore": "a"}}, "[joints] ignore must be a list"),
+    ],
+)
+def test_config_errors_name_the_problem(raw, named):
+    with pytest.raises(ConfigError) as err:
+        parse_hardware_config(raw, "hw.toml")
+    assert named in str(err.value) and "hw.toml" in str(err.value)
+
+
+def test_config_missing_file_is_named(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_hardware_config(tmp_path / "nope.toml")
+
+
+# --- messages and keys ------------------------------------------------------------------------
+def test_cdr_payloads_round_trip_with_the_encapsulation_header():
+    payload = msgs.encode_joint_state(12.25, ["a", "b"], [0.1, 0.2], [1.0, 2.0], [])
+    assert payload[:4] == b"\x00\x01\x00\x00"  # CDR, little endian
+    # header.stamp follows: sec (int32) and nanosec (uint32)
+    assert struct.unpack_from("<iI", payload, 4) == (12, 250_000_000)
+    js = msgs.decode_joint_state(payload)
+    assert js.names == ("a", "b") and js.stamp == 12.25
+    np.testing.assert_array_equal(js.position, [0.1, 0.2])
+    assert js.effort.shape == (0,)
+    M = pin.SE3.Random().homogeneous
+    pose = msgs.decode_pose(msgs.encode_pose(3.5, "world", M))
+    assert pose.frame_id == "world" and pose.stamp == 3.5
+    np.testing.assert_allclose(read_pose(pose, "world", 10.0), M, atol=1e-12)
+    array = msgs.encode_array([1.0, -2.0])
+    # data: uint32 length then float64s, 8-byte aligned after the 4-byte header
+    np.testing.assert_array_equal(msgs.decode_array(array), [1.0, -2.0])
+    assert struct.unpack("<dd", array[-16:]) == (1.0, -2.0)
+
+
+@pytest.mark.parametrize("decode", [msgs.decode_joint_state, msgs.decode_pose, msgs.decode_array])
+def test_malformed_payloads_raise_message_error(decode):
+    for payload in (b"", b"\x00\x01\x00\x00\x01", b"garbage" * 3):
+        with pytest.raises(msgs.MessageError):
+            decode(payload)
+
+
+def test_keys_are_rmw_zenohs():
+    key = topic_key(0, "/hand/joint_states", msgs.JOINT_STATE)
+    assert key == (
+        "0/hand/joint_states/sensor_msgs::msg::dds_::JointState_/RIHS01_"
+        "a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e"
+    )
+    humble = topic_key(3, "/cmd", msgs.FLOAT64_ARRAY, "humble")
+    assert humble == "3/cmd/std_msgs::msg::dds_::Float64MultiArray_/TypeHashNotSupported"
+    with pytest.raises(ConfigError, match="absolute"):
+        topic_key(0, "cmd", msgs.FLOAT64_ARRAY)
+
+
+def test_attachment_is_33_bytes_int64_int64_and_a_sized_gid():
+    gid = bytes(range(16))
+    data = Attachment(7, 1_700_000_000_123_456_789, gid).encode()
+    assert len(data) == 33
+    assert struct.unpack_from("<qq", data) == (7, 1_700_000_000_123_456_789)
+    assert data[16] == 16 and data[17:] == gid  # LEB128 length, then the bytes
+    assert Attachment.decode(data) == Attachment(7, 1_700_000_000_123_456_789, gid)
+    with pytest.raises(msgs.MessageError):
+        Attachment.decode(b"\x01\x02")
+
+
+# --- incoming checks --------------------------------------------------------------------------
+def _joint_msg(hand, order, q, stamp=100.0, names=None, **kw):
+    names = names or [hand.joint_names[i] for i in order]
+    return msgs.JointStateMsg(
+        stamp, tuple(names), np.asarray(q, dtype=float)[order],
+        kw.get("velocity", np.zeros(0)), kw.get("effort", np.zeros(0)),
+    )  # fmt: skip
+
+
+def test_joint_states_in_any_order_map_onto_the_model(allegro):
+    reader = JointStateReader(allegro, HardwareConfig())
+    q = allegro.neutral() + 0.01 * np.arange(allegro.nq)
+    order = np.random.default_rng(0).permutation(allegro.nq)
+    sample = reader.read(_joint_msg(allegro, order, q), now=100.0)
+    np.testing.assert_array_equal(sample.q, q)
+    assert sample.dq is None and sample.effort is None
+
+
+def test_renamed_and_ignored_joints(allegro):
+    config = HardwareConfig(rename={"joint_0.0": "hand_joint_0"}, ignore=("gripper",))
+    reader = JointStateReader(allegro, config)
+    names = ["hand_joint_0", *allegro.joint_names[1:], "gripper"]
+    q = allegro.neutral()
+    msg = msgs.JointStateMsg(1.0, tuple(names), np.r_[q, 0.5], np.zeros(0), np.zeros(0))
+    np.testing.assert_array_equal(reader.read(msg, now=1.0).q, q)
+    with pytest.raises(ConfigError, match="not joints of hand"):
+        JointStateReader(allegro, HardwareConfig(rename={"joint_99": "x"}))
+
+
+@pytest.mark.parametrize(
+    ("change", "reason"),
+    [
+        ("unknown", "unknown_joint"),
+        ("missing", "missing_joint"),
+        ("nan", "not_finite"),
+        ("short", "wrong_length"),
+        ("range", "out_of_range"),
+        ("future", "future_stamp"),
+        ("duplicate", "duplicate_names"),
+        ("velocity_nan", "not_finite"),
+    ],
+)
+def test_bad_joint_states_are_rejected_with_a_reason(allegro, change, reason):
+    reader = JointStateReader(allegro, HardwareConfig())
+    q = allegro.neutral()
+    names = list(allegro.joint_names)
+    position, velocity, stamp = q.copy(), np.zeros(0), 100.0
+    if change == "unknown":
+        names[0] = "wrist"
+    elif change == "missing":
+        names, position = names[1:], position[1:]
+    elif change == "nan":
+        position[3] = np.nan
+    elif change == "short":
+        position = position[:-1]
+    elif change == "range":
+        position[2] = allegro.q_upper[2] + 1.0
+    elif change == "future":
+        stamp = 101.0
+    elif change == "duplicate":
+        names[1] = names[0]
+    elif change == "velocity_nan":
+        velocity = np.full(len(names), np.nan)
+    msg = msgs.JointStateMsg(stamp, tuple(names), position, velocity, np.zeros(0))
+    with pytest.raises(RejectedMessage) as err:
+        reader.read(msg, now=100.0)
+    assert err.value.reason == reason
+
+
+@pytest.mark.parametrize(
+    ("frame", "position", "quat", "reason"),
+    [
+        ("camera", [0, 0, 0], [0, 0, 0, 1], "wrong_frame"),
+        ("world", [np.nan, 0, 0], [0, 0, 0, 1], "not_finite"),
+        ("world", [0, 0, 0], [0, 0, 0, 2], "bad_quaternion"),
+    ],
+)
+def test_bad_poses_are_rejected(frame, position, quat, reason):
+    msg = msgs.PoseMsg(5.0, frame, np.asarray(position, float), np.asarray(quat, float))
+    with pytest.raises(RejectedMessage) as err:
+        read_pose(msg, "world", now=5.0)
+    assert err.value.reason == reason
+
+
+# --- safety rules -----------------------------------------------------------------------------
+LIMITS = SafetyLimits(joint_timeout=0.05, pose_timeout=0.2, pose_ramp=0.5, torque_rate=2.0,
+                      watchdog=0.05)  # fmt: skip
+
+
+def test_stale_joints_give_zero_torque_at_once():
+    guard = TorqueGuard([0.2, 0.2], LIMITS)
+    guard.start_from(np.array([0.1, -0.1]), 0.0)
+    tau, status = guard.filter(np.array([0.1, -0.1]), 0.01, joint_age=0.06, pose_age=0.0)
+    assert status == "joints_stale" and not tau.any()
+    tau, _ = guard.filter(np.array([0.1, -0.1]), 0.02, joint_age=np.inf, pose_age=0.0)
+    assert not tau.any()
+
+
+def test_stale_pose_holds_then_ramps_to_zero_and_a_fresh_pose_resumes():
+    guard = TorqueGuard([0.2, 0.2], LIMITS)
+    guard.start_from(np.array([0.1, -0.05]), 0.0)
+    tau, status = guard.filter(np.array([0.1, -0.05]), 0.01, 0.0, pose_age=0.1)
+    assert status == "ok"
+    tau, status = guard.filter(np.array([0.2, 0.2]), 1.0, 0.0, pose_age=0.21)
+    assert status == "pose_stale"
+    np.testing.assert_allclose(tau, [0.1, -0.05])  # held: ramp starts here
+    tau, _ = guard.filter(np.array([0.2, 0.2]), 1.25, 0.0, pose_age=0.46)
+    np.testing.assert_allclose(tau, [0.05, -0.025])  # halfway down the 0.5 s ramp
+    tau, _ = guard.filter(np.array([0.2, 0.2]), 1.6, 0.0, pose_age=0.81)
+    assert not tau.any()
+    tau, status = guard.filter(np.array([0.2, 0.2]), 1.7, 0.0, pose_age=0.0)
+    assert status == "rate_limited"
+    np.testing.assert_allclose(tau, [0.2, 0.2])  # 0.1 s at 2 N*m/s allows the full 0.2
+
+
+def test_torques_are_clamped_and_rate_limited_from_the_measured_effort():
+    guard = TorqueGuard([0.2, 0.5], LIMITS)
+    guard.start_from(np.array([0.05, 0.0]), 10.0)
+    tau, status = guard.filter(np.array([1.0, -1.0]), 10.0, 0.0, 0.0)
+    assert status == "rate_limited"
+    np.testing.assert_array_equal(tau, [0.05, 0.0])  # a restart resumes where the drives are
+    tau, _ = guard.filter(np.array([1.0, -1.0]), 10.01, 0.0, 0.0)
+    np.testing.assert_allclose(tau, [0.07, -0.02])  # 2 N*m/s over 10 ms
+    tau, status = guard.filter(np.array([1.0, -1.0]), 11.0, 0.0, 0.0)
+    assert status == "clamped"
+    np.testing.assert_array_equal(tau, [0.2, -0.5])
+
+
+def test_watchdog_ramps_the_last_torque_to_zero():
+    guard = TorqueGuard([0.2], LIMITS)
+    guard.start_from(np.array([0.2]), 0.0)
+    guard.filter(np.array([0.2]), 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(guard.watchdog(0.1), [0.2])
+    np.testing.assert_allclose(guard.watchdog(0.35), [0.1])
+    np.testing.assert_allclose(guard.watchdog(0.7), [0.0])
+    assert guard.counts["watchdog"] == 3
+
+
+# --- the ros2 backend against a fake robot ----------------------------------------------------
+class FakeRobot:
+    """Publishes joint states and poses, records the torque commands (one zenoh session)."""
+
+    def __init__(self, config: HardwareConfig) -> None:
+        self.session = open_session(config)
+        self.joints = Publisher(self.session, config, "joint_states", msgs.JOINT_STATE)
+        self.poses = Publisher(self.session, config, "object_pose", msgs.POSE_STAMPED)
+        self.torques: list[np.ndarray] = []
+        self._sub = Subscriber(
+            self.session,
+            config,
+            "torque_command",
+            msgs.FLOAT64_ARRAY,
+            lambda p, a, t: self.torques.append(msgs.decode_array(p)),
+        )
+
+    def close(self) -> None:
+        self.session.close()
+
+
+@pytest.fixture
+def robot_and_backend(allegro):
+    from wholehand_plugins.ros2_backend import Ros2Backend
+
+    port = free_port()
+    safety = SafetyLimits(pose_timeout=0.3, pose_ramp=0.3, torque_rate=2.0, watchdog=0.1,
+                          joint_timeout=0.5)  # fmt: skip
+    robot = FakeRobot(HardwareConfig(listen=(f"tcp/127.0.0.1:{port}",), connect=()))
+    backend = Ros2Backend(allegro, None, HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",),
+                                                        safety=safety))  # fmt: skip
+    yield robot, backend
+    backend.close()
+    robot.close()
+
+
+def _until(condition, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.005)
+
+
+def test_backend_reads_joints_in_any_order_and_interpolates_q_at_the_pose_stamp(
+    allegro, robot_and_backend
+):
+    robot, backend = robot_and_backend
+    order = np.arange(allegro.nq)[::-1]
+    names = [allegro.joint_names[i] for i in order]
+    q0, q1 = allegro.neutral(), allegro.neutral() + 0.02
+    t0 = time.time() - 0.05
+    wMo = pin.SE3(pin.rpy.rpyToMatrix(0.1, 0.2, 0.3), np.array([0.0, 0.05, 0.1])).homogeneous
+
+    def publish():
+        robot.joints.put(msgs.encode_joint_state(t0, names, q0[order], effort=np.zeros(16)))
+        robot.joints.put(msgs.encode_joint_state(t0 + 0.02, names, q1[order]))
+        robot.poses.put(msgs.encode_pose(t0 + 0.005, "world", wMo))
+
+    publish()
+    deadline = time.monotonic() + 5.0
+    while backend.received["object_pose"] == 0 or backend.received["joint_states"] < 2:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+        if backend.received["joint_states"] == 0:  # the session was still connecting
+            t0 = time.time() - 0.05
+            publish()
+    obs = backend.observe()
+    np.testing.assert_allclose(obs.q, q1)
+    np.testing.assert_allclose(obs.wMo, wMo, atol=1e-12)
+    q_then, _ = obs.q_at(obs.stamp_object)
+    # Stamps since 1970 in float64 resolve ~0.2 us: 1e-5 of the 20 ms between the samples.
+    np.testing.assert_allclose(q_then, q0 + 0.25 * (q1 - q0), atol=1e-6)
+    np.testing.assert_allclose(obs.dq, (q1 - q0) / 0.02, rtol=1e-6)  # no velocities sent
+
+
+def test_backend_rejects_bad_messages_and_keeps_the_last_good_sample(allegro, robot_and_backend):
+    robot, backend = robot_and_backend
+    names, q = list(allegro.joint_names), allegro.neutral()
+    _until_connected(robot, backend, names, q)
+    good = backend.observe()
+    robot.joints.put(b"\x00\x01\x00\x00 not a joint state")
+    bad = q.copy()
+    bad[0] = np.nan
+    robot.joints.put(msgs.encode_joint_state(time.time(), names, bad))
+    robot.joints.put(msgs.encode_joint_state(time.time(), ["x", *names[1:]], q))
+    nan_pose = np.eye(4)
+    nan_pose[0, 3] = np.nan
+    robot.poses.put(msgs.encode_pose(time.time(), "world", nan_pose))
+    _until(lambda: sum(backend.rejected.values()) >= 4)
+    assert backend.rejected == {"malformed": 1, "not_finite": 2, "unknown_joint": 1}
+    obs = backend.observe()
+    np.testing.assert_array_equal(obs.q, good.q)
+    assert obs.stamp_q == good.stamp_q and obs.stamp_object == good.stamp_object
+
+
+def _until_connected(robot, backend, names, q):
+    deadline = time.monotonic() + 5.0
+    while backend.received["joint_states"] == 0 or backend.received["object_pose"] == 0:
+        assert time.monotonic() < deadline
+        robot.joints.put(
+            msgs.encode_joint_state(time.time(), names, q, effort=np.full(len(names), 0.1))
+        )
+        robot.poses.put(msgs.encode_pose(time.time(), "world", np.eye(4)))
+        time.sleep(0.02)
+
+
+def test_backend_starts_from_the_measured_effort_and_ramps_when_the_pose_stops(
+    allegro, robot_and_backend
+):
+    from wholehand.loop.command import Command
+
+    robot, backend = robot_and_backend
+    names, q = list(allegro.joint_names), allegro.neutral()
+    _until_connected(robot, backend, names, q)
+    backend.observe()
+    backend.apply(Command.torques(np.full(allegro.nv, 0.2)))
+    _until(lambda: len(robot.torques) >= 1)
+    np.testing.assert_allclose(robot.torques[0], 0.1)  # the drives' effort, not a jump to 0.2
+    assert robot.torques[0].shape == (int(allegro.actuated_dofs.sum()),)
+    # No more poses: after pose_timeout (0.3 s) the torque ramps to zero over 0.3 s.
+    robot.joints.put(msgs.encode_joint_state(time.time(), names, q))
+    start = time.monotonic()
+    while time.monotonic() - start < 0.8:
+        robot.joints.put(msgs.encode_joint_state(time.time(), names, q))
+        backend.apply(Command.torques(np.full(allegro.nv, 0.2)))
+        time.sleep(0.01)
+    assert backend.guard.counts["pose_stale"] > 0
+    _until(lambda: np.allclose(robot.torques[-1], 0.0))
+
+
+def test_backend_watchdog_ramps_down_when_the_loop_stops(allegro, robot_and_backend):
+    from wholehand.loop.command import Command
+
+    robot, backend = robot_and_backend
+    names, q = list(allegro.joint_names), allegro.neutral()
+    _until_connected(robot, backend, names, q)
+    backend.apply(Command.torques(np.full(allegro.nv, 0.1)))
+    _until(lambda: len(robot.torques) >= 1)
+    # The loop sends nothing more; the watchdog (0.1 s) takes over and ramps to zero (0.3 s).
+    _until(lambda: backend.guard.counts["watchdog"] > 0, timeout=2.0)
+    _until(lambda: np.allclose(robot.torques[-1], 0.0), timeout=2.0)
+    first = robot.torques[1]
+    assert np.all(first <= 0.1 + 1e-12) and np.all(first >= 0.0)
+
+
+def test_backend_with_no_joint_state_sends_zero_and_wait_names_the_topic(allegro):
+    from wholehand_plugins.ros2_backend import Ros2Backend
+
+    from wholehand.loop.command import Command
+
+    port = free_port()
+    with Ros2Backend(allegro, None, HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",))) as b:
+        assert np.isnan(b.observe().q).all()  # the loop's bad_state
+        b.apply(Command.torques(np.full(allegro.nv, 0.2)))
+        assert b.guard.counts == {"joints_stale": 1}
+        with pytest.raises(ConfigError, match="no joint state on '/joint_states'"):
+            b.wait_for_streams(0.1)

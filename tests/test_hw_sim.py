@@ -1,0 +1,90 @@
+"""The controller and the robot double as two processes on loopback, as a user runs them."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wholehand(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "wholehand.cli.main", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy(),
+    )  # fmt: skip
+
+
+def _controller(endpoint: str, duration: float, *extra: str) -> subprocess.Popen[str]:
+    return _wholehand("control", "--connect", endpoint, "--listen", "--duration", str(duration),
+                      *extra)  # fmt: skip
+
+
+def _wait_for_line(proc: subprocess.Popen[str], text: str, timeout: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout
+    assert proc.stderr is not None
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if text in line:
+            return
+        if not line and proc.poll() is not None:
+            break
+    pytest.fail(f"no {text!r} from the controller")
+
+
+@pytest.fixture
+def endpoint():
+    return f"tcp/127.0.0.1:{_free_port()}"
+
+
+def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(endpoint, tmp_path):
+    sim = _wholehand("hw-sim", "--quick", "--latency", "0.033", "--listen", endpoint,
+                     "--connect", "--json", str(tmp_path / "sim.json"))  # fmt: skip
+    control = _controller(endpoint, 4.0, "--json", str(tmp_path / "control.json"))
+    out, err = sim.communicate(timeout=180)
+    assert sim.returncode == 0, err[-3000:]
+    control.communicate(timeout=60)
+    assert control.returncode == 0
+    robot = json.loads((tmp_path / "sim.json").read_text())
+    assert robot["held"] and robot["malformed_commands"] == 0
+    assert robot["statuses"].get("command_timeout", 0) == 0
+    assert robot["torque_messages"] > 200 and robot["pose_messages"] > 50
+    assert robot["max_torque_rate_Nm_s"] <= 20.0 * 1.05  # the guard's default rate
+    ctl = json.loads((tmp_path / "control.json").read_text())
+    assert ctl["backend"]["rejected"] == {}
+    assert ctl["loop"]["faults"] == {} and ctl["loop"]["n_errors"] == 0
+    assert ctl["backend"]["received"]["object_pose"] > 50
+    # The trace pairs every torque message with the joint state it answered.
+    seqs = {s for s, _ in robot["arrivals"]}
+    assert len(seqs & {s for s, _, _ in ctl["trace"]}) > 200
+
+
+def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, tmp_path):
+    sim = _wholehand("hw-sim", "--quick", "--settle", "3.0", "--listen", endpoint, "--connect",
+                     "--json", str(tmp_path / "sim.json"))  # fmt: skip
+    first = _controller(endpoint, 30.0)
+    _wait_for_line(first, "streams up")
+    time.sleep(1.0)
+    first.send_signal(signal.SIGKILL)
+    first.wait()
+    second = _controller(endpoint, 6.0)
+    out, err = sim.communicate(timeout=180)
+    second.communicate(timeout=60)
+    assert sim.returncode == 0, err[-3000:]
+    robot = json.loads((tmp_path / "sim.json").read_text())
+    assert robot["held"]
+    assert robot["statuses"]["command_timeout"] > 0  # the drives noticed the controller gone
+    assert len(robot["restart_steps_Nm"]) == 1
+    assert robot["restart_steps_Nm"][0] < 1e-9  # resumed at the torque the drives applied
+    assert robot["max_torque_rate_Nm_s"] <= 20.0 * 1.05

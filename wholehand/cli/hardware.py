@@ -1,0 +1,135 @@
+"""``wholehand control`` (the controller on a robot) and ``wholehand hw-sim`` (a robot double)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def _config(args: argparse.Namespace) -> Any:
+    from wholehand.hardware.config import load_hardware_config
+
+    config = load_hardware_config(args.config)
+    connect = tuple(args.connect) if args.connect is not None else None
+    listen = tuple(args.listen) if args.listen is not None else None
+    return config.with_endpoints(connect, listen)
+
+
+def _write(result: dict[str, Any], path: str | None, summary: dict[str, Any]) -> None:
+    print(json.dumps(summary, indent=2))
+    if path:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(result, indent=1))
+        print(f"wrote {path}", file=sys.stderr)
+
+
+def _cmd_control(args: argparse.Namespace) -> int:
+    from wholehand.hardware.controller import ControllerSpec, run_controller
+    from wholehand.models.hand import load_hand
+    from wholehand.models.objects import load_object
+
+    spec = ControllerSpec(
+        estimator=args.estimator, allocator=args.allocator, estimate_at=args.estimate_at,
+        allocate_every=args.allocate_every,
+    )  # fmt: skip
+    result = run_controller(
+        load_hand(args.hand), load_object(args.object), _config(args), spec, args.duration,
+        trace=bool(args.json), announce=lambda line: print(line, file=sys.stderr, flush=True),
+    )  # fmt: skip
+    _write(result, args.json, {k: v for k, v in result.items() if k != "trace"})
+    return 0
+
+
+def _cmd_hw_sim(args: argparse.Namespace) -> int:
+    from wholehand.hardware.double import DoubleSpec, run_double
+
+    params: dict[str, Any] = {}
+    if args.quick:  # a shorter protocol: settle and a 0.3 s load per direction
+        params = {"settle_time": 0.3, "load_duration": 0.3}
+    if args.settle is not None:
+        params["settle_time"] = args.settle
+    spec = DoubleSpec(
+        hand=args.hand, object=args.object, grasp=args.grasp, theta_deg=args.theta,
+        seed=args.seed, latency=args.latency, noise_mm=args.noise_mm, noise_deg=args.noise_deg,
+        dropouts=tuple((float(a), float(b)) for a, b in args.dropout or ()),
+        pose_stamp=args.pose_stamp, command_timeout=args.command_timeout,
+        gravity=args.gravity, protocol_params=params,
+    )  # fmt: skip
+    summary, record = run_double(spec, _config(args), args.wait)
+    if args.save:
+        record.save(args.save)
+    _write(summary, args.json, {k: v for k, v in summary.items() if k != "arrivals"})
+    return 0 if summary["held"] else 1
+
+
+def _endpoints(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", help="hardware config TOML (default: the built-in defaults)")
+    p.add_argument("--connect", nargs="*", help="zenoh endpoints to connect to (overrides config)")
+    p.add_argument("--listen", nargs="*", help="zenoh endpoints to listen on (overrides config)")
+    p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
+    p.add_argument("--object", default="077_rubiks_cube", help="the grasped object")
+    p.add_argument("--json", help="write the full result (with timings) to this JSON file")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "control",
+        help="regulate a held grasp on a robot over ROS 2 messages (zenoh; see docs/hardware.md)",
+    )
+    _endpoints(p)
+    p.add_argument("--duration", type=float, help="stop after this many seconds (default: never)")
+    p.add_argument("--estimator", default="mesh_sdf")
+    p.add_argument("--allocator", default="qp")
+    p.add_argument(
+        "--estimate-at",
+        default="object_stamp",
+        choices=["object_stamp", "current"],
+        help="joint configuration the contacts of a pose are estimated at",
+    )
+    p.add_argument(
+        "--allocate-every",
+        default="cycle",
+        choices=["cycle", "pose"],
+        help="allocate every control cycle or once per object pose",
+    )
+    p.set_defaults(func=_cmd_control)
+
+    p = sub.add_parser(
+        "hw-sim",
+        help="play a robot over ROS 2 messages: MuJoCo in real time, a tracker with latency",
+    )
+    _endpoints(p)
+    p.add_argument("--grasp", type=int, default=0, help="stored power grasp index")
+    p.add_argument("--theta", type=float, default=0.0, help="protocol pull [deg]; 0: loads only")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--latency", type=float, default=0.033, help="pose latency [s]")
+    p.add_argument("--noise-mm", type=float, default=0.0)
+    p.add_argument("--noise-deg", type=float, default=0.0)
+    p.add_argument(
+        "--dropout",
+        nargs=2,
+        action="append",
+        metavar=("START", "DURATION"),
+        help="no poses for DURATION s from START s of the protocol (repeatable)",
+    )
+    p.add_argument(
+        "--pose-stamp",
+        default="image",
+        choices=["image", "processing"],
+        help="stamp poses with the image time or the time processing ended",
+    )
+    p.add_argument(
+        "--command-timeout",
+        type=float,
+        default=0.1,
+        help="the drives hold the last torque this long [s], then zero",
+    )
+    p.add_argument("--gravity", action="store_true")
+    p.add_argument("--wait", type=float, default=60.0, help="wait this long for a controller [s]")
+    p.add_argument("--quick", action="store_true", help="shorter protocol phases")
+    p.add_argument("--settle", type=float, help="settle phase before the loads [s]")
+    p.add_argument("--save", help="save the run record (.npz) for `wholehand view`")
+    p.set_defaults(func=_cmd_hw_sim)

@@ -1,0 +1,105 @@
+"""The safety rules between the control loop and the robot's torque interface.
+
+Every torque command the hardware backend sends passes :meth:`TorqueGuard.filter`, which applies,
+in this order (the names are the statuses it counts):
+
+1. ``joints_stale``: no joint state, or the newest is older than ``joint_timeout`` -> zero
+   torque at once (the hand's state is unknown, so no torque is safe but none).
+2. ``pose_stale``: the newest object pose is older than ``pose_timeout`` -> the torque sent last
+   is held and ramped linearly to zero over ``pose_ramp``; a fresh pose ends the ramp.
+3. ``clamped``: every joint's torque within its limit ``tau_max``.
+4. ``rate_limited``: no joint's torque changes faster than ``torque_rate`` [N*m/s] from the
+   torque sent last. The first command starts from the measured effort (the torque the drives
+   apply now), so a controller restarted mid-grasp resumes without a jump.
+
+``watchdog``: when the loop sends nothing for ``watchdog`` seconds (a cycle stuck past its
+deadline), :meth:`TorqueGuard.watchdog` gives the ramp from the last torque to zero, which the
+backend's watchdog thread sends in the loop's place.
+
+Times are on one monotonic clock [s]; torques are (n_v,) in the hand's joint order [N*m].
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.errors import ConfigError
+from wholehand.hardware.config import SafetyLimits
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class TorqueGuard:
+    """Applies the safety rules to each torque command.
+
+    Args:
+        tau_max: (n_v,) torque limit per joint [N*m] (0: the joint gets no torque).
+        limits: the rules' times and rates.
+    """
+
+    def __init__(self, tau_max: npt.ArrayLike, limits: SafetyLimits) -> None:
+        self.tau_max = np.asarray(tau_max, dtype=float).copy()
+        if self.tau_max.ndim != 1 or (self.tau_max < 0.0).any():
+            raise ConfigError("TorqueGuard: tau_max must be (n_v,) values >= 0 [N*m]")
+        self.limits = limits
+        self.counts: Counter[str] = Counter()
+        """Commands per rule that changed them (``ok`` when none did)."""
+        self.last: FloatArray | None = None
+        """(n_v,) the torque sent last [N*m]; None before the first."""
+        self.t_last = 0.0
+        self._ramp_from: FloatArray | None = None
+        self._ramp_start = 0.0
+
+    def start_from(self, effort: FloatArray | None, now: float) -> None:
+        """Take the measured effort (n_v,) [N*m] (None: zero) as the torque sent last, so that
+        the first command is rate-limited from it."""
+        if self.last is None:
+            start = np.zeros_like(self.tau_max) if effort is None else np.asarray(effort)
+            self.last = np.clip(start, -self.tau_max, self.tau_max)
+            self.t_last = now
+
+    def filter(
+        self, tau: FloatArray, now: float, joint_age: float, pose_age: float
+    ) -> tuple[FloatArray, str]:
+        """The torque to send for the loop's ``tau`` (n_v,) at time ``now`` [s], given the ages of
+        the newest joint state and object pose [s] (inf: none yet); and the rule that decided
+        (``ok`` when none changed it)."""
+        limits = self.limits
+        if not joint_age <= limits.joint_timeout:
+            self._ramp_from = None
+            return self._sent(np.zeros_like(self.tau_max), now, "joints_stale")
+        self.start_from(None, now)
+        if not pose_age <= limits.pose_timeout:
+            return self._sent(self._ramp(now), now, "pose_stale")
+        self._ramp_from = None
+        status = "ok"
+        out = np.clip(tau, -self.tau_max, self.tau_max)
+        if not np.array_equal(out, tau):
+            status = "clamped"
+        assert self.last is not None
+        step = limits.torque_rate * max(now - self.t_last, 0.0)
+        limited = np.clip(out, self.last - step, self.last + step)
+        if not np.array_equal(limited, out):
+            status = "rate_limited"
+        return self._sent(limited, now, status)
+
+    def watchdog(self, now: float) -> FloatArray:
+        """The torque the watchdog sends when the loop is late: the last torque ramped to zero
+        over ``pose_ramp`` from the first late call on."""
+        return self._sent(self._ramp(now), now, "watchdog")[0]
+
+    def _ramp(self, now: float) -> FloatArray:
+        if self._ramp_from is None:
+            self._ramp_from = np.zeros_like(self.tau_max) if self.last is None else self.last
+            self._ramp_start = now
+        left = max(0.0, 1.0 - (now - self._ramp_start) / self.limits.pose_ramp)
+        return self._ramp_from * left
+
+    def _sent(self, tau: FloatArray, now: float, status: str) -> tuple[FloatArray, str]:
+        self.counts[status] += 1
+        self.last = tau
+        self.t_last = now
+        return tau, status

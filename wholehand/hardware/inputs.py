@@ -1,0 +1,188 @@
+"""Incoming messages checked and mapped onto the hand model, or rejected with a reason.
+
+A joint state is accepted only when it names every joint the model needs (in any order, after
+``[joints] rename``), names nothing else (except ``[joints] ignore``), has positions (and
+velocities and efforts, when sent) of the names' length, all finite, positions within the joint
+limits (plus :data:`LIMIT_SLACK`), and a stamp that is finite and not ahead of this clock. A
+pose is accepted when it is in the configured frame, finite, has a unit-normalisable quaternion
+and a stamp as above. Anything else raises :class:`RejectedMessage` with a short reason; the backend
+counts reasons and keeps the last good sample.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from wholehand.errors import ConfigError, WholehandError
+from wholehand.hardware.config import HardwareConfig
+from wholehand.hardware.messages import JointStateMsg, PoseMsg
+from wholehand.models.hand import HandModel
+
+FloatArray = npt.NDArray[np.float64]
+
+LIMIT_SLACK = 0.05
+"""How far past a joint limit a measured position is still believed [rad]: encoders and
+calibration put real joints a little past their URDF limits."""
+
+
+class RejectedMessage(WholehandError):  # noqa: N818 - a verdict, not a failure
+    """An incoming message that cannot be used; ``reason`` is a short key for counting."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class JointSample:
+    """One accepted joint state in model order."""
+
+    stamp: float
+    """Measurement time [s] (the header stamp)."""
+    q: FloatArray
+    """(n_q,) positions [rad], followers of coupled joints set from their leaders if not sent."""
+    dq: FloatArray | None
+    """(n_v,) velocities [rad/s]; None when the message had none."""
+    effort: FloatArray | None
+    """(n_v,) measured efforts [N*m] (0 for joints not sent); None when the message had none."""
+
+
+class JointStateReader:
+    """Maps ``sensor_msgs/msg/JointState`` onto the hand model's joint order.
+
+    Args:
+        hand: the hand (its moving joints; followers of coupled joints may be left out).
+        config: the renames and ignored names.
+    """
+
+    def __init__(self, hand: HandModel, config: HardwareConfig) -> None:
+        model = hand.model
+        unknown = sorted(set(config.rename) - set(hand.joint_names))
+        if unknown:
+            raise ConfigError(
+                f"{config.path or 'hardware config'}: [joints] rename names {unknown}, which are "
+                f"not joints of hand {hand.name!r}; its joints: {hand.joint_names}"
+            )
+        self.hand = hand
+        self.msg_name = {j: config.rename.get(j, j) for j in hand.joint_names}
+        """Model joint -> its name in messages."""
+        self._q_index = {
+            self.msg_name[j]: model.joints[model.getJointId(j)].idx_q for j in hand.joint_names
+        }
+        self.required = frozenset(
+            self.msg_name[j] for j in hand.joint_names if j not in hand.mimics
+        )
+        self.ignored = frozenset(config.ignore)
+        self.max_future = config.safety.max_future_stamp
+        self._name_at_q = {self._q_index[self.msg_name[j]]: j for j in hand.joint_names}
+        self._cache: tuple[tuple[str, ...], npt.NDArray[np.intp], npt.NDArray[np.intp]] | None
+        self._cache = None
+        self._lower = hand.q_lower - LIMIT_SLACK
+        self._upper = hand.q_upper + LIMIT_SLACK
+
+    def _mapping(self, names: tuple[str, ...]) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+        """Message rows of the model's joints and their q indices (cached per name order)."""
+        if self._cache is not None and self._cache[0] == names:
+            return self._cache[1], self._cache[2]
+        if len(set(names)) != len(names):
+            raise RejectedMessage("duplicate_names", f"joint names repeat: {list(names)}")
+        strange = sorted(set(names) - set(self._q_index) - self.ignored)
+        if strange:
+            raise RejectedMessage(
+                "unknown_joint",
+                f"joint names {strange} are not joints of hand {self.hand.name!r} (rename them "
+                "in [joints] rename or list them in [joints] ignore)",
+            )
+        missing = sorted(self.required - set(names))
+        if missing:
+            raise RejectedMessage("missing_joint", f"joint state lacks joints {missing}")
+        rows = np.array([i for i, n in enumerate(names) if n in self._q_index], dtype=np.intp)
+        idx = np.array([self._q_index[names[i]] for i in rows], dtype=np.intp)
+        self._cache = (names, rows, idx)
+        return rows, idx
+
+    def read(self, msg: JointStateMsg, now: float) -> JointSample:
+        """The sample of ``msg``, checked.
+
+        Args:
+            now: this process's clock in the stamps' time base [s] (wall clock).
+
+        Raises:
+            RejectedMessage: why the message cannot be used.
+        """
+        n = len(msg.names)
+        if msg.position.shape != (n,):
+            raise RejectedMessage("wrong_length", f"{msg.position.shape[0]} positions for {n} names")
+        for what, arr in (("velocities", msg.velocity), ("efforts", msg.effort)):
+            if arr.shape not in ((0,), (n,)):
+                raise RejectedMessage("wrong_length", f"{arr.shape[0]} {what} for {n} names")
+        check_stamp(msg.stamp, now, self.max_future)
+        rows, idx = self._mapping(msg.names)
+        hand = self.hand
+        q = hand.neutral()
+        q[idx] = msg.position[rows]
+        if hand.coupled and len(rows) < hand.nq:
+            q = hand.couple(q)
+        if not np.isfinite(q).all():
+            raise RejectedMessage("not_finite", f"positions hold NaN or inf: {msg.position.tolist()}")
+        out = (q < self._lower) | (q > self._upper)
+        if out.any():
+            j = int(np.flatnonzero(out)[0])
+            name = self._name_at_q[j]
+            raise RejectedMessage(
+                "out_of_range",
+                f"joint {name!r} at {q[j]:.4g} rad is outside its limits "
+                f"[{hand.q_lower[j]:.4g}, {hand.q_upper[j]:.4g}]",
+            )
+        dq = effort = None
+        if msg.velocity.size:
+            dq = np.zeros(hand.nv)
+            dq[idx] = msg.velocity[rows]
+            if not np.isfinite(dq).all():
+                raise RejectedMessage("not_finite", "velocities hold NaN or inf")
+        if msg.effort.size:
+            effort = np.zeros(hand.nv)
+            effort[idx] = msg.effort[rows]
+            if not np.isfinite(effort).all():
+                raise RejectedMessage("not_finite", "efforts hold NaN or inf")
+        return JointSample(msg.stamp, q, dq, effort)
+
+
+def check_stamp(stamp: float, now: float, max_future: float = 0.01) -> None:
+    """Raise :class:`RejectedMessage` for a stamp that is not finite, not positive, or more than
+    ``max_future`` [s] ahead of ``now``."""
+    if not (math.isfinite(stamp) and stamp > 0.0):
+        raise RejectedMessage("bad_stamp", f"stamp {stamp!r} s is not a positive time")
+    if stamp > now + max_future:
+        raise RejectedMessage(
+            "future_stamp",
+            f"stamp is {stamp - now:.3f} s ahead of this clock; synchronise the clocks (chrony)",
+        )
+
+
+def read_pose(msg: PoseMsg, frame_id: str, now: float, max_future: float = 0.01) -> FloatArray:
+    """The (4, 4) pose of ``msg``, checked (``now``, ``max_future``: see :func:`check_stamp`).
+
+    Raises:
+        RejectedMessage: wrong frame, NaN or inf, a quaternion far from unit length, a bad stamp.
+    """
+    if msg.frame_id != frame_id:
+        raise RejectedMessage(
+            "wrong_frame", f"pose in frame {msg.frame_id!r}, the controller needs {frame_id!r}"
+        )
+    if not (np.isfinite(msg.position).all() and np.isfinite(msg.quat_xyzw).all()):
+        raise RejectedMessage("not_finite", "pose holds NaN or inf")
+    norm = float(np.linalg.norm(msg.quat_xyzw))
+    if abs(norm - 1.0) > 1e-3:
+        raise RejectedMessage("bad_quaternion", f"orientation quaternion has norm {norm:.6g}, not 1")
+    check_stamp(msg.stamp, now, max_future)
+    x, y, z, w = msg.quat_xyzw / norm
+    M = np.eye(4)
+    M[:3, :3] = pin.Quaternion(w, x, y, z).toRotationMatrix()
+    M[:3, 3] = msg.position
+    return M

@@ -1,0 +1,177 @@
+"""ROS 2 topics over eclipse-zenoh, written the way rmw_zenoh writes them.
+
+A ROS 2 node on rmw_zenoh publishes a topic's messages on the key expression
+
+    <domain_id>/<topic without its leading slash>/<pkg>::msg::dds_::<Type>_/<type hash>
+
+(the type hash is ``RIHS01_<sha256>`` from Iron on, the literal ``TypeHashNotSupported`` on
+Humble) with a CDR payload, and attaches to every sample its sequence number, source timestamp
+[ns] and the publisher's 16-byte GID, serialised with zenoh-ext (33 bytes). Publishing and
+subscribing the same way makes wholehand's topics ordinary topics to every rmw_zenoh node,
+without a ROS installation here.
+
+Liveliness tokens (how ``ros2 topic list`` discovers entities) are not declared: data flows
+without them, but ROS 2 graph tools do not list wholehand's publishers.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import zenoh
+import zenoh.ext
+
+from wholehand.errors import ConfigError
+from wholehand.hardware.config import HardwareConfig, QoS
+from wholehand.hardware.messages import MessageError, type_hash
+
+GID_BYTES = 16
+
+
+def dds_type_name(msgtype: str) -> str:
+    """``sensor_msgs/msg/JointState`` -> ``sensor_msgs::msg::dds_::JointState_``."""
+    pkg, kind, name = msgtype.split("/")
+    return f"{pkg}::{kind}::dds_::{name}_"
+
+
+def topic_key(domain_id: int, topic: str, msgtype: str, distro: str = "jazzy") -> str:
+    """The zenoh key expression rmw_zenoh uses for ``topic`` (an absolute ROS 2 name)."""
+    if not topic.startswith("/"):
+        raise ConfigError(f"topic {topic!r} must be an absolute ROS 2 name, e.g. '/joint_states'")
+    digest = "TypeHashNotSupported" if distro == "humble" else type_hash(msgtype)
+    return f"{domain_id}/{topic.strip('/')}/{dds_type_name(msgtype)}/{digest}"
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """rmw_zenoh's per-sample attachment."""
+
+    sequence_number: int
+    source_timestamp: int
+    """Publish time [ns] of the publisher's system clock."""
+    gid: bytes
+    """(16,) the publisher's global id."""
+
+    def encode(self) -> bytes:
+        """zenoh-ext serialisation: int64, int64, then the GID as a length-prefixed buffer."""
+        ext = zenoh.ext
+        value = (ext.Int64(self.sequence_number), ext.Int64(self.source_timestamp), self.gid)
+        return bytes(ext.z_serialize(value).to_bytes())
+
+    @classmethod
+    def decode(cls, data: bytes) -> Attachment:
+        """Raises :class:`MessageError` when ``data`` is not such an attachment."""
+        ext = zenoh.ext
+        try:
+            seq, stamp, gid = ext.z_deserialize(
+                tuple[ext.Int64, ext.Int64, bytes], zenoh.ZBytes(data)
+            )
+        except Exception as err:  # noqa: BLE001 - a bad attachment is a malformed message
+            raise MessageError(
+                f"attachment of {len(data)} bytes is not rmw_zenoh's: {err}"
+            ) from err
+        if len(gid) != GID_BYTES:
+            raise MessageError(f"attachment GID has {len(gid)} bytes, rmw_zenoh's has 16")
+        return cls(int(seq), int(stamp), bytes(gid))
+
+
+def open_session(config: HardwareConfig) -> zenoh.Session:
+    """A zenoh session with the config's mode and endpoints, multicast scouting off (as
+    rmw_zenoh's default session config: peers meet through the listed endpoints)."""
+    conf = zenoh.Config()
+    try:
+        conf.insert_json5("mode", f'"{config.mode}"')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("connect/endpoints", _json_list(config.connect))
+        conf.insert_json5("listen/endpoints", _json_list(config.listen))
+        return zenoh.open(conf)
+    except zenoh.ZError as err:
+        raise ConfigError(
+            f"{config.path or 'hardware config'}: zenoh could not open a session with connect="
+            f"{list(config.connect)} listen={list(config.listen)}: {err}; check the [ros2] "
+            "endpoints (e.g. 'tcp/127.0.0.1:7447') and that no other process listens there"
+        ) from err
+
+
+def _json_list(items: tuple[str, ...]) -> str:
+    return "[" + ",".join(f'"{s}"' for s in items) + "]"
+
+
+class Publisher:
+    """Publishes CDR payloads on a ROS 2 topic with rmw_zenoh's attachment."""
+
+    def __init__(
+        self, session: zenoh.Session, config: HardwareConfig, topic_name: str, msgtype: str
+    ) -> None:
+        qos = config.qos_of(topic_name)
+        self.key = topic_key(config.domain_id, config.topics[topic_name], msgtype, config.distro)
+        self._pub = session.declare_publisher(
+            self.key,
+            congestion_control=_congestion(qos),
+            reliability=_reliability(qos),
+            express=True,
+        )
+        self.gid = os.urandom(GID_BYTES)
+        self.sequence_number = 0
+        self._lock = threading.Lock()
+
+    def put(self, payload: bytes, stamp_ns: int | None = None) -> int:
+        """Publish; returns the source timestamp written into the attachment [ns, system clock]
+        (``stamp_ns``, or now)."""
+        with self._lock:
+            self.sequence_number += 1
+            stamp = time.time_ns() if stamp_ns is None else int(stamp_ns)
+            attachment = Attachment(self.sequence_number, stamp, self.gid).encode()
+            self._pub.put(payload, attachment=attachment)
+        return stamp
+
+    def close(self) -> None:
+        self._pub.undeclare()
+
+
+Received = Callable[[bytes, bytes | None, float], None]
+"""``(payload, attachment or None, receipt time on time.monotonic [s])``."""
+
+
+class Subscriber:
+    """Calls ``callback`` from zenoh's thread for every sample of a ROS 2 topic."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        config: HardwareConfig,
+        topic_name: str,
+        msgtype: str,
+        callback: Received,
+    ) -> None:
+        self.key = topic_key(config.domain_id, config.topics[topic_name], msgtype, config.distro)
+
+        def handler(sample: zenoh.Sample) -> None:
+            received = time.monotonic()
+            attachment = sample.attachment
+            callback(
+                sample.payload.to_bytes(),
+                None if attachment is None else attachment.to_bytes(),
+                received,
+            )
+
+        self._sub = session.declare_subscriber(self.key, handler)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def _congestion(qos: QoS) -> zenoh.CongestionControl:
+    # rmw_zenoh blocks only for reliable keep-all; otherwise a slow reader drops samples.
+    block = qos.reliability == "reliable" and qos.history == "keep_all"
+    return zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+
+
+def _reliability(qos: QoS) -> zenoh.Reliability:
+    if qos.reliability == "reliable":
+        return zenoh.Reliability.RELIABLE
+    return zenoh.Reliability.BEST_EFFORT

@@ -117,7 +117,9 @@ class JointStateReader:
         """
         n = len(msg.names)
         if msg.position.shape != (n,):
-            raise RejectedMessage("wrong_length", f"{msg.position.shape[0]} positions for {n} names")
+            raise RejectedMessage(
+                "wrong_length", f"{msg.position.shape[0]} positions for {n} names"
+            )
         for what, arr in (("velocities", msg.velocity), ("efforts", msg.effort)):
             if arr.shape not in ((0,), (n,)):
                 raise RejectedMessage("wrong_length", f"{arr.shape[0]} {what} for {n} names")
@@ -129,7 +131,9 @@ class JointStateReader:
         if hand.coupled and len(rows) < hand.nq:
             q = hand.couple(q)
         if not np.isfinite(q).all():
-            raise RejectedMessage("not_finite", f"positions hold NaN or inf: {msg.position.tolist()}")
+            raise RejectedMessage(
+                "not_finite", f"positions hold NaN or inf: {msg.position.tolist()}"
+            )
         out = (q < self._lower) | (q > self._upper)
         if out.any():
             j = int(np.flatnonzero(out)[0])
@@ -179,7 +183,9 @@ def read_pose(msg: PoseMsg, frame_id: str, now: float, max_future: float = 0.01)
         raise RejectedMessage("not_finite", "pose holds NaN or inf")
     norm = float(np.linalg.norm(msg.quat_xyzw))
     if abs(norm - 1.0) > 1e-3:
-        raise RejectedMessage("bad_quaternion", f"orientation quaternion has norm {norm:.6g}, not 1")
+        raise RejectedMessage(
+            "bad_quaternion", f"orientation quaternion has norm {norm:.6g}, not 1"
+        )
     check_stamp(msg.stamp, now, max_future)
     x, y, z, w = msg.quat_xyzw / norm
     M = np.eye(4)

@@ -92,6 +92,23 @@ def _cmd_thin_walls(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_hw(args: argparse.Namespace) -> int:
+    from wholehand.hardware.bench import run_hw_benchmark
+    from wholehand.hardware.controller import ControllerSpec
+
+    spec = ControllerSpec(estimate_at=args.estimate_at, allocate_every=args.allocate_every)
+    result = run_hw_benchmark(
+        hand=args.hand, obj=args.object, grasps=[int(g) for g in args.grasps.split(",")],
+        latency=args.latency, quick=not args.full, spec=spec, pose_stamp=args.pose_stamp,
+        stamp_source=args.stamp_source,
+    )  # fmt: skip
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(result, indent=1))
+    print(json.dumps(result, indent=2))
+    return 0
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="latency benchmarks (JSON with p50/p95/p99)")
     bsub = bench.add_subparsers(dest="bench", required=True)
@@ -152,3 +169,30 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=3, help="seeded episodes")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
     p.set_defaults(func=_cmd_reach)
+
+    p = bsub.add_parser(
+        "hw",
+        help="hardware path on loopback: joint state -> torque message latency, rate held, "
+        "and the load test through wholehand hw-sim",
+    )
+    p.add_argument("--hand", default="allegro_right")
+    p.add_argument("--object", default="077_rubiks_cube")
+    p.add_argument("--grasps", default="0", help="comma-separated stored grasp indices")
+    p.add_argument("--latency", type=float, default=0.033, help="pose latency [s]")
+    p.add_argument("--full", action="store_true", help="the full load test (default: --quick)")
+    p.add_argument("--estimate-at", default="object_stamp", choices=["object_stamp", "current"])
+    p.add_argument("--allocate-every", default="cycle", choices=["cycle", "pose"])
+    p.add_argument(
+        "--pose-stamp",
+        default="image",
+        choices=["image", "processing"],
+        help="what hw-sim's tracker stamps poses with",
+    )
+    p.add_argument(
+        "--stamp-source",
+        default="header",
+        choices=["header", "receipt"],
+        help="what the controller takes as a pose's time",
+    )
+    p.add_argument("--out", help="also write the JSON here")
+    p.set_defaults(func=_cmd_hw)

@@ -43,15 +43,18 @@ class ControllerSpec:
 
 
 class _StopWhen(Observer):
-    """Ends the run when an event is set (a signal asked the controller to stop)."""
+    """Ends the run when an event is set (a signal asked the controller to stop) or ``stop()``
+    returns something other than None."""
 
-    def __init__(self, event: threading.Event) -> None:
-        self.event = event
+    def __init__(self, event: threading.Event, stop: Callable[[], object] | None) -> None:
+        self.event, self.stop = event, stop
         self.cycle_times: list[float] = []
 
     def on_cycle(self, cycle: Cycle) -> str | None:
         self.cycle_times.append(cycle.cycle_time)
-        return "stopped" if self.event.is_set() else None
+        if self.event.is_set() or (self.stop is not None and self.stop() is not None):
+            return "stopped"
+        return None
 
 
 STREAM_TIMEOUT = 30.0
@@ -67,10 +70,12 @@ def run_controller(
     trace: bool = False,
     wait: float = STREAM_TIMEOUT,
     announce: Callable[[str], None] | None = None,
+    stop: Callable[[], object] | None = None,
 ) -> dict[str, Any]:
     """Wait for the robot's streams, then run force regulation against it; returns a
     JSON-ready report (``loop``, ``backend`` counts, ``cycle_time_ms`` percentiles, ``trace``
-    when asked). ``announce`` is called with a line once the streams are up.
+    when asked). ``announce`` is called with a line once the streams are up;
+    the run also ends on the first cycle ``stop()`` returns something other than None.
 
     Raises:
         ConfigError: no joint state or object pose within ``wait`` [s].
@@ -84,12 +89,12 @@ def run_controller(
         hand, obj, estimator, allocator, cast(EstimateAt, spec.estimate_at),
         allocate_every=cast(AllocateEvery, spec.allocate_every),
     )  # fmt: skip
-    stop = threading.Event()
+    stopped = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: stop.set())
-    stopper = _StopWhen(stop)
+            previous[sig] = signal.signal(sig, lambda *_: stopped.set())
+    stopper = _StopWhen(stopped, stop)
     try:
         with Ros2Backend(hand, obj, config, trace=trace) as backend:
             backend.wait_for_streams(wait)

@@ -1,0 +1,107 @@
+"""``wholehand bench hw``: the hardware path end to end on loopback, against ``wholehand hw-sim``.
+
+For each grasp, the double runs in its own process (MuJoCo in real time, joint states at the
+config's rate, poses at 30 Hz with a latency) and the controller runs in this one. Every torque
+message is matched, by its attachment's sequence number, with the joint state it answered:
+
+- ``answer_ms``: from the joint state's stamp (its measurement time) to the torque message's
+  arrival at the robot: the sample's age when the cycle began, the cycle, and the transport;
+- ``controller_ms``: from that stamp to the message's publication (``answer_ms`` less transport);
+- ``transport_ms``: publication to arrival;
+- ``rate_hz``: torque messages the robot received per second of its run (the rate held).
+
+All times are wall-clock on one machine (one clock for both processes).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wholehand.errors import ConfigError
+from wholehand.hardware.config import HardwareConfig
+from wholehand.hardware.controller import ControllerSpec, run_controller
+from wholehand.models.hand import load_hand
+from wholehand.models.objects import load_object
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _percentiles(values: Sequence[float]) -> dict[str, float | None]:
+    arr = np.asarray(values, dtype=float)
+    return {f"p{p}": float(np.percentile(arr, p)) if arr.size else None for p in (50, 95, 99)}
+
+
+def run_hw_benchmark(
+    hand: str = "allegro_right",
+    obj: str = "077_rubiks_cube",
+    grasps: Sequence[int] = (0,),
+    latency: float = 0.033,
+    quick: bool = True,
+    spec: ControllerSpec | None = None,
+    pose_stamp: str = "image",
+    stamp_source: str = "header",
+) -> dict[str, Any]:
+    """Run the double and the controller over each grasp; latency percentiles over all
+    messages, and whether each grasp held the load test."""
+    spec = spec or ControllerSpec()
+    hand_model, obj_model = load_hand(hand), load_object(obj)
+    answer, controller, transport, rates, rows = [], [], [], [], []
+    for grasp in grasps:
+        endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        config = HardwareConfig(connect=(endpoint,), listen=(), stamp_source=stamp_source)
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp) / "sim.json"
+            argv = [sys.executable, "-m", "wholehand.cli.main", "hw-sim", "--hand", hand,
+                    "--object", obj, "--grasp", str(grasp), "--latency", str(latency),
+                    "--pose-stamp", pose_stamp, "--listen", endpoint, "--connect",
+                    "--json", str(out), *(["--quick"] if quick else [])]  # fmt: skip
+            sim = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                   text=True, env=os.environ.copy())  # fmt: skip
+            try:
+                result = run_controller(hand_model, obj_model, config, spec, trace=True,
+                                        duration=None, stop=sim.poll)  # fmt: skip
+                _, err = sim.communicate(timeout=60)
+            finally:
+                if sim.poll() is None:
+                    sim.kill()
+            if not out.exists():
+                raise ConfigError(f"bench hw: hw-sim failed for grasp {grasp}: {err[-2000:]}")
+            robot = json.loads(out.read_text())
+        arrivals = dict(robot["arrivals"])
+        for seq, stamp_q, published_ns in result["trace"]:
+            if seq in arrivals and np.isfinite(stamp_q):
+                arrived = arrivals[seq]
+                answer.append(1e3 * (1e-9 * arrived - stamp_q))
+                controller.append(1e3 * (1e-9 * published_ns - stamp_q))
+                transport.append(1e-6 * (arrived - published_ns))
+        run_time = robot["cycles"] / HardwareConfig().joint_state_rate
+        rates.append(robot["torque_messages"] / run_time)
+        rows.append({
+            "grasp": grasp, "held": robot["held"], "lost_at": robot["lost_at"],
+            "statuses": robot["statuses"], "rejected": result["backend"]["rejected"],
+            "guard": result["backend"]["guard"], "late_cycles": robot["late_cycles"],
+        })  # fmt: skip
+    return {
+        "hand": hand, "object": obj, "latency_s": latency, "quick": quick,
+        "estimate_at": spec.estimate_at, "allocate_every": spec.allocate_every,
+        "pose_stamp": pose_stamp, "stamp_source": stamp_source,
+        "held": sum(r["held"] for r in rows), "grasps": len(rows),
+        "answer_ms": _percentiles(answer), "controller_ms": _percentiles(controller),
+        "transport_ms": _percentiles(transport), "messages": len(answer),
+        "rate_hz": {"min": float(min(rates)), "mean": float(np.mean(rates))},
+        "control_rate_hz": HardwareConfig().control_rate, "runs": rows,
+    }  # fmt: skip

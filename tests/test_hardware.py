@@ -423,3 +423,19 @@ def test_backend_with_no_joint_state_sends_zero_and_wait_names_the_topic(allegro
         assert b.guard.counts == {"joints_stale": 1}
         with pytest.raises(ConfigError, match="no joint state on '/joint_states'"):
             b.wait_for_streams(0.1)
+
+
+def test_control_cli_names_a_missing_config(tmp_path, capsys):
+    from wholehand.cli.main import main
+
+    assert main(["control", "--config", str(tmp_path / "robot.toml"), "--duration", "1"]) == 2
+    assert "robot.toml' does not exist" in capsys.readouterr().err
+
+
+def test_shipped_example_config_loads_against_the_allegro(allegro):
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "examples" / "hardware" / "ros2_allegro.toml"
+    config = load_hardware_config(path)
+    reader = JointStateReader(allegro, config)
+    assert reader.msg_name["joint_0.0"] == "allegro_joint_0"

@@ -622,3 +622,27 @@ def test_degenerate_normals_never_reach_the_allocator(allegro, cube):
     for n in spy.normals:
         np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
     assert {c.output.status for c in seen.cycles} == {"ok"}
+
+
+def test_allocating_once_per_pose_holds_the_torque_between_poses(allegro, cube):
+    from wholehand.loop.filters import PoseTracker
+    from wholehand.loop.regulation import POSE_HELD
+
+    backend = grasp_backend(allegro, cube)
+    stage = regulation(allegro, cube)
+    stage.allocate_every = "pose"
+    seen = Last()
+    loop = ControlLoop(backend, allegro, cube, stage, rate=200.0,
+                       filters=[PoseTracker(30.0, 0.033)], observers=[seen])  # fmt: skip
+    loop.run(0.2)
+    stamps = [c.context.obs.stamp_object for c in seen.cycles]
+    statuses = [c.output.status for c in seen.cycles]
+    for i in range(1, len(stamps)):  # a new pose allocates, a repeated one holds
+        assert (statuses[i] == POSE_HELD) == (stamps[i] == stamps[i - 1])
+        if statuses[i] == POSE_HELD:
+            np.testing.assert_array_equal(
+                seen.cycles[i].command.tau, seen.cycles[i - 1].command.tau
+            )
+    assert 5 <= statuses.count("ok") <= 8  # 30 Hz poses in 0.2 s
+    with pytest.raises(ConfigError, match="allocate_every='sometimes'"):
+        ForceRegulation(allegro, cube, stage.estimator, stage.allocator, allocate_every="sometimes")

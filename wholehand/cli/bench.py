@@ -97,8 +97,11 @@ def _cmd_hw(args: argparse.Namespace) -> int:
     from wholehand.hardware.controller import ControllerSpec
 
     spec = ControllerSpec(estimate_at=args.estimate_at, allocate_every=args.allocate_every)
+    from wholehand.models.objects import PAPER_OBJECTS
+
+    objects = PAPER_OBJECTS if args.object == "paper" else tuple(args.object.split(","))
     result = run_hw_benchmark(
-        hand=args.hand, obj=args.object, grasps=[int(g) for g in args.grasps.split(",")],
+        hand=args.hand, objects=objects, grasps=[int(g) for g in args.grasps.split(",")],
         latency=args.latency, quick=not args.full, spec=spec, pose_stamp=args.pose_stamp,
         stamp_source=args.stamp_source,
     )  # fmt: skip
@@ -176,7 +179,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "and the load test through wholehand hw-sim",
     )
     p.add_argument("--hand", default="allegro_right")
-    p.add_argument("--object", default="077_rubiks_cube")
+    p.add_argument(
+        "--object",
+        default="077_rubiks_cube",
+        help="comma-separated objects, or 'paper' for the paper's five",
+    )
     p.add_argument("--grasps", default="0", help="comma-separated stored grasp indices")
     p.add_argument("--latency", type=float, default=0.033, help="pose latency [s]")
     p.add_argument("--full", action="store_true", help="the full load test (default: --quick)")

@@ -20,6 +20,7 @@ import numpy as np
 from wholehand import registry
 from wholehand.hardware.config import HardwareConfig
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.loop.gate import ObservationGate
 from wholehand.loop.observation import check_observation
 from wholehand.loop.regulation import AllocateEvery, EstimateAt, ForceRegulation
 from wholehand.loop.trial import load_allocator
@@ -109,10 +110,12 @@ def run_controller(
                     f"streams up; regulating at {config.control_rate:g} Hz on "
                     f"{config.topics['torque_command']}"
                 )
+            gate = ObservationGate(hand)
             loop = ControlLoop(backend, hand, obj, regulation, rate=config.control_rate,
-                               observers=[stopper])  # fmt: skip
+                               observers=[stopper], gate=gate)  # fmt: skip
             report = loop.run(duration)
             stats = backend.stats()
+            stats["gate_refused"] = dict(gate.refused)
             traced = list(backend.trace or ())
     finally:
         for sig, handler in previous.items():

@@ -280,7 +280,9 @@ def run_double(
         assert first.wMo is not None
         loss.check.held(kinematics, first.wMo)
         _wait(backend, drives, joints, poses, names, config, wait_for_controller)
+        run_start = time.time_ns()
         report = loop.run(protocol.duration)
+        run_end = time.time_ns()
         commands.close()
     finally:
         session.close()
@@ -298,6 +300,7 @@ def run_double(
         "restart_steps_Nm": drives.restart_steps,
         "sim_warnings": backend.warnings(),
         "arrivals": drives.arrivals,
+        "run_wall_ns": [run_start, run_end],
     }
     return summary, recorder.record
 

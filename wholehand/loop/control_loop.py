@@ -230,6 +230,8 @@ class ControlLoop:
         for observer in self.observers:
             observer.on_start(self)
         report = self.report
+        deadline = t0  # wall clock: cycles start on a fixed schedule, so sleep overshoot never
+        # accumulates into a lower rate; a cycle more than a period late restarts the schedule
         try:
             while True:
                 t = backend.time
@@ -250,7 +252,13 @@ class ControlLoop:
                     break
                 if next_stage is not None:
                     self._switch(next_stage, t, cycle.output.reason)
-                self._advance(t + self.dt)
+                if backend.clock == "sim":
+                    self._advance(t + self.dt)
+                else:
+                    deadline += self.dt
+                    self._advance(deadline)
+                    if backend.time - deadline > self.dt:
+                        deadline = backend.time
         finally:
             for observer in self.observers:
                 observer.on_end(self)

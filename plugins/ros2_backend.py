@@ -31,7 +31,13 @@ from wholehand.backends.base import Backend
 from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig, load_hardware_config
 from wholehand.hardware.guard import TorqueGuard
-from wholehand.hardware.inputs import JointSample, JointStateReader, RejectedMessage, read_pose
+from wholehand.hardware.inputs import (
+    JointSample,
+    JointStateReader,
+    RejectedMessage,
+    command_dofs,
+    read_pose,
+)
 from wholehand.hardware.messages import (
     FLOAT64_ARRAY,
     JOINT_STATE,
@@ -95,8 +101,11 @@ class Ros2Backend(Backend):
             config = load_hardware_config(config)
         self.config, self.hand = config, hand
         self.reader = JointStateReader(hand, config)
-        self.command_dofs = self._command_dofs(hand, config)
+        self.command_dofs = command_dofs(hand, config)
+        """(m,) velocity indices of the torque command's joints, in its order."""
         self.command_names = [self.reader.msg_name[hand.joint_names[i]] for i in self.command_dofs]
+        """The torque command's joints as the robot names them (the effort controller's
+        ``joints``, in order)."""
         self.arm_dofs = np.flatnonzero(hand.arm_dofs)
         self.history = JointHistory(hand.nq, history)
         self.guard = TorqueGuard(np.where(hand.actuated_dofs, hand.tau_max, 0.0), config.safety)
@@ -134,25 +143,6 @@ class Ros2Backend(Backend):
         self._watchdog = threading.Thread(target=self._watch, name="wholehand-watchdog",
                                           daemon=True)  # fmt: skip
         self._watchdog.start()
-
-    @staticmethod
-    def _command_dofs(hand: HandModel, config: HardwareConfig) -> npt.NDArray[np.intp]:
-        model = hand.model
-        if config.command_joints is None:
-            return np.flatnonzero(hand.actuated_dofs)
-        dofs = []
-        for name in config.command_joints:
-            if (
-                name not in hand.joint_names
-                or not hand.actuated_dofs[model.joints[model.getJointId(name)].idx_v]
-            ):
-                actuated = [hand.joint_names[i] for i in np.flatnonzero(hand.actuated_dofs)]
-                raise ConfigError(
-                    f"{config.path or 'hardware config'}: [joints] command names {name!r}, which "
-                    f"is not an actuated joint of hand {hand.name!r}; actuated: {actuated}"
-                )
-            dofs.append(model.joints[model.getJointId(name)].idx_v)
-        return np.asarray(dofs, dtype=np.intp)
 
     # --- incoming (zenoh's threads) -------------------------------------------------------------
     def _reject(self, reason: str, detail: str) -> None:
@@ -305,6 +295,7 @@ class Ros2Backend(Backend):
                 "last_rejection": self.last_rejection,
                 "guard": dict(self.guard.counts),
                 "torque_messages": self._torque.sequence_number,
+                "command_joints": self.command_names,
             }
 
     def close(self) -> None:

@@ -439,3 +439,16 @@ def test_shipped_example_config_loads_against_the_allegro(allegro):
     config = load_hardware_config(path)
     reader = JointStateReader(allegro, config)
     assert reader.msg_name["joint_0.0"] == "allegro_joint_0"
+
+
+def test_command_order_follows_the_config_and_bad_names_are_refused(allegro):
+    from wholehand.hardware.inputs import command_dofs
+
+    np.testing.assert_array_equal(
+        command_dofs(allegro, HardwareConfig()), np.flatnonzero(allegro.actuated_dofs)
+    )
+    order = ("joint_3.0", "joint_0.0")
+    dofs = command_dofs(allegro, HardwareConfig(command_joints=order))
+    assert [allegro.joint_names[i] for i in dofs] == list(order)
+    with pytest.raises(ConfigError, match="names 'wrist', which is not an actuated joint"):
+        command_dofs(allegro, HardwareConfig(command_joints=("wrist",)))

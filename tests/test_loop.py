@@ -646,3 +646,36 @@ def test_allocating_once_per_pose_holds_the_torque_between_poses(allegro, cube):
     assert 5 <= statuses.count("ok") <= 8  # 30 Hz poses in 0.2 s
     with pytest.raises(ConfigError, match="allocate_every='sometimes'"):
         ForceRegulation(allegro, cube, stage.estimator, stage.allocator, allocate_every="sometimes")
+
+
+class OvershootingClock(WallClockBackend):
+    """A virtual wall clock whose every sleep lasts 0.3 ms longer than asked, as OS sleeps do;
+    one sleep (the fifth) lasts 2.5 periods longer."""
+
+    def __init__(self, sim, dt):
+        super().__init__(sim)
+        self._t, self.dt, self.steps = 0.0, dt, 0
+
+    def step(self, duration):
+        self.steps += 1
+        self._t += duration + 3e-4 + (2.5 * self.dt if self.steps == 5 else 0.0)
+
+    @property
+    def time(self):
+        return self._t
+
+
+def test_wall_clock_cycles_keep_their_schedule_despite_sleep_overshoot(allegro, cube):
+    dt = 0.01
+    backend = OvershootingClock(grasp_backend(allegro, cube), dt)
+    seen = Last()
+    stage = SlowStage(dt)
+    stage.n = -1000  # never slow: only the clock's overshoot
+    report = ControlLoop(backend, allegro, cube, stage, rate=1 / dt, observers=[seen]).run(0.2)
+    ts = np.array([c.t for c in seen.cycles])
+    # Cycles 1-4 start 0.3 ms after k * dt (no drift); the 2.5-period sleep is one overrun,
+    # after which the schedule restarts from that cycle: again 0.3 ms after each dt.
+    np.testing.assert_allclose(ts[1:5], dt * np.arange(1, 5) + 3e-4, atol=1e-12)
+    assert report.overruns == 1
+    np.testing.assert_allclose(np.diff(ts[6:]), dt, atol=1e-12)
+    assert len(ts) == 17  # 0.2 s less the 2.5 periods lost, at 10 ms

@@ -25,7 +25,7 @@ import numpy.typing as npt
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
 from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.inputs import JointStateReader
+from wholehand.hardware.inputs import JointStateReader, command_dofs
 from wholehand.hardware.messages import (
     FLOAT64_ARRAY,
     JOINT_STATE,
@@ -245,9 +245,7 @@ def run_double(
     )  # fmt: skip
     reader = JointStateReader(hand, config)
     names = [reader.msg_name[j] for j in hand.joint_names]
-    from wholehand_plugins.ros2_backend import Ros2Backend
-
-    drives = RemoteTorque(hand, Ros2Backend._command_dofs(hand, config), spec.command_timeout)
+    drives = RemoteTorque(hand, command_dofs(hand, config), spec.command_timeout)
     protocol = PerturbationProtocol(theta_deg=spec.theta_deg, seed=spec.seed,
                                     **spec.protocol_params)  # fmt: skip
     rate = config.joint_state_rate

@@ -1,4 +1,5 @@
-"""Incoming messages checked and mapped onto the hand model, or rejected with a reason.
+"""Joint names mapped onto the hand model, and incoming messages checked, or rejected with a
+reason.
 
 A joint state is accepted only when it names every joint the model needs (in any order, after
 ``[joints] rename``), names nothing else (except ``[joints] ignore``), has positions (and
@@ -192,3 +193,25 @@ def read_pose(msg: PoseMsg, frame_id: str, now: float, max_future: float = 0.01)
     M[:3, :3] = pin.Quaternion(w, x, y, z).toRotationMatrix()
     M[:3, 3] = msg.position
     return M
+
+
+def command_dofs(hand: HandModel, config: HardwareConfig) -> npt.NDArray[np.intp]:
+    """(m,) velocity indices of the torque command's joints, in its order: ``[joints] command``
+    or, by default, the hand's actuated joints in model order.
+
+    Raises:
+        ConfigError: a name that is not an actuated joint of the hand.
+    """
+    model = hand.model
+    if config.command_joints is None:
+        return np.flatnonzero(hand.actuated_dofs)
+    actuated = [hand.joint_names[i] for i in np.flatnonzero(hand.actuated_dofs)]
+    dofs = []
+    for name in config.command_joints:
+        if name not in actuated:
+            raise ConfigError(
+                f"{config.path or 'hardware config'}: [joints] command names {name!r}, which is "
+                f"not an actuated joint of hand {hand.name!r}; actuated: {actuated}"
+            )
+        dofs.append(model.joints[model.getJointId(name)].idx_v)
+    return np.asarray(dofs, dtype=np.intp)

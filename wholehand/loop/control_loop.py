@@ -256,8 +256,12 @@ class ControlLoop:
                     self._advance(t + self.dt)
                 else:
                     deadline += self.dt
-                    self._advance(deadline)
-                    if backend.time - deadline > self.dt:
+                    overran = self._advance(deadline)
+                    late = backend.time - deadline
+                    if late > self.dt:  # woke a whole period late: a missed slot too
+                        if not overran:
+                            report.overruns += 1
+                            report.max_overrun = max(report.max_overrun, late)
                         deadline = backend.time
         finally:
             for observer in self.observers:
@@ -276,13 +280,16 @@ class ControlLoop:
         self.active = name
         self._started.discard(name)
 
-    def _advance(self, t_next: float) -> None:
+    def _advance(self, t_next: float) -> bool:
+        """Advance the backend to ``t_next``; True when a wall clock had already passed it."""
         backend = self.backend
         left = t_next - backend.time
-        if backend.clock == "wall" and left < 0.0:
+        overran = backend.clock == "wall" and left < 0.0
+        if overran:
             self.report.overruns += 1
             self.report.max_overrun = max(self.report.max_overrun, -left)
         backend.step(max(left, 0.0))
+        return overran
 
     # --------------------------------------------------------------------------------------------
     def _cycle(self, index: int, t: float) -> Cycle:

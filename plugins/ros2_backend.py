@@ -253,11 +253,20 @@ class Ros2Backend(Backend):
                 self.guard.start_from(joint.effort, now)
             tau, _ = self.guard.filter(command.tau, now, joint_age, pose_age)
             self._publish(tau, stamp_ns)
-        if self._arm is not None:
-            for group in command.targets:
-                if group.q is not None and set(group.dofs.tolist()) == set(self.arm_dofs.tolist()):
-                    order = np.argsort(group.dofs)
-                    self._arm.put(encode_array(group.q[order]))
+        if self._arm is not None and command.targets:
+            self._publish_arm(command)
+
+    def _publish_arm(self, command: Command) -> None:
+        """The arm's position targets [rad], in model order, when the command's target groups
+        give every arm joint one (the position controller takes all its joints at once)."""
+        assert self._arm is not None
+        target = np.full(self.hand.nv, np.nan)
+        for group in command.targets:
+            if group.q is not None:
+                target[group.dofs] = group.q
+        arm = target[self.arm_dofs]
+        if self.arm_dofs.size and np.isfinite(arm).all():
+            self._arm.put(encode_array(arm))
 
     def _publish(self, tau: FloatArray, stamp_ns: int) -> None:
         """Publish ``tau``'s command joints, stamped (attachment) with the guard's time of it, so

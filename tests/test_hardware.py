@@ -452,3 +452,32 @@ def test_command_order_follows_the_config_and_bad_names_are_refused(allegro):
     assert [allegro.joint_names[i] for i in dofs] == list(order)
     with pytest.raises(ConfigError, match="names 'wrist', which is not an actuated joint"):
         command_dofs(allegro, HardwareConfig(command_joints=("wrist",)))
+
+
+def test_arm_targets_go_to_the_position_command_in_model_order():
+    from wholehand_plugins.ros2_backend import Ros2Backend
+
+    from wholehand.loop.command import Command, JointTargets
+    from wholehand.models.hand import load_hand
+
+    rig = load_hand("flexiv_rizon4_allegro_right")
+    arm = np.flatnonzero(rig.arm_dofs)
+    port = free_port()
+    topics = {**HardwareConfig().topics, "arm_command": "/arm_position_controller/commands"}
+    robot_config = HardwareConfig(listen=(f"tcp/127.0.0.1:{port}",), connect=(), topics=topics)
+    session = open_session(robot_config)
+    received: list[np.ndarray] = []
+    Subscriber(session, robot_config, "arm_command", msgs.FLOAT64_ARRAY,
+               lambda p, a, t: received.append(msgs.decode_array(p)))  # fmt: skip
+    config = HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",), topics=topics)
+    try:
+        with Ros2Backend(rig, None, config) as backend:
+            q_arm = 0.1 * np.arange(1, arm.size + 1)
+            shuffled = arm[::-1]  # a group may list its joints in any order
+            group = JointTargets(shuffled, q_arm[::-1], None, 100.0, 10.0, name="arm")
+            _until(lambda: bool(backend.apply(Command(np.zeros(rig.nv), (group,)))) or received)
+            np.testing.assert_allclose(received[-1], q_arm)
+            # The torque command carries the hand's joints only: the arm's are not in it.
+            assert not set(backend.command_dofs.tolist()) & set(arm.tolist())
+    finally:
+        session.close()

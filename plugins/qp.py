@@ -78,6 +78,7 @@ class QPAllocator(Allocator):
         feas_tol: float = FEAS_TOL,
         screen_tol: float = SCREEN_TOL,
         match_radius: float = MATCH_RADIUS,
+        deadline: float | None = None,
     ) -> None:
         """Args:
         mu: Friction coefficient of the 4-sided pyramid [-], >= 0.
@@ -97,6 +98,11 @@ class QPAllocator(Allocator):
         feas_tol: Largest violation of an accepted solution [N or N*m].
         screen_tol: Violation above which a left-out row joins the working set.
         match_radius: Contacts on one link closer than this across cycles are the same [m].
+        deadline: Time budget of one allocation, from its start [s]: once past it no further
+            screening round starts, and an allocation not yet exact ends as ``DEADLINE`` (no
+            torque: the loop keeps the last feasible one), counted in ``counts``. A round
+            already started finishes. None (default): no deadline, so simulation results do
+            not depend on the machine's speed.
 
         Raises:
             ConfigError: A value is out of range or the solver is not installed.
@@ -113,6 +119,12 @@ class QPAllocator(Allocator):
             consistency=self.consistency_default if consistency is None else consistency,
             actuated_dofs=actuated_dofs,
         )
+        if deadline is not None and not (isinstance(deadline, int | float) and deadline > 0):
+            raise ConfigError(
+                f"{owner}: parameter deadline={deadline!r} is invalid; it must be a time > 0 "
+                "[s] or None"
+            )
+        self.deadline = None if deadline is None else float(deadline)
         for name, value in (
             ("feas_tol", feas_tol),
             ("screen_tol", screen_tol),
@@ -194,8 +206,8 @@ class QPAllocator(Allocator):
         Returns:
             The allocation. ``EMPTY`` / ``NO_ACTUATED_CONTACT``: zero forces and torque (zero
             is a feasible command); ``INFEASIBLE`` / ``SOLVER_FAILED`` (also for NaN/inf inputs,
-            a non-finite solution or one violating a constraint by more than ``feas_tol``): zero
-            forces and no torque (``tau=None``: keep the last feasible one);
+            a non-finite solution or one violating a constraint by more than ``feas_tol``) /
+            ``DEADLINE``: zero forces and no torque (``tau=None``: keep the last feasible one);
             ``OK``: the new forces and torque. ``solve_time`` is the wall time of building and
             solving the QP (all screening rounds) [s].
 
@@ -232,18 +244,19 @@ class QPAllocator(Allocator):
             return self._result(AllocationStatus.SOLVER_FAILED, n, n_v, solve_time=_since(t0))
         qp = build_allocation_qp(contacts, J_world, p_com, self.params, owner, external_wrench)
         kwargs = self._warm_kwargs(qp, contacts) if self.warm_start else {}
+        deadline_ns = None if self.deadline is None else t0 + int(self.deadline * 1e9)
         sol = solve_allocation(
-            qp, self.backend, screening=self.screening, screen_tol=self.screen_tol, **kwargs
-        )
+            qp, self.backend, screening=self.screening, screen_tol=self.screen_tol,
+            deadline_ns=deadline_ns, **kwargs,
+        )  # fmt: skip
         self.last_solution = sol
         dt = _since(t0)
         if sol.x is None or sol.violation > self.feas_tol:
             self._warm.clear()
-            status = (
-                AllocationStatus.INFEASIBLE
-                if sol.status == "infeasible"
-                else AllocationStatus.SOLVER_FAILED
-            )
+            status = {
+                "infeasible": AllocationStatus.INFEASIBLE,
+                "deadline": AllocationStatus.DEADLINE,
+            }.get(sol.status, AllocationStatus.SOLVER_FAILED)
             return self._result(status, n, n_v, solve_time=dt)
         lam = sol.x[: qp.n_lambda]
         tau = qp.tau(lam)

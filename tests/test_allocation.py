@@ -660,3 +660,28 @@ def test_weight_needs_an_allocator_that_can_balance_it(allegro) -> None:
     qp = registry.load("allocators", "qp")
     with pytest.raises(ConfigError, match="weight must be 3 finite numbers"):
         ForceRegulation(allegro, cube, None, qp, weight=(0.0, -1.0))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_passed_deadline_stops_screening_and_gives_no_torque(
+    case: tuple[int, int, float],
+) -> None:
+    n, seed, tmax = case
+    cs, J, com = synthetic_grasp(seed, n).cycle()
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test", tau_max=tmax))
+    backend = make_backend("daqp")
+    assert solve_allocation(qp, backend, screening=True).rounds > 1  # rows bind in every case
+    late = solve_allocation(qp, backend, screening=True, deadline_ns=0)  # always passed
+    assert late.status == "deadline" and late.x is None and late.rounds == 1
+    allocator = QPAllocator(tau_max=tmax, warm_start=False, deadline=1e-9)
+    allocation = allocator.allocate(cs, J, com)
+    assert allocation.status == AllocationStatus.DEADLINE and allocation.tau is None
+    assert allocator.counts[AllocationStatus.DEADLINE] == 1
+    # Without a deadline the same allocator is exact (the deadline changes nothing else).
+    exact = QPAllocator(tau_max=tmax, warm_start=False).allocate(cs, J, com)
+    assert exact.status == AllocationStatus.OK
+
+
+def test_deadline_must_be_positive() -> None:
+    with pytest.raises(ConfigError, match="deadline=0"):
+        QPAllocator(deadline=0)

@@ -88,3 +88,18 @@ def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, 
     assert len(robot["restart_steps_Nm"]) == 1
     assert robot["restart_steps_Nm"][0] < 1e-9  # resumed at the torque the drives applied
     assert robot["max_torque_rate_Nm_s"] <= 20.0 * 1.05
+
+
+def test_a_pose_dropout_ramps_the_torque_down_and_regulation_resumes(endpoint, tmp_path):
+    # One second without poses from 0.3 s: 0.2 s later the torque is held and ramped to zero
+    # over 0.5 s; when poses return, regulation resumes.
+    sim = _wholehand("hw-sim", "--quick", "--dropout", "0.3", "1.0", "--listen", endpoint,
+                     "--connect", "--json", str(tmp_path / "sim.json"))  # fmt: skip
+    control = _controller(endpoint, 3.0, "--json", str(tmp_path / "control.json"))
+    _, err = sim.communicate(timeout=180)
+    control.communicate(timeout=60)
+    assert (tmp_path / "sim.json").exists(), err[-3000:]
+    guard = json.loads((tmp_path / "control.json").read_text())["backend"]["guard"]
+    stale = guard.get("pose_stale", 0)
+    assert 0.6 * 200 <= stale <= 1.0 * 200  # about (1.0 - 0.2) s at 200 Hz
+    assert guard["ok"] > 200  # before and after the dropout

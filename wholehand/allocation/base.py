@@ -36,6 +36,9 @@ class AllocationStatus(str, enum.Enum):
     """The solver failed or returned garbage: no torque (the loop keeps the last feasible one)."""
     HOLD = "hold"
     """A non-adaptive allocator applies its stored command."""
+    DEADLINE = "deadline"
+    """The solve ran past its deadline before it was done: no torque (the loop keeps the last
+    feasible one)."""
 
 
 @dataclass(frozen=True)

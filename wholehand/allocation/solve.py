@@ -559,6 +559,7 @@ def solve_allocation(
     screening: bool = True,
     screen_tol: float = SCREEN_TOL,
     max_rounds: int = 8,
+    deadline_ns: int | None = None,
 ) -> AllocationSolution:
     """Solve the allocation QP, screening the torque and consistency rows.
 
@@ -572,6 +573,9 @@ def solve_allocation(
         screening: False: solve once with every row (reference behaviour).
         screen_tol: Violation beyond which a left-out row is added [N or N*m].
         max_rounds: Solves before falling back to the full problem.
+        deadline_ns: ``time.perf_counter_ns()`` past which no further solve starts: a solution
+            that still violates a left-out row then ends with status ``"deadline"`` and no x.
+            None: no deadline.
     """
     all_t = np.arange(qp.torque_rows.size, dtype=np.intp)
     eps = qp.params.eps_margin
@@ -622,6 +626,11 @@ def solve_allocation(
         add_n = np.flatnonzero((z_over > screen_tol) & ~n_mask)
         if add_t.size == 0 and add_n.size == 0:
             break
+        if deadline_ns is not None and time.perf_counter_ns() > deadline_ns:
+            return AllocationSolution(
+                None, "deadline", rounds, t_in.size + n_in.size, iterations, np.inf,
+                "deadline passed with rows still violated", t_in, n_in,
+            )  # fmt: skip
         t_mask[add_t] = True
         n_mask[add_n] = True
         t_in, n_in = np.flatnonzero(t_mask), np.flatnonzero(n_mask)

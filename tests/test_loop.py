@@ -4,6 +4,7 @@ faults that never escape the loop, the backend's clock, and mixed joint groups."
 from __future__ import annotations
 
 import time
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -679,3 +680,16 @@ def test_wall_clock_cycles_keep_their_schedule_despite_sleep_overshoot(allegro, 
     assert report.overruns == 1
     np.testing.assert_allclose(np.diff(ts[6:]), dt, atol=1e-12)
     assert len(ts) == 17  # 0.2 s less the 2.5 periods lost, at 10 ms
+
+
+def test_replaying_a_record_reproduces_the_loops_torques(allegro, cube):
+    from wholehand.loop.worst_case import replay
+
+    spec = TrialSpec(object=OBJECT, grasp=THREE_FINGER_GRASP, theta_deg=0.0, protocol_params=TINY)
+    record = run_trial(spec, allegro, cube)
+    out, statuses = replay(record, allegro, cube, regulation(allegro, cube))
+    recorded = record.arrays()
+    assert statuses == Counter(recorded["status"].tolist())
+    ok = recorded["status"] == "ok"
+    np.testing.assert_allclose(out["tau"][ok], recorded["tau"][ok], atol=1e-6)
+    assert (out["step"] >= out["qp"]).all() and (out["qp"][ok] > 0).all()

@@ -37,11 +37,23 @@ def _cmd_allocate(args: argparse.Namespace) -> int:
 def _cmd_cycle(args: argparse.Namespace) -> int:
     from wholehand.loop.bench import run_cycle_benchmark
 
+    if args.worst:
+        from wholehand.loop.worst_case import WORST_OBJECTS, run_worst_case_benchmark
+
+        params = {} if args.qp_deadline is None else {"deadline": args.qp_deadline}
+        worst = run_worst_case_benchmark(
+            hand=args.hand, grasps=tuple(int(g) for g in (args.grasps or "0,1,2,3,4").split(",")),
+            objects=WORST_OBJECTS if args.object is None else tuple(args.object.split(",")),
+            estimator=args.estimator, allocator=args.allocator, allocator_params=params,
+        )  # fmt: skip
+        print(json.dumps(worst, indent=2))
+        return 0
+
     result = run_cycle_benchmark(
         hand=args.hand,
-        obj=args.object,
+        obj=args.object or "077_rubiks_cube",
         ks=tuple(int(k) for k in args.k.split(",")),
-        grasps=tuple(int(g) for g in args.grasps.split(",")),
+        grasps=tuple(int(g) for g in (args.grasps or "0,1").split(",")),
         estimator=args.estimator,
         allocator=args.allocator,
     )
@@ -135,9 +147,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     p = bsub.add_parser("cycle", help="full control-step latency during held grasps, per K")
     p.add_argument("--hand", default="allegro_right")
-    p.add_argument("--object", default="077_rubiks_cube")
+    p.add_argument(
+        "--object",
+        help="comma-separated objects (default: the cube; with "
+        "--worst: the mustard bottle and the clamp)",
+    )
     p.add_argument("--k", default="1,3,5,7", help="comma-separated contacts per link")
     p.add_argument("--grasps", default="0,1", help="comma-separated grasp indices")
+    p.add_argument(
+        "--worst",
+        action="store_true",
+        help="replay the states of grasps lost at theta 90 deg: p50/p99/p99.9/max per stage",
+    )
+    p.add_argument(
+        "--qp-deadline",
+        type=float,
+        help="with --worst: the QP allocator's deadline [s] (default: none)",
+    )
     p.add_argument("--estimator", default="mesh_sdf")
     p.add_argument("--allocator", default="qp")
     p.set_defaults(func=_cmd_cycle)

@@ -1,0 +1,137 @@
+"""``wholehand bench cycle --worst``: the control step on the states of grasps being lost.
+
+The worst cycles come just before a loss: contacts change, torque rows bind, screening needs
+rounds. This benchmark first runs perturbation trials where the paper's method loses grasps
+(the mustard bottle and the clamp pulled by 90 deg, by default), keeps those that were lost, and
+then replays every recorded state of them, up to the loss, through a fresh force-regulation
+stage: the same contacts, Jacobians and QPs as the loop, without the simulation, so the times
+are comparable from one code version to the next (same seeds, same states).
+
+Per stage it reports p50/p99/p99.9/max: ``estimate`` (kinematics and contact estimation),
+``qp`` (building and solving the allocation QP, all screening rounds), ``rest`` (Jacobians,
+normal checks, the torque) and ``step`` (the whole stage), and how many QPs took longer than
+``deadline`` (the allocator's deadline would have stopped them).
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from wholehand import registry
+from wholehand.loop.observation import JointHistory, Observation
+from wholehand.loop.record import RunRecord
+from wholehand.loop.regulation import ForceRegulation
+from wholehand.loop.stage import CycleContext
+from wholehand.loop.trial import TrialSpec, load_allocator, run_trial
+from wholehand.models.hand import HandModel, load_hand
+from wholehand.models.kinematics import HandKinematics
+from wholehand.models.objects import ObjectModel, load_object
+
+WORST_OBJECTS = ("006_mustard_bottle", "052_extra_large_clamp")
+"""Where the paper's method loses most grasps in the perturbation study (theta 90 deg)."""
+
+QP_DEADLINE = 1e-3
+"""The issue's bound on one QP solve [s]."""
+
+
+def _pose(p: np.ndarray, r: np.ndarray) -> np.ndarray:
+    M = np.eye(4)
+    M[:3, :3] = pin.exp3(r)
+    M[:3, 3] = p
+    return M
+
+
+def replay(
+    record: RunRecord, hand: HandModel, obj: ObjectModel, stage: ForceRegulation
+) -> tuple[dict[str, np.ndarray], Counter[str]]:
+    """Run ``stage`` on every recorded state of ``record`` (true q and object pose), timing each
+    step; returns per-cycle durations [ns] of ``step``, ``estimate`` and ``qp`` and the
+    commanded torques ``tau`` (rows, n_v) [N*m] (NaN where the stage gave none), and the
+    stage's statuses."""
+    a = record.arrays()
+    rows = a["q"].shape[0]
+    history = JointHistory(hand.nq, 4)
+    now, then = HandKinematics(hand), HandKinematics(hand)
+    out = {key: np.zeros(rows, dtype=np.int64) for key in ("step", "estimate", "qp")}
+    statuses: Counter[str] = Counter()
+    taus = np.full((rows, hand.nv), np.nan)
+    dt = 1.0 / float(record.meta.get("control_rate", 200.0))
+    for i in range(rows):
+        q = a["q"][i]
+        wMb, wMo = _pose(a["p_base"][i], a["r_base"][i]), _pose(a["p_object"][i], a["r_object"][i])
+        t = float(a["t"][i])
+        history.push(t, q, wMb)
+        obs = Observation(q, np.zeros(hand.nv), wMb, t, wMo, t, history)
+        context = CycleContext(t, dt, obs, hand, obj, now, then)
+        started = time.perf_counter_ns()
+        output = stage.step(context)
+        out["step"][i] = time.perf_counter_ns() - started
+        out["estimate"][i] = int(output.estimate_time * 1e9)
+        out["qp"][i] = 0 if output.allocation is None else int(output.allocation.solve_time * 1e9)
+        statuses[output.status] += 1
+        if output.command is not None:
+            taus[i] = output.command.tau
+    return {**out, "tau": taus}, statuses
+
+
+def _stats(ns: np.ndarray) -> dict[str, float]:
+    us = ns / 1e3
+    p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
+    return {"p50_us": round(float(p50), 1), "p99_us": round(float(p99), 1),
+            "p99.9_us": round(float(p999), 1), "max_us": round(float(us.max()), 1)}  # fmt: skip
+
+
+def run_worst_case_benchmark(
+    hand: str = "allegro_right",
+    objects: Sequence[str] = WORST_OBJECTS,
+    grasps: Sequence[int] = (0, 1, 2, 3, 4),
+    theta_deg: float = 90.0,
+    estimator: str = "mesh_sdf",
+    allocator: str = "qp",
+    allocator_params: dict[str, Any] | None = None,
+    deadline: float = QP_DEADLINE,
+) -> dict[str, Any]:
+    """Run the trials, keep the lost ones, replay their states (module docstring)."""
+    hand_model = load_hand(hand)
+    times: dict[str, list[np.ndarray]] = {"step": [], "estimate": [], "qp": []}
+    lost = []
+    statuses: Counter[str] = Counter()
+    for name in objects:
+        obj = load_object(name)
+        for g in grasps:
+            spec = TrialSpec(hand=hand, object=name, grasp=g, theta_deg=theta_deg,
+                             estimator=estimator, allocator=allocator)  # fmt: skip
+            record = run_trial(spec, hand_model, obj, stop_on_loss=True)
+            if record.held_throughout:
+                continue
+            lost.append({"object": name, "grasp": g, "cycles": len(record.rows["t"])})
+            est = registry.load("contact_estimators", estimator, hand=hand_model, obj=obj)
+            alloc = load_allocator(allocator, hand_model, dict(allocator_params or {}))
+            stage = ForceRegulation(hand_model, obj, est, alloc)
+            durations, seen = replay(record, hand_model, obj, stage)
+            statuses.update(seen)
+            for key in times:
+                times[key].append(durations[key])
+    if not lost:
+        return {"benchmark": "cycle-worst", "lost_trials": [], "note": "no trial was lost"}
+    cat = {key: np.concatenate(v) for key, v in times.items()}
+    rest = np.maximum(cat["step"] - cat["estimate"] - cat["qp"], 0)
+    return {
+        "benchmark": "cycle-worst",
+        "hand": hand, "theta_deg": theta_deg, "estimator": estimator, "allocator": allocator,
+        "allocator_params": allocator_params or {},
+        "lost_trials": lost, "cycles": int(cat["step"].size),
+        "stages": {"step": _stats(cat["step"]), "estimate": _stats(cat["estimate"]),
+                   "qp": _stats(cat["qp"]), "rest": _stats(rest)},
+        "statuses": dict(statuses),
+        "qp_over_deadline": int((cat["qp"] > deadline * 1e9).sum()),
+        "deadline_ms": deadline * 1e3,
+        "machine": {"python": platform.python_version(), "cpu": platform.machine()},
+    }  # fmt: skip

@@ -33,7 +33,7 @@ def _cmd_control(args: argparse.Namespace) -> int:
 
     spec = ControllerSpec(
         estimator=args.estimator, allocator=args.allocator, estimate_at=args.estimate_at,
-        allocate_every=args.allocate_every,
+        allocate_every=args.allocate_every, qp_deadline=args.qp_deadline or None,
     )  # fmt: skip
     result = run_controller(
         load_hand(args.hand), load_object(args.object), _config(args), spec, args.duration,
@@ -94,6 +94,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="cycle",
         choices=["cycle", "pose"],
         help="allocate every control cycle or once per object pose",
+    )
+    p.add_argument(
+        "--qp-deadline",
+        type=float,
+        default=0.002,
+        help="time budget of one allocation [s] (0: none); past it the last feasible "
+        "torque is kept",
     )
     p.set_defaults(func=_cmd_control)
 

@@ -29,7 +29,6 @@ from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 
-
 QP_DEADLINE = 0.002
 """Default time budget of one allocation on a robot [s]: 40 % of the 5 ms period at 200 Hz."""
 

@@ -98,9 +98,12 @@ def run_hw_benchmark(
             "object": obj, "grasp": grasp, "held": robot["held"], "lost_at": robot["lost_at"],
             "statuses": robot["statuses"], "rejected": result["backend"]["rejected"],
             "guard": result["backend"]["guard"], "late_cycles": robot["late_cycles"],
+            "max_torque_rate_Nm_s": robot["max_torque_rate_Nm_s"],
         })  # fmt: skip
-    plain = [_plain_loop(hand, obj, grasp, latency, quick, spec) for obj, grasp in
-             ((r["object"], r["grasp"]) for r in rows)]  # fmt: skip
+    for row in rows:
+        row["plain_loop_held"] = _plain_loop(hand, row["object"], row["grasp"], latency, quick,
+                                             spec)  # fmt: skip
+    plain = [row["plain_loop_held"] for row in rows]
     return {
         "plain_loop_held": sum(plain),
         "hand": hand, "objects": list(objects), "latency_s": latency, "quick": quick,

@@ -99,13 +99,13 @@ class CoalDistanceEstimator(ContactEstimator):
         hand = self.hand
         if not rows:
             return ContactSet.empty(hand.link_actuated, hand.link_fingertip, stamp)
-        p, n, link, d = zip(*rows, strict=True)
+        p, n, links, d = zip(*rows, strict=True)
         n_arr = np.asarray(n, dtype=float)
         n_arr /= np.linalg.norm(n_arr, axis=1, keepdims=True)
         return ContactSet(
             p_world=np.asarray(p, dtype=float),
             n_world=n_arr,
-            link=np.asarray(link, dtype=np.intp),
+            link=np.asarray(links, dtype=np.intp),
             distance=np.asarray(d, dtype=float),
             link_actuated=hand.link_actuated,
             link_fingertip=hand.link_fingertip,

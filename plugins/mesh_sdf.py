@@ -80,7 +80,9 @@ class MeshSDFEstimator(ContactEstimator):
             keep = np.isin(samples.link, [hand.link_index(name) for name in links])
         p, joint, link = samples.p_joint[keep], samples.joint[keep], samples.link[keep]
         cluster = np.empty(len(p), dtype=np.intp)
-        centres, radii, cluster_joint = [], [], []
+        centres: list[FloatArray] = []
+        radii: list[float] = []
+        cluster_joint: list[int] = []
         for i in np.unique(link):
             rows = np.flatnonzero(link == i)
             pts = p[rows]

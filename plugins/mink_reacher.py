@@ -78,7 +78,8 @@ def build_reach_model(
     else:
         root.add_freejoint(name=WRIST_JOINT)
     links = set(hand.link_names)
-    hand_geoms, arm_geoms = [], []
+    hand_geoms: list[str] = []
+    arm_geoms: list[str] = []
     for body in spec.bodies:
         for k, geom in enumerate(body.geoms):
             geom.name = geom.name or f"{body.name}/collision_{k}"

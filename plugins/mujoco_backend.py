@@ -281,9 +281,9 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         assert self._spring is not None
         p_target, R_target, (k_lin, k_rot, d_lin, d_rot) = self._spring
         d, a = self.data, self.scene.object_qpos
-        R = np.empty(9)
-        mujoco.mju_quat2Mat(R, d.qpos[a + 3 : a + 7])
-        R = R.reshape(3, 3)
+        flat = np.empty(9)
+        mujoco.mju_quat2Mat(flat, d.qpos[a + 3 : a + 7])
+        R = flat.reshape(3, 3)
         r_com = R @ self.obj.com
         v_origin, omega = self.object_velocity()
         v_com = v_origin + np.cross(omega, r_com)

@@ -154,7 +154,7 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
     assert seen == names
     assert [p.name for p in tmp_path.iterdir()] == ["077_rubiks_cube.json"]
     assert "1 of 2 objects yield power grasps" in out and "none for: 065-f_cups" in out
-    assert "RejectedMessage because:\n     3  the pre-shape penetrates the object" in out
+    assert "Rejected because:\n     3  the pre-shape penetrates the object" in out
 
 
 def test_a_users_hand_keeps_its_grasps_in_its_own_folder(tmp_path, monkeypatch):

@@ -120,13 +120,13 @@ def test_force_arrows_keep_forces_of_at_least_half_a_newton():
     p = np.arange(15.0).reshape(5, 3)
     f = np.array([[0, 0, 0.49], [0, 0.5, 0], [3, 4, 0], [0, 0, -0.2], [-2, 0, 0]], dtype=float)
     arrows = force_arrows(p, f)
-    np.testing.assert_array_equal(arrows.index, [1, 2, 4])
+    np.testing.assert_array_equal(arrows.row, [1, 2, 4])
     np.testing.assert_allclose(arrows.magnitude, [0.5, 5.0, 2.0])
     np.testing.assert_allclose(arrows.tip, p[[1, 2, 4]])
     np.testing.assert_allclose(np.linalg.norm(arrows.direction, axis=1), 1.0)
     np.testing.assert_allclose(arrows.direction[1], [0.6, 0.8, 0.0])
     assert np.all(arrows.length > 0)
-    assert len(force_arrows(np.zeros((0, 3)), np.zeros((0, 3))).index) == 0
+    assert len(force_arrows(np.zeros((0, 3)), np.zeros((0, 3))).row) == 0
     with pytest.raises(ConfigError, match="force_arrows"):
         force_arrows(np.zeros((2, 3)), np.zeros((3, 3)))
 

@@ -216,7 +216,7 @@ def _time_mode(
             if out.ok:
                 violation = max(violation, sol.violation)
         residual.append(float(np.linalg.norm(out.residual_wrench)))
-    stats = percentiles_us(samples)
+    stats: dict[str, Any] = dict(percentiles_us(samples))
     stats["solve_p50_us"] = round(float(np.median(solve)) * 1e6, 2)
     stats["status"] = dict(statuses)
     stats["rounds_mean"] = round(float(np.mean(rounds)), 3) if rounds else 0.0

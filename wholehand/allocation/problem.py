@@ -192,7 +192,7 @@ class AllocationParams:
                     f"only n_v={n_v} columns; pass indices in [0, {n_v})"
                 )
         if np.ndim(self.tau_max) == 0:
-            limits = np.full(dofs.size, float(self.tau_max))  # type: ignore[arg-type]
+            limits = np.full(dofs.size, float(self.tau_max))
         else:
             tmax = np.asarray(self.tau_max)
             if tmax.shape != (n_v,):
@@ -585,9 +585,9 @@ def direct_problem(qp: AllocationQP, reg: float | None = None) -> qpsolvers.Prob
     rows.append(s.reshape(1, -1))
     h.append(np.array([-p.f_n_min]))
     # f_act (3 N_act,) = Rb f with Rb block-diagonal of the actuated contacts' frames.
-    Rb = np.zeros((qp.act_idx.size, 3, n, 3))
-    Rb[np.arange(qp.act_idx.size), :, qp.act_idx, :] = qp.wRc[qp.act_idx]
-    Rb = Rb.reshape(3 * qp.act_idx.size, 3 * n)
+    blocks = np.zeros((qp.act_idx.size, 3, n, 3))
+    blocks[np.arange(qp.act_idx.size), :, qp.act_idx, :] = qp.wRc[qp.act_idx]
+    Rb = blocks.reshape(3 * qp.act_idx.size, 3 * n)
     if qp.torque_rows.size:
         T = (qp.J_act.T @ Rb)[qp.torque_rows]
         rows += [T, -T]

@@ -202,7 +202,7 @@ def convex_decomposition(
             with np.load(path, allow_pickle=False) as data:
                 arrays = {k: data[k] for k in ("vertices", "faces", "part_vertices", "part_faces")}
             return ConvexDecomposition(**arrays, key=key, source="shipped", params=full)
-    stored = cache.load_arrays(
+    stored: dict[str, Any] | None = cache.load_arrays(
         CACHE_KIND, key, ("vertices", "faces", "part_vertices", "part_faces")
     )
     if stored is not None:
@@ -243,7 +243,7 @@ def ship_decompositions(
         for old in folder.glob(f"{name}-*.npz"):
             if old != path:
                 old.unlink()
-        np.savez_compressed(path, **dec.arrays())
+        np.savez_compressed(path, allow_pickle=False, **dec.arrays())
         report[name] = {"file": str(path), "parts": len(dec), "seconds": round(dec.seconds, 1)}
         log.info("%s: %d parts -> %s", name, len(dec), path)
     return report

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import cast
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -55,13 +56,13 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         grasps, info = generate_grasps(
             hand, obj, args.count, args.seed, args.max_candidates, progress=True, style=args.type
         )
-        rejected = info["rejected"]
+        rejected = cast(dict[str, int], info["rejected"])
         if not grasps:
             without.append(obj.name)
             print(
                 f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
                 "nothing written (raise --max-candidates or adjust the style in hand.toml). "
-                f"RejectedMessage because:\n{_reasons(rejected)}"
+                f"Rejected because:\n{_reasons(rejected)}"
             )
             continue
         default = grasp_file(args.hand, obj.name, args.type)

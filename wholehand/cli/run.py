@@ -274,7 +274,7 @@ def summarise(record: RunRecord) -> dict[str, object]:
     }
 
 
-def print_summary(summary: dict[str, object]) -> None:
+def print_summary(summary: dict[str, Any]) -> None:
     spec = summary["spec"]
     print(
         f"{spec['hand']} holding {spec['object']} ({spec['grasp_type']} grasp {spec['grasp']}), "

@@ -243,9 +243,10 @@ class GraspGenerator:
             return True
         return stage.closed or (stage.cycles % stage.check_every == 0 and until())
 
-    def _reject(self, reason: str) -> None:
+    def _reject(self, reason: str) -> Grasp | None:
         """Count a rejected candidate's reason; None, the rejected candidate's result."""
         self.rejections[reason] += 1
+        return None
 
     def try_candidate(self, index: int, seed: int) -> Grasp | None:
         """One candidate; the grasp, or None when it is rejected (the reason is counted in

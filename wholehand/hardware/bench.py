@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import HardwareConfig
+from wholehand.hardware.config import HardwareConfig, StampSource
 from wholehand.hardware.controller import ControllerSpec, run_controller
 from wholehand.models.hand import load_hand
 from wholehand.models.objects import load_object
@@ -55,7 +55,7 @@ def run_hw_benchmark(
     quick: bool = True,
     spec: ControllerSpec | None = None,
     pose_stamp: str = "image",
-    stamp_source: str = "header",
+    stamp_source: StampSource = "header",
 ) -> dict[str, Any]:
     """Run the double and the controller over each grasp of each object; latency percentiles
     over all messages, and whether each grasp held the load test."""

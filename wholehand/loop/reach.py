@@ -307,5 +307,7 @@ class HoldStage(Stage):
             return out
         tau = out.command.tau.copy()
         tau[self.arm.dofs] = self.arm.feedforward(context.obs.q, context.obs.wMb)
-        servo = JointTargets(self.arm.dofs, self._hold, None, self.arm.kp, self.arm.kd, "arm")
+        arm = self.arm
+        servo = JointTargets(arm.dofs, self._hold, None, np.asarray(arm.kp), np.asarray(arm.kd),
+                             "arm")  # fmt: skip
         return dataclasses.replace(out, command=Command(tau, (servo,)))

@@ -93,6 +93,7 @@ class RunRecord:
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(
             path,
+            allow_pickle=False,
             **self.arrays(),
             phases=np.asarray(self.phases),
             meta=np.asarray(json.dumps(self.meta, default=str)),

@@ -52,6 +52,11 @@ def _moved(obs: Observation, shift: FloatArray) -> Observation:
     return obs.with_object(wMo, obs.stamp_object)
 
 
+def _pose(obs: Observation) -> FloatArray:
+    assert obs.wMo is not None  # the soak's simulation always has the pose
+    return obs.wMo
+
+
 def _q(obs: Observation, i: int, value: Any) -> Observation:
     q = obs.q.astype(object if isinstance(value, str) else float)
     q[i] = value
@@ -66,11 +71,11 @@ OBSERVATION_FAULTS: dict[str, Callable[[Observation], Observation]] = {
     "q_beyond_limits": lambda o: _q(o, 5, 40.0),
     "dq_nan": lambda o: _obs(o, dq=np.full_like(o.dq, np.nan)),
     "pose_nan": lambda o: _moved(o, np.array([np.nan, 0.0, 0.0])),
-    "pose_not_rigid": lambda o: o.with_object(2.0 * o.wMo, o.stamp_object),
+    "pose_not_rigid": lambda o: o.with_object(2.0 * _pose(o), o.stamp_object),
     "pose_far": lambda o: _moved(o, np.array([10.0, 0.0, 0.0])),
     "pose_jump": lambda o: _moved(o, np.array([0.0, 0.05, 0.0])),
     "pose_missing": lambda o: o.with_object(None, o.stamp_object),
-    "pose_wrong_shape": lambda o: o.with_object(o.wMo[:3], o.stamp_object),
+    "pose_wrong_shape": lambda o: o.with_object(_pose(o)[:3], o.stamp_object),
     "base_not_rigid": lambda o: _obs(o, wMb=2.0 * o.wMb),
 }
 """Corrupted or impossible readings, as a backend delivers them."""

@@ -112,7 +112,7 @@ def save_arrays(kind: str, key: str, arrays: dict[str, np.ndarray]) -> Path | No
         return None
     os.close(fd)
     try:
-        np.savez_compressed(tmp, **arrays)
+        np.savez_compressed(tmp, allow_pickle=False, **arrays)
         os.replace(tmp, path)
     except OSError as err:
         _folder_unusable(err)

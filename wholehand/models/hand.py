@@ -12,6 +12,7 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -101,7 +102,7 @@ class HandModel:
         self._build_link_table()
         self._build_joint_tables()
         self.wMb = pose_from_xyz_rpy(config.mount_xyz, config.mount_rpy)
-        self.sample_params = {
+        self.sample_params: dict[str, Any] = {
             "n_uniform": int(n_uniform),
             "density_per_cm2": float(density_per_cm2),
             "seed": int(seed),

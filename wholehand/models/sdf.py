@@ -258,8 +258,7 @@ class SignedDistanceGrid:
                 grad[clamped] = (excess * self.spacing / outside)[clamped]
         norm = np.sqrt(np.einsum("ij,ij->j", grad, grad))
         grad /= np.maximum(norm, np.float32(1e-30))  # NaN stays NaN, zero stays zero
-        grad = np.ascontiguousarray(grad.T, dtype=np.float64)
-        return dist, grad
+        return dist, np.ascontiguousarray(grad.T, dtype=np.float64)
 
     def query_nearest(self, points_obj: npt.ArrayLike) -> FloatArray:
         """(P,) value at the nearest node [m], plus the distance outside the grid box; no
@@ -669,7 +668,7 @@ def compute_grid_values(
     t2 = time.perf_counter()
     # Off the band: distance to the closest surface point of the nearest band node. An upper
     # bound of the true distance, above it by less than sqrt(3)/2 cells.
-    values = np.empty(n_nodes)
+    values: npt.NDArray[np.float64] = np.empty(n_nodes)
     values[band_idx] = band_d
     far_idx = np.flatnonzero(~in_band)
     if far_idx.size:

@@ -7,6 +7,7 @@ farthest-point sampling to ``SAMPLE_DENSITY_PER_CM2`` points per cm^2 (at least 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import coal
 import numpy as np
@@ -42,7 +43,7 @@ def geometry_to_trimesh(obj: pin.GeometryObject) -> trimesh.Trimesh:
     mesh_path = Path(obj.meshPath) if obj.meshPath else None
     if mesh_path is not None and mesh_path.is_file():
         try:
-            mesh = trimesh.load(mesh_path, force="mesh", process=True)
+            mesh = cast(trimesh.Trimesh, trimesh.load(mesh_path, force="mesh", process=True))
         except Exception as err:
             raise AssetError(
                 f"cannot read mesh {mesh_path} of geometry {obj.name!r}: {err}"
@@ -62,7 +63,7 @@ def link_mesh_in_joint_frame(objects: list[pin.GeometryObject]) -> trimesh.Trime
         mesh = geometry_to_trimesh(obj)
         mesh.apply_transform(obj.placement.homogeneous)  # placement: pose in the parent joint
         parts.append(mesh)
-    return trimesh.util.concatenate(parts) if len(parts) > 1 else parts[0]
+    return cast(trimesh.Trimesh, trimesh.util.concatenate(parts)) if len(parts) > 1 else parts[0]
 
 
 def farthest_point_sampling(points: FloatArray, count: int, start: int = 0) -> npt.NDArray[np.intp]:

@@ -194,6 +194,7 @@ class Person(Observer):
             self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
             self.state, self.since = "twisted", t
         elif state == "twisted" and t - self.since >= GAP:
+            assert cycle.truth.wMo is not None  # the episode's backend always has the pose
             target = cycle.truth.wMo.copy()
             if cycle.stage == REGULATE:  # pulled out of the hand, away from the palm (a pull
                 # into the palm would be held by the wrist, not the grip), not downward

@@ -164,8 +164,8 @@ def with_methods(jobs: list[TrialJob], methods: tuple[str, ...]) -> list[TrialJo
 
     if not methods:
         raise ConfigError("--methods needs at least one allocator name")
-    for method in methods:
-        registry.get_class("allocators", method)  # an unknown name raises, listing the known
+    for name in methods:
+        registry.get_class("allocators", name)  # an unknown name raises, listing the known
     labelled = [j for j in jobs if "method" in j.labels]
     if jobs and not labelled:
         raise ConfigError("this study compares no methods; --methods does not apply to it")
@@ -174,7 +174,8 @@ def with_methods(jobs: list[TrialJob], methods: tuple[str, ...]) -> list[TrialJo
     for job in jobs:
         if job.labels.get("method", template) != template:
             continue
-        for method in methods if "method" in job.labels else (None,):
+        choices: tuple[str | None, ...] = tuple(methods) if "method" in job.labels else (None,)
+        for method in choices:
             if method is None:
                 out.append(dataclasses.replace(job, index=len(out)))
                 continue

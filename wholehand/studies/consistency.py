@@ -211,10 +211,10 @@ class ConsistencyStudy(Study):
         axes[0].set_ylim(0, 105)
         axes[0].legend(fontsize=7)
         n = summary["net_force"]
-        xs = np.arange(len(n))
-        axes[1].bar(xs - 0.2, [x["net_force_N_mean"] for x in n], 0.4, label="at 2 s")
-        axes[1].bar(xs + 0.2, [x["net_force_window_mean_N"] for x in n], 0.4, label="0-2 s mean")
-        axes[1].set_xticks(xs, [x["method"] for x in n])
+        bars = np.arange(len(n))
+        axes[1].bar(bars - 0.2, [x["net_force_N_mean"] for x in n], 0.4, label="at 2 s")
+        axes[1].bar(bars + 0.2, [x["net_force_window_mean_N"] for x in n], 0.4, label="0-2 s mean")
+        axes[1].set_xticks(bars, [x["method"] for x in n])
         axes[1].set_ylabel("net contact force, precision [N]")
         axes[1].legend(fontsize=7)
         for ax in axes:

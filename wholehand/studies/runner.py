@@ -403,9 +403,9 @@ def _open_journal(path: Path, fresh: bool) -> IO[str]:
         return open(path, "w", encoding="utf-8")
     cut_short = False
     if path.stat().st_size:
-        with open(path, "rb") as fh:
-            fh.seek(-1, os.SEEK_END)
-            cut_short = fh.read(1) != b"\n"
+        with open(path, "rb") as raw:
+            raw.seek(-1, os.SEEK_END)
+            cut_short = raw.read(1) != b"\n"
     fh = open(path, "a", encoding="utf-8")  # closed by run_study
     if cut_short:
         fh.write("\n")

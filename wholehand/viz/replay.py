@@ -74,7 +74,7 @@ def record_colour_scale(record: RunRecord, min_force: float) -> ColourScale:
     mags = (
         np.concatenate([np.linalg.norm(np.asarray(f).reshape(-1, 3), axis=1) for f in forces])
         if forces
-        else []
+        else np.zeros(0)
     )
     return ColourScale.for_forces(mags, f_min=min_force)
 

@@ -27,7 +27,7 @@ import base64
 import io
 import logging
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import meshcat
 import meshcat.geometry as mg
@@ -215,7 +215,7 @@ def distance_rgb(
 class ForceArrows(NamedTuple):
     """The force arrows of one cycle (N of them, forces of at least the threshold)."""
 
-    index: IntArray
+    row: IntArray
     """(N,) row of each arrow in the cycle's contact arrays."""
     tip: FloatArray
     """(N, 3) arrow tips: the contact points, world frame [m]."""
@@ -246,7 +246,7 @@ def force_arrows(
     m = magnitude[keep]
     lo, hi = ARROW_LENGTH_RANGE_M
     return ForceArrows(
-        index=keep,
+        row=keep,
         tip=p[keep],
         direction=f[keep] / np.maximum(m, 1e-12)[:, None],
         magnitude=m,
@@ -582,7 +582,7 @@ class SceneViewer:
             out[f"{ROOT}/contacts/{k}"] = (
                 NodePose(tuple(p[k]), (0.0, 0.0, 0.0, 1.0), (1.0, 1.0, 1.0))
                 if k < len(p)
-                else HIDDEN  # type: ignore[arg-type]
+                else HIDDEN
             )
         arrows = force_arrows(p, contact_f, self.min_force)
         bins = self.colour_scale.bin(arrows.magnitude)
@@ -660,7 +660,7 @@ def _visual_mesh(geom: pin.GeometryObject) -> trimesh.Trimesh | None:
         log.warning("viz: geometry %s has no mesh file; primitives are not drawn yet", geom.name)
         return None
     try:
-        mesh = trimesh.load(path, force="mesh")
+        mesh = cast(trimesh.Trimesh, trimesh.load(path, force="mesh"))
     except Exception as err:  # noqa: BLE001 - a missing visual is not fatal for a viewer
         log.warning("viz: cannot load mesh %s of %s: %s", path, geom.name, err)
         return None

@@ -659,15 +659,6 @@ def binding_rows(
     return t, z
 
 
-def timed_solve(
-    qp: AllocationQP, backend: QPBackend, **kwargs: Any
-) -> tuple[AllocationSolution, float]:
-    """:func:`solve_allocation` and its wall time [s] (``perf_counter_ns``)."""
-    t0 = time.perf_counter_ns()
-    sol = solve_allocation(qp, backend, **kwargs)
-    return sol, (time.perf_counter_ns() - t0) * 1e-9
-
-
 __all__ = [
     "DEFAULT_SOLVER",
     "FEAS_TOL",

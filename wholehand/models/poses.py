@@ -52,13 +52,3 @@ def inverse(M: FloatArray) -> FloatArray:
     Minv[:3, :3] = R.T
     Minv[:3, 3] = -R.T @ M[:3, 3]
     return Minv
-
-
-def to_se3(M: FloatArray) -> pin.SE3:
-    """Pinocchio SE3 of a (4, 4) transform."""
-    return pin.SE3(M[:3, :3].copy(), M[:3, 3].copy())
-
-
-def from_se3(T: pin.SE3) -> FloatArray:
-    """(4, 4) transform of a Pinocchio SE3."""
-    return np.asarray(T.homogeneous, dtype=float)

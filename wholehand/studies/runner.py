@@ -293,14 +293,6 @@ def read_journal(path: str | Path) -> list[dict[str, Any]]:
     return rows
 
 
-def finished_rows(folder: str | Path) -> list[dict[str, Any]]:
-    """Every row found in a study folder: ``trials.csv`` (if any) first, then the journal
-    (if any), so where both hold a trial the journal's row comes last (it wins in
-    :func:`match_rows`)."""
-    from_csv, from_journal = _folder_rows(Path(folder))
-    return from_csv + from_journal
-
-
 def _folder_rows(folder: Path) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """(rows of ``trials.csv``, rows of the journal) of a folder, each empty if absent."""
     csv_path, journal_path = folder / "trials.csv", folder / JOURNAL_NAME

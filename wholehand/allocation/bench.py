@@ -36,6 +36,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from wholehand import registry
+from wholehand.allocation.base import Allocator
 from wholehand.contacts.base import ContactSet
 
 FloatArray = npt.NDArray[np.float64]
@@ -254,9 +256,9 @@ def run_allocation_benchmark(
         mean screening rounds, largest accepted constraint violation and median residual-wrench
         norm), ``best`` (per N, the fastest warm configuration) and ``plot`` (PNG path or None).
     """
-    from wholehand_plugins.qp import QPAllocator
-
     from wholehand.allocation.solve import NATIVE_BACKENDS
+
+    qp_allocator = registry.get_class("allocators", "qp")
 
     names = list(solvers) if solvers is not None else list(NATIVE_BACKENDS)
     extra = dict(allocator_kwargs or {})
@@ -267,12 +269,12 @@ def run_allocation_benchmark(
     for n in contact_counts:
         grasp = synthetic_grasp(seed, int(n))
         for solver, screening in configs:
-            QPAllocator(solver=solver, **extra)  # fail early on a bad name
+            qp_allocator(solver=solver, **extra)  # fail early on a bad name
 
             def make(
                 warm_start: bool, solver: str = solver, screening: bool = screening
-            ) -> QPAllocator:
-                return QPAllocator(
+            ) -> Allocator:
+                return qp_allocator(
                     solver=solver, screening=screening, warm_start=warm_start, **extra
                 )
 

@@ -10,7 +10,7 @@ import numpy.typing as npt
 import trimesh
 
 from wholehand import registry
-from wholehand.grasps.generate import style_arrays
+from wholehand.grasps.styles import style_arrays
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel, load_object

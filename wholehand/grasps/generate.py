@@ -35,12 +35,12 @@ from scipy.spatial.transform import Rotation
 from wholehand import registry
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import Grasp
+from wholehand.grasps.styles import style_arrays
 from wholehand.loop.command import Command
 from wholehand.loop.control_loop import ControlLoop
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
-from wholehand.models.hand_config import GraspStyle
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
@@ -67,23 +67,6 @@ MAX_CANDIDATES = 400
 """Candidates tried per object before the generator gives up on finding ``count`` grasps."""
 PD_GAINS = (2.0, 0.05)
 """PD gains holding the non-closing joints at the pre-shape: [N*m/rad], [N*m*s/rad]."""
-
-
-def style_arrays(
-    hand: HandModel, style: GraspStyle
-) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]:
-    """A grasp style's pre-shape q (n_q,) [rad] (other joints 0, clipped to their limits,
-    coupled joints set from their leaders), its closing torques (n_v,) [N*m] and which joints
-    close (n_v,) bool."""
-    q_pre = np.clip(np.zeros(hand.nq), hand.q_lower, hand.q_upper)
-    tau_close = np.zeros(hand.nv)
-    closing = np.zeros(hand.nv, dtype=bool)
-    for name, value in style.preshape.items():
-        q_pre[hand.model.joints[hand.model.getJointId(name)].idx_q] = value
-    for name, value in style.close_torque.items():
-        i = hand.model.joints[hand.model.getJointId(name)].idx_v
-        tau_close[i], closing[i] = value, True
-    return hand.couple(q_pre), tau_close, closing
 
 
 class ClosingStage(Stage):

@@ -34,8 +34,8 @@ from wholehand import registry
 from wholehand.backends.mujoco_scene import GRAVITY_VECTOR
 from wholehand.backends.table import Table
 from wholehand.errors import ConfigError
-from wholehand.grasps.generate import style_arrays
 from wholehand.grasps.store import load_grasps
+from wholehand.grasps.styles import style_arrays
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossCheck, GraspLossMonitor
 from wholehand.loop.reach import GRASP, PREGRASP, REGULATE, HoldStage, ReachPlanner, ReachStage

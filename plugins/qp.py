@@ -42,7 +42,7 @@ from wholehand.allocation.solve import (
     AllocationSolution,
     WarmStart,
     binding_rows,
-    make_backend,
+    make_solver,
     solve_allocation,
 )
 from wholehand.contacts.base import ContactSet
@@ -140,7 +140,7 @@ class QPAllocator(Allocator):
                 f"{owner}: parameter solver_settings={solver_settings!r} is invalid; it must be "
                 "a mapping of setting names to values"
             )
-        self.backend = make_backend(solver, solver_settings, owner)
+        self.qp_solver = make_solver(solver, solver_settings, owner)
         self.solver = solver
         self.warm_start = bool(warm_start)
         self.screening = bool(screening)
@@ -156,7 +156,7 @@ class QPAllocator(Allocator):
     def reset(self) -> None:
         """Forget the warm start and the counts."""
         self._warm.clear()
-        self.backend.reset()
+        self.qp_solver.reset()
         self.counts.clear()
         self.last_solution = None
 
@@ -246,7 +246,7 @@ class QPAllocator(Allocator):
         kwargs = self._warm_kwargs(qp, contacts) if self.warm_start else {}
         deadline_ns = None if self.deadline is None else t0 + int(self.deadline * 1e9)
         sol = solve_allocation(
-            qp, self.backend, screening=self.screening, screen_tol=self.screen_tol,
+            qp, self.qp_solver, screening=self.screening, screen_tol=self.screen_tol,
             deadline_ns=deadline_ns, **kwargs,
         )  # fmt: skip
         self.last_solution = sol
@@ -280,7 +280,7 @@ class QPAllocator(Allocator):
         torque_sel = np.flatnonzero(np.isin(qp.dofs[qp.torque_rows], warm.torque_dofs))
         null_sel = warm.null_rows if warm.same_links(contacts.link) else None
         out: dict[str, Any] = {"warm": True, "torque_sel": torque_sel, "null_sel": null_sel}
-        if self.backend.primal_warm_start:
+        if self.qp_solver.primal_warm_start:
             idx = warm.match(contacts.p_world, contacts.link)
             if idx.size == warm.lam.shape[0] and (idx == np.arange(idx.size)).all():
                 lam0 = warm.lam.ravel()

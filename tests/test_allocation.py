@@ -23,16 +23,16 @@ from wholehand.allocation.problem import (
     friction_edges,
 )
 from wholehand.allocation.solve import (
-    NATIVE_BACKENDS,
+    NATIVE_SOLVERS,
     available_solvers,
-    make_backend,
+    make_solver,
     solve_allocation,
 )
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 
 # Native adapters plus every qpsolvers backend through the generic adapter.
-SOLVERS = [*NATIVE_BACKENDS, *(f"qpsolvers:{s}" for s in qpsolvers.available_solvers)]
+SOLVERS = [*NATIVE_SOLVERS, *(f"qpsolvers:{s}" for s in qpsolvers.available_solvers)]
 
 TOL = 1e-6  # constraint tolerance of accepted solutions [N, N*m]
 
@@ -187,10 +187,10 @@ def test_screening_is_exact(case: tuple[int, int, float]) -> None:
     cs, J, com = synthetic_grasp(seed, n).cycle()
     params = AllocationParams.checked("test", tau_max=tmax)
     qp = build_allocation_qp(cs, J, com, params)
-    backend = make_backend("daqp")
-    full = solve_allocation(qp, backend, screening=False)
-    screened = solve_allocation(qp, backend, screening=True)
-    capped = solve_allocation(qp, backend, screening=True, max_rounds=1)  # falls back to full
+    solver = make_solver("daqp")
+    full = solve_allocation(qp, solver, screening=False)
+    screened = solve_allocation(qp, solver, screening=True)
+    capped = solve_allocation(qp, solver, screening=True, max_rounds=1)  # falls back to full
     assert screened.n_rows <= full.n_rows
     for sol in (full, screened, capped):
         assert sol.status == "optimal" and sol.violation < 1e-8
@@ -550,7 +550,7 @@ def test_bad_configuration_raises(kwargs: dict[str, Any], name: str, cls: type) 
     assert cls.__name__ in str(err.value) and name in str(err.value)
 
 
-@pytest.mark.parametrize("solver", [*NATIVE_BACKENDS, "qpsolvers:daqp"])
+@pytest.mark.parametrize("solver", [*NATIVE_SOLVERS, "qpsolvers:daqp"])
 def test_bad_solver_settings_raise_at_construction(solver: str) -> None:
     with pytest.raises(ConfigError, match="solver_settings"):
         QPAllocator(solver=solver, solver_settings={"no_such_setting_xyz": 1})
@@ -564,7 +564,7 @@ def test_solver_exception_in_the_loop_becomes_a_status() -> None:
     def boom(*args: Any) -> None:
         raise RuntimeError("solver crashed")
 
-    alloc.backend._solve = boom  # type: ignore[method-assign]
+    alloc.qp_solver._solve = boom  # type: ignore[method-assign]
     out = alloc.allocate(cs, J, com)
     assert first.ok and out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
 
@@ -572,7 +572,7 @@ def test_solver_exception_in_the_loop_becomes_a_status() -> None:
 def test_unknown_solver_lists_installed_ones() -> None:
     with pytest.raises(ConfigError, match="daqp"):
         QPAllocator(solver="gurobi_but_not_installed")
-    assert set(NATIVE_BACKENDS) <= set(available_solvers())
+    assert set(NATIVE_SOLVERS) <= set(available_solvers())
 
 
 def test_shape_mismatches_raise() -> None:
@@ -669,9 +669,9 @@ def test_a_passed_deadline_stops_screening_and_gives_no_torque(
     n, seed, tmax = case
     cs, J, com = synthetic_grasp(seed, n).cycle()
     qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test", tau_max=tmax))
-    backend = make_backend("daqp")
-    assert solve_allocation(qp, backend, screening=True).rounds > 1  # rows bind in every case
-    late = solve_allocation(qp, backend, screening=True, deadline_ns=0)  # always passed
+    solver = make_solver("daqp")
+    assert solve_allocation(qp, solver, screening=True).rounds > 1  # rows bind in every case
+    late = solve_allocation(qp, solver, screening=True, deadline_ns=0)  # always passed
     assert late.status == "deadline" and late.x is None and late.rounds == 1
     allocator = QPAllocator(tau_max=tmax, warm_start=False, deadline=1e-9)
     allocation = allocator.allocate(cs, J, com)

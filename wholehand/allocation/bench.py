@@ -256,11 +256,11 @@ def run_allocation_benchmark(
         mean screening rounds, largest accepted constraint violation and median residual-wrench
         norm), ``best`` (per N, the fastest warm configuration) and ``plot`` (PNG path or None).
     """
-    from wholehand.allocation.solve import NATIVE_BACKENDS
+    from wholehand.allocation.solve import NATIVE_SOLVERS
 
     qp_allocator = registry.get_class("allocators", "qp")
 
-    names = list(solvers) if solvers is not None else list(NATIVE_BACKENDS)
+    names = list(solvers) if solvers is not None else list(NATIVE_SOLVERS)
     extra = dict(allocator_kwargs or {})
     configs: list[tuple[str, bool]] = [(s, True) for s in names]
     if unscreened and "daqp" in names:

@@ -101,7 +101,7 @@ class QPResult:
     """The solver's own result object, for debugging."""
 
 
-class QPBackend(abc.ABC):
+class QPSolver(abc.ABC):
     """Adapter from :class:`DenseQP` to one solver."""
 
     name: ClassVar[str] = ""
@@ -136,7 +136,7 @@ class QPBackend(abc.ABC):
     def reset(self) -> None:  # noqa: B027 - optional hook
         """Forget state kept between solves (persistent solver objects)."""
 
-    def probe(self, owner: str = "QPBackend") -> None:
+    def probe(self, owner: str = "QPSolver") -> None:
         """Solve a 2-variable QP once, so that bad settings fail at construction.
 
         Raises:
@@ -162,7 +162,7 @@ class QPBackend(abc.ABC):
             self.reset()
 
 
-class DaqpBackend(QPBackend):
+class DaqpSolver(QPSolver):
     """DAQP (dual active set, dense; Arnström et al. 2022) through its own API.
 
     One ``daqp.Model`` is kept per problem shape ``(n, m)``, so the Hessian is processed once
@@ -233,7 +233,7 @@ class DaqpBackend(QPBackend):
         return QPResult(None, status, it, f"exitflag {flag}", info)
 
 
-class OsqpBackend(QPBackend):
+class OsqpSolver(QPSolver):
     """OSQP (ADMM, sparse; Stellato et al. 2020, the paper's solver) through its own API."""
 
     name = "osqp"
@@ -273,7 +273,7 @@ class OsqpBackend(QPBackend):
         return QPResult(None, "failed", it, res.info.status, res)
 
 
-class PiqpBackend(QPBackend):
+class PiqpSolver(QPSolver):
     """PIQP (proximal interior point; Schwan et al. 2023) through its own sparse API.
 
     The sparse KKT solver is used: with the diagonal Hessian of the solved form it is several
@@ -319,7 +319,7 @@ class PiqpBackend(QPBackend):
         return QPResult(None, "failed", it, str(status), res)
 
 
-class QpsolversBackend(QPBackend):
+class QpsolversSolver(QPSolver):
     """Any solver of :mod:`qpsolvers`, through :func:`qpsolvers.solve_problem`.
 
     Solver warnings are silenced (the outcome is in the status); a solver that is not found
@@ -376,15 +376,15 @@ class QpsolversBackend(QPBackend):
         return QPResult(None, "failed", 0, "not found", sol)
 
 
-NATIVE_BACKENDS: dict[str, type[QPBackend]] = {}
+NATIVE_SOLVERS: dict[str, type[QPSolver]] = {}
 """Solvers driven through their own API, filled by guarded imports."""
 
-for _cls, _module in ((DaqpBackend, "daqp"), (OsqpBackend, "osqp"), (PiqpBackend, "piqp")):
+for _cls, _module in ((DaqpSolver, "daqp"), (OsqpSolver, "osqp"), (PiqpSolver, "piqp")):
     try:
         __import__(_module)
     except ImportError:  # pragma: no cover - depends on the environment
         continue
-    NATIVE_BACKENDS[_cls.name] = _cls
+    NATIVE_SOLVERS[_cls.name] = _cls
 
 DEFAULT_SOLVER: str = "daqp"
 """Fastest exact solver on the benchmark (``wholehand bench allocate``)."""
@@ -399,15 +399,15 @@ def _qpsolvers_available() -> list[str]:
 
 
 def available_solvers() -> list[str]:
-    """Every solver name :func:`make_backend` accepts in this environment."""
+    """Every solver name :func:`make_solver` accepts in this environment."""
     generic = _qpsolvers_available()
-    plain = [s for s in generic if s not in NATIVE_BACKENDS]
-    return [*NATIVE_BACKENDS, *plain, *(f"qpsolvers:{s}" for s in generic)]
+    plain = [s for s in generic if s not in NATIVE_SOLVERS]
+    return [*NATIVE_SOLVERS, *plain, *(f"qpsolvers:{s}" for s in generic)]
 
 
-def make_backend(
-    name: str, settings: Mapping[str, Any] | None = None, owner: str = "make_backend"
-) -> QPBackend:
+def make_solver(
+    name: str, settings: Mapping[str, Any] | None = None, owner: str = "make_solver"
+) -> QPSolver:
     """The adapter for solver ``name`` with ``settings`` on top of its defaults.
 
     User ``settings`` are tried once on a tiny problem, so that a bad one fails here.
@@ -417,17 +417,17 @@ def make_backend(
             ones), or the solver rejects ``settings``.
     """
     generic = _qpsolvers_available()
-    backend: QPBackend | None = None
+    solver: QPSolver | None = None
     if isinstance(name, str):
         base = name.removeprefix("qpsolvers:")
-        if name in NATIVE_BACKENDS:
-            backend = NATIVE_BACKENDS[name](settings)
+        if name in NATIVE_SOLVERS:
+            solver = NATIVE_SOLVERS[name](settings)
         elif base in generic:
-            backend = QpsolversBackend(base, settings)
-    if backend is not None:
+            solver = QpsolversSolver(base, settings)
+    if solver is not None:
         if settings:
-            backend.probe(owner)
-        return backend
+            solver.probe(owner)
+        return solver
     raise ConfigError(
         f"{owner}: parameter solver={name!r} is not an installed QP solver; installed: "
         f"{', '.join(available_solvers()) or 'none'}. Install another with e.g. "
@@ -550,7 +550,7 @@ def dense_qp(qp: AllocationQP, torque_sel: IntArray, null_sel: IntArray) -> Dens
 
 def solve_allocation(
     qp: AllocationQP,
-    backend: QPBackend,
+    solver: QPSolver,
     *,
     x0: FloatArray | None = None,
     warm: bool = False,
@@ -565,7 +565,7 @@ def solve_allocation(
 
     Args:
         qp: The cycle's problem.
-        backend: Solver adapter.
+        solver: Solver adapter.
         x0: (4N + 6,) primal start, or None.
         warm: The problem continues the previous cycle's (solvers keeping state may use it).
         torque_sel: Initial torque rows (positions in ``qp.torque_rows``), or None for none.
@@ -600,9 +600,9 @@ def solve_allocation(
         full = rounds > max_rounds
         if full:
             t_in, n_in = all_t, all_n
-        res = backend.solve(
+        res = solver.solve(
             dense_qp(qp, t_in, n_in),
-            x0 if backend.primal_warm_start else None,
+            x0 if solver.primal_warm_start else None,
             warm=warm or x0 is not None,
         )
         iterations += res.iterations
@@ -664,12 +664,12 @@ __all__ = [
     "FEAS_TOL",
     "AllocationSolution",
     "DenseQP",
-    "QPBackend",
+    "QPSolver",
     "QPResult",
     "WarmStart",
     "available_solvers",
     "binding_rows",
     "dense_qp",
-    "make_backend",
+    "make_solver",
     "solve_allocation",
 ]

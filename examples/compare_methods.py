@@ -21,7 +21,7 @@ from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
 from wholehand.models.objects import load_object
 from wholehand.studies.base import METHODS, TINY_PROTOCOL
-from wholehand.studies.runner import record_row
+from wholehand.studies.rows import record_row
 
 
 def main() -> None:

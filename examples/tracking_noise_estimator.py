@@ -30,7 +30,7 @@ from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel, load_object
 from wholehand.studies.base import TINY_PROTOCOL
-from wholehand.studies.runner import record_row
+from wholehand.studies.rows import record_row
 
 
 class NoisyPoseEstimator(ContactEstimator):

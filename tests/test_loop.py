@@ -25,7 +25,7 @@ from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import CycleContext, LoopStatus, Stage, StageOutput
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.objects import load_object
-from wholehand.studies.runner import record_row
+from wholehand.studies.rows import record_row
 
 OBJECT = "077_rubiks_cube"
 THREE_FINGER_GRASP = 4  # middle, ring and thumb (and the palm) touch the cube

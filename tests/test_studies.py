@@ -22,13 +22,12 @@ from wholehand.models.objects import PAPER_OBJECTS
 from wholehand.studies import STUDIES, TIMING_COLUMNS, get_study, run_study, runner
 from wholehand.studies.base import derive_seed, success_stats
 from wholehand.studies.executors import execute
+from wholehand.studies.rows import SPEC_COLUMNS, record_row, spec_columns
 from wholehand.studies.runner import (
     JOURNAL_NAME,
     execution_order,
     match_rows,
     read_csv,
-    record_row,
-    spec_columns,
     write_csv,
 )
 
@@ -362,7 +361,7 @@ def test_resume_from_trials_csv_mixing_older_and_newer_rows(tmp_path, tiny_fresh
 
 def test_resume_reruns_trials_that_raised_and_keeps_diverged_ones(tmp_path, tiny_fresh):
     rows = [dict(r) for r in tiny_fresh.rows]
-    outcome = set(rows[1]) - set(runner.SPEC_COLUMNS) - {"index", "kind", "method", "repeat"}
+    outcome = set(rows[1]) - set(SPEC_COLUMNS) - {"index", "kind", "method", "repeat"}
     failed = {k: v for k, v in rows[1].items() if k not in outcome}
     rows[1] = {**failed, "held": False, "failure_stage": "error", "error": "RuntimeError: boom"}
     rows[2] = {**rows[2], "held": False, "error": "simulation diverged (MuJoCo bad_qacc x3)"}

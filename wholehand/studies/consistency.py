@@ -38,6 +38,8 @@ from wholehand.studies.base import (
     protocol_for,
     success_stats,
 )
+from wholehand.studies.models import model
+from wholehand.studies.rows import record_row
 
 if TYPE_CHECKING:
     from wholehand.backends.mujoco_scene import SimContacts
@@ -99,8 +101,6 @@ class NetForceSampler(Observer):
 def net_force_row(job: TrialJob) -> dict[str, Any]:
     """Hold ``job.spec``'s grasp for ``NET_FORCE_TIME`` without load, then measure the net
     ground-truth contact force on the object (the spec's protocol is replaced by a settle)."""
-    from wholehand.studies.runner import model, record_row
-
     spec = dataclasses.replace(
         job.spec,
         theta_deg=0.0,

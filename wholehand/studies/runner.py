@@ -36,21 +36,19 @@ from typing import IO, Any
 import numpy as np
 
 from wholehand import registry
-from wholehand.allocation.base import AllocationStatus
 from wholehand.errors import ConfigError
-from wholehand.loop.outcome import outcome_of
-from wholehand.loop.record import RunRecord
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, with_methods
+from wholehand.studies.consistency import net_force_row
 from wholehand.studies.executors import execute
+from wholehand.studies.models import model
+from wholehand.studies.reach import episode_row
+from wholehand.studies.rows import SPEC_COLUMNS, record_row, spec_columns
 
 log = logging.getLogger(__name__)
 
 TIMING_COLUMNS = ("wall_time_s", "qp_p50_us", "cycle_mean_us", "control_rate_hz")
 """Wall-clock columns of ``trials.csv``: they vary from run to run (not part of determinism)."""
-
-SPEC_COLUMNS = tuple(TrialSpec.__dataclass_fields__)
-"""TrialSpec fields, one column each (parameter dicts as JSON)."""
 
 TEXT_COLUMNS = ("kind", "failure_stage", "error") + tuple(
     f.name
@@ -63,73 +61,6 @@ job kind, the failure stage, the error and the spec's names and JSON parameter d
 JOURNAL_NAME = "rows.jsonl"
 """Journal of a study folder: every finished row as one JSON line, appended as it arrives."""
 
-_MODELS: dict[tuple[str, str], Any] = {}
-"""Per-process cache of loaded hands and objects (worker processes run many trials)."""
-
-
-def model(kind: str, name: str) -> Any:
-    """A hand (``kind="hand"``) or object model by name, loaded once per process."""
-    key = (kind, name)
-    if key not in _MODELS:
-        if kind == "hand":
-            from wholehand.models.hand import load_hand
-
-            _MODELS[key] = load_hand(name)
-        else:
-            from wholehand.models.objects import load_object
-
-            _MODELS[key] = load_object(name)
-    return _MODELS[key]
-
-
-def spec_columns(spec: TrialSpec) -> dict[str, Any]:
-    """The spec as CSV cells: names for classes, sorted JSON for parameter dicts."""
-    out: dict[str, Any] = {}
-    for name in SPEC_COLUMNS:
-        value = getattr(spec, name)
-        if isinstance(value, dict):
-            value = json.dumps(value, sort_keys=True, default=str)
-        elif isinstance(value, type):
-            value = value.__name__
-        out[name] = value
-    return out
-
-
-def record_row(record: RunRecord) -> dict[str, Any]:
-    """Outcome and timing columns of one run record (:func:`~wholehand.loop.outcome.outcome_of`).
-
-    The columns keep their names of earlier versions (``stages_total``, ``failure_stage``: the
-    protocol's phases), so committed study rows and ``--resume`` stay valid. A run in which a
-    stage raised gets ``failure_stage == "error"``: it is no result and is re-run on resume.
-    """
-    outcome = outcome_of(record)
-    a = record.arrays()
-    n = outcome.cycles
-    status = a["status"]
-    cycle = a["cycle_time"]
-    stage_raised = bool(record.meta.get("loop", {}).get("n_errors", 0))
-    return {
-        "held": outcome.held,
-        "stages_total": outcome.phases_total,
-        "stages_reached": outcome.phases_reached,
-        "failure_stage": "error" if stage_raised else outcome.failure_phase,
-        "cycles": n,
-        "contacts_mean": round(float(a["n_contacts"].mean()), 6) if n else float("nan"),
-        "n_contacts_gt_init": record.meta.get("n_contacts_gt_init"),
-        "ok_fraction": round(float(np.mean(status == AllocationStatus.OK.value)), 6)
-        if n
-        else float("nan"),
-        "hold_fraction": round(float(np.mean(status == AllocationStatus.HOLD.value)), 6)
-        if n
-        else float("nan"),
-        "final_displacement_mm": round(outcome.final_displacement_mm, 6) if n else float("nan"),
-        "error": outcome.error,
-        "wall_time_s": float(record.meta.get("wall_time_s", float("nan"))),
-        "qp_p50_us": float(np.percentile(a["qp_time"], 50) * 1e6) if n else float("nan"),
-        "cycle_mean_us": float(cycle.mean() * 1e6) if n else float("nan"),
-        "control_rate_hz": float(1.0 / cycle.mean()) if n and cycle.mean() > 0 else float("nan"),
-    }
-
 
 def _trial(job: TrialJob) -> dict[str, Any]:
     spec = job.spec
@@ -137,14 +68,17 @@ def _trial(job: TrialJob) -> dict[str, Any]:
     return record_row(record)
 
 
-JOB_KINDS: dict[str, Callable[[TrialJob], dict[str, Any]]] = {"trial": _trial}
+JOB_KINDS: dict[str, Callable[[TrialJob], dict[str, Any]]] = {
+    "trial": _trial,
+    "net_force": net_force_row,
+    "episode": episode_row,
+}
 """Job kind -> function computing its outcome columns (studies add their measurements)."""
 
 
 def run_job(job: TrialJob) -> dict[str, Any]:
     """One CSV row: index, labels, spec columns, outcome. An unexpected error becomes a failed
     row whose ``error`` column holds it (one broken trial does not lose a study)."""
-    _register_kinds()
     started = time.perf_counter()
     try:
         outcome = JOB_KINDS[job.kind](job)
@@ -156,15 +90,6 @@ def run_job(job: TrialJob) -> dict[str, Any]:
     row.update(spec_columns(job.spec))
     row.update(outcome)
     return row
-
-
-def _register_kinds() -> None:
-    if "net_force" not in JOB_KINDS:
-        from wholehand.studies.consistency import net_force_row
-        from wholehand.studies.reach import episode_row
-
-        JOB_KINDS["net_force"] = net_force_row
-        JOB_KINDS["episode"] = episode_row
 
 
 def _warm_caches(jobs: list[TrialJob]) -> None:

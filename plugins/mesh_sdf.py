@@ -37,9 +37,9 @@ class MeshSDFEstimator(ContactEstimator):
     candidate; only the points of the remaining clusters are transformed and looked up.
 
     The whole cycle runs in one compiled kernel (:func:`wholehand.contacts.kernels.
-    mesh_sdf_contacts`; ~25 us for an Allegro hand holding a YCB object, ~40 us for the whole
-    :meth:`estimate`); its lookups equal :meth:`SignedDistanceGrid.query` and
-    :meth:`~SignedDistanceGrid.query_with_gradient` to the last bit. The first call in a fresh
+    mesh_sdf_contacts`; ``wholehand bench contacts`` times it); its lookups equal
+    :meth:`SignedDistanceGrid.query` and :meth:`~SignedDistanceGrid.query_with_gradient` to the
+    last bit. The first call in a fresh
     environment compiles it (seconds; cached on disk afterwards, see that module). The kernel
     releases the GIL and keeps no state between calls.
 

@@ -2,8 +2,8 @@
 
 Solvers are named by a string. ``"daqp"``, ``"osqp"`` and ``"piqp"`` are driven through their own
 Python APIs: a persistent DAQP model per problem shape, OSQP without the wrapper's conversions,
-PIQP's sparse KKT solver (the qpsolvers wrappers measured 60-90 us slower per cycle for DAQP and
-~200 us for OSQP at 14-45 contacts). Any other name in ``qpsolvers.available_solvers``, and
+PIQP's sparse KKT solver (the qpsolvers wrappers add per-cycle conversions; ``wholehand bench
+allocate`` compares them). Any other name in ``qpsolvers.available_solvers``, and
 ``"qpsolvers:<name>"`` for any of them, goes through :func:`qpsolvers.solve_problem`.
 :func:`available_solvers` lists what is installed; an unknown name raises :class:`ConfigError`.
 

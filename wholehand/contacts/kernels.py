@@ -3,12 +3,12 @@
 One fused kernel, :func:`mesh_sdf_contacts`, does all of :class:`MeshSDFEstimator`'s cycle
 (``wholehand_plugins.mesh_sdf``) in one pass without temporaries: joint placements in the object
 frame, the cluster cull, the trilinear SDF lookup of the surviving samples, the threshold, the
-top-K per link, and the SDF gradient and world transform of the kept points. The numpy version
-of the same cycle spent almost all of its ~250 us in per-call overhead of ~30 small array
-operations; the kernel does the same work in ~25 us for an Allegro hand holding a YCB object
-(~1500 trilinear lookups at ~15 ns each). Its scratch (a few kB) is allocated per call inside
-the kernel: cheaper than passing preallocated buffers in (each array argument costs ~40 ns of
-dispatch) and it keeps the kernel re-entrant, so it may run in several threads at once.
+top-K per link, and the SDF gradient and world transform of the kept points. A numpy version of
+the same cycle spends almost all of its time in the per-call overhead of about 30 small array
+operations (``wholehand bench contacts`` times the kernel; docs/results.md). Its scratch (a few
+kB) is allocated per call inside the kernel: cheaper than passing preallocated buffers in (each
+array argument adds dispatch cost) and it keeps the kernel re-entrant, so it may run in several
+threads at once.
 
 SDF lookups reproduce :meth:`SignedDistanceGrid.query` and :meth:`~SignedDistanceGrid.
 query_with_gradient` (``wholehand.models.sdf``) operation for operation, so the results are equal

@@ -8,8 +8,8 @@ link frames); the object's bounding box is its mesh's axis-aligned box in the ob
 The test is coal's GJK between the convex hull of those points and the box. GJK needs only the
 hull's support function, the farthest point along a direction, and coal evaluates it by a linear
 scan over all points for a convex of at most :data:`LINEAR_SUPPORT_MAX_POINTS` points. For such
-hands the points are handed to coal as they are, without computing their hull (qhull took
-0.2-2.5 ms per cycle, a fifth of a simulated trial); with more points the hull is computed.
+hands the points are handed to coal as they are, without computing their hull (qhull per cycle
+cost a large share of a simulated trial); with more points the hull is computed.
 """
 
 from __future__ import annotations

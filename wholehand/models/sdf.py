@@ -15,7 +15,7 @@ YCB mesh at 2 mm (see ``compute_grid_values``):
    distance, Ericson's region test): the 8 faces with the nearest centroids (a ``cKDTree``),
    plus, within 3 cells of the surface, the face of the nearest lattice sample (which bounds the
    error by the lattice step whatever the triangle shapes) and, farther out, the closest face of
-   the nearest such inner node (a lattice query there costs ~10 us per node). On the 78 YCB
+   the nearest such inner node (a lattice query there is expensive per node). On the 78 YCB
    meshes (60 random band nodes each) every value matched a brute-force search over all faces to
    float32 rounding. The sign is that of the angle-weighted pseudo-normal of the closest feature
    (face, edge or vertex; Baerentzen & Aanaes, IEEE TVCG 2005), exact for a closed,
@@ -649,7 +649,7 @@ def compute_grid_values(
     band_idx, band_d, band_cp = inner_idx, res.distance, res.closest
     if outer_idx.size:
         # Outer band: the closest face of the nearest inner node joins the centroid candidates
-        # (a lattice query this far from the surface costs about 10 us per node).
+        # (a lattice query this far from the surface is expensive per node).
         nearest = ndimage.distance_transform_edt(
             ~inner, return_distances=False, return_indices=True
         )

@@ -607,10 +607,10 @@ def solve_allocation(
         )
         iterations += res.iterations
         if res.x is None or not np.all(np.isfinite(res.x)):
-            status = res.status if res.x is None else "failed"
             return AllocationSolution(
-                None, status, rounds, t_in.size + n_in.size, iterations, np.inf, res.detail,
-                t_in, n_in,
+                x=None, status=res.status if res.x is None else "failed", rounds=rounds,
+                n_rows=t_in.size + n_in.size, iterations=iterations, violation=np.inf,
+                detail=res.detail, torque_sel=t_in, null_sel=n_in,
             )  # fmt: skip
         lam = res.x[: qp.n_lambda]
         t_val = qp.T_lam @ lam
@@ -628,8 +628,9 @@ def solve_allocation(
             break
         if deadline_ns is not None and time.perf_counter_ns() > deadline_ns:
             return AllocationSolution(
-                None, "deadline", rounds, t_in.size + n_in.size, iterations, np.inf,
-                "deadline passed with rows still violated", t_in, n_in,
+                x=None, status="deadline", rounds=rounds, n_rows=t_in.size + n_in.size,
+                iterations=iterations, violation=np.inf,
+                detail="deadline passed with rows still violated", torque_sel=t_in, null_sel=n_in,
             )  # fmt: skip
         t_mask[add_t] = True
         n_mask[add_n] = True
@@ -643,8 +644,9 @@ def solve_allocation(
         z_over.max(initial=0.0),
     )
     return AllocationSolution(
-        res.x, "optimal", rounds, t_in.size + n_in.size, iterations, float(viol), res.detail,
-        t_in, n_in, t_val, z_val,
+        x=res.x, status="optimal", rounds=rounds, n_rows=t_in.size + n_in.size,
+        iterations=iterations, violation=float(viol), detail=res.detail, torque_sel=t_in,
+        null_sel=n_in, torque_values=t_val, null_values=z_val,
     )  # fmt: skip
 
 

@@ -39,9 +39,13 @@ def main() -> None:
     print(f"{'method':<16} {'held':<5} {'lost in':<10} {'contacts':>8} {'moved mm':>9}")
     for method in METHODS:
         spec = TrialSpec(
-            object=obj.name, grasp=args.grasp, allocator=method, theta_deg=args.theta,
-            seed=args.seed, protocol_params=protocol,
-        )  # fmt: skip
+            object=obj.name,
+            grasp=args.grasp,
+            allocator=method,
+            theta_deg=args.theta,
+            seed=args.seed,
+            protocol_params=protocol,
+        )
         row = record_row(run_trial(spec, hand=hand, obj=obj))
         print(
             f"{method:<16} {'yes' if row['held'] else 'no':<5} {row['failure_stage'] or '-':<10} "

@@ -37,9 +37,12 @@ def main() -> None:
 
     hand, obj = load_hand("allegro_right"), load_object(args.object)
     spec = TrialSpec(
-        object=obj.name, grasp=args.grasp, grasp_type=args.grasp_type, theta_deg=0.0,
+        object=obj.name,
+        grasp=args.grasp,
+        grasp_type=args.grasp_type,
+        theta_deg=0.0,
         protocol_params=dict(TINY_PROTOCOL) if args.quick else {},
-    )  # fmt: skip
+    )
     record = run_trial(spec, hand=hand, obj=obj)
     last = len(record.rows["t"]) - 1
     c = record.contacts_at(last)

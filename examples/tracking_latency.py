@@ -41,10 +41,14 @@ def jobs(objects: tuple[str, ...], grasps: range, theta: float, quick: bool) -> 
         for grasp in grasps:
             for name, (tracking, estimate_at) in CONDITIONS.items():
                 spec = TrialSpec(
-                    object=obj, grasp=grasp, theta_deg=theta, seed=derive_seed(0, oi, grasp, 0),
-                    tracking=dict(tracking), estimate_at=estimate_at,
+                    object=obj,
+                    grasp=grasp,
+                    theta_deg=theta,
+                    seed=derive_seed(0, oi, grasp, 0),
+                    tracking=dict(tracking),
+                    estimate_at=estimate_at,
                     protocol_params=dict(TINY_PROTOCOL) if quick else {},
-                )  # fmt: skip
+                )
                 out.append(TrialJob(len(out), spec, {"condition": name}))
     return out
 

@@ -45,9 +45,14 @@ class NoisyPoseEstimator(ContactEstimator):
     """
 
     def __init__(
-        self, hand: HandModel, obj: ObjectModel, sigma_rot_deg: float = 0.0,
-        sigma_trans_mm: float = 0.0, seed: int = 0, **params: float,
-    ) -> None:  # fmt: skip
+        self,
+        hand: HandModel,
+        obj: ObjectModel,
+        sigma_rot_deg: float = 0.0,
+        sigma_trans_mm: float = 0.0,
+        seed: int = 0,
+        **params: float,
+    ) -> None:
         self.inner = MeshSDFEstimator(hand, obj, **params)
         self.com = obj.com
         self.sigma_rot = np.deg2rad(sigma_rot_deg)
@@ -78,10 +83,13 @@ def main() -> None:
     print(f"{'sigma deg':>9} {'sigma mm':>8} {'held':<5} {'lost in':<10} {'moved mm':>9}")
     for sigma_rot, sigma_trans in ((0.0, 0.0), (2.0, 1.0), (5.0, 2.0), (10.0, 4.0)):
         spec = TrialSpec(
-            object=obj.name, grasp=args.grasp, theta_deg=0.0, estimator=NoisyPoseEstimator,
+            object=obj.name,
+            grasp=args.grasp,
+            theta_deg=0.0,
+            estimator=NoisyPoseEstimator,
             estimator_params={"sigma_rot_deg": sigma_rot, "sigma_trans_mm": sigma_trans},
             protocol_params=protocol,
-        )  # fmt: skip
+        )
         row = record_row(run_trial(spec, hand=hand, obj=obj))
         print(
             f"{sigma_rot:>9.1f} {sigma_trans:>8.1f} {'yes' if row['held'] else 'no':<5} "

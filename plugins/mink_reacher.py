@@ -268,10 +268,13 @@ class MinkReacher(Reacher):
             pairs = finger_pairs(hand, m)
             self.limits.append(
                 mink.CollisionAvoidanceLimit(
-                    m, pairs, gain=0.85, minimum_distance_from_collisions=SELF_CLEARANCE,
+                    m,
+                    pairs,
+                    gain=0.85,
+                    minimum_distance_from_collisions=SELF_CLEARANCE,
                     collision_detection_distance=detection,
                 )
-            )  # fmt: skip
+            )
         # The arm's links keep clear of the object too, even at the grasp stage.
         object_pairs = [(hand_geoms, object_geoms)]
         self.object_limit = mink.CollisionAvoidanceLimit(m, object_pairs, **collide)

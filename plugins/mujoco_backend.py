@@ -397,5 +397,9 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
                     "MuJoCo warning %r at t = %.4f s (%d so far) for hand %s with object %s; "
                     "bad_qacc means the simulation diverged and MuJoCo reset it: lower the "
                     "timestep or stiffen the contacts",
-                    name, self.time, count, self.hand.name, self.obj.name,
-                )  # fmt: skip
+                    name,
+                    self.time,
+                    count,
+                    self.hand.name,
+                    self.obj.name,
+                )

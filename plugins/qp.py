@@ -246,9 +246,13 @@ class QPAllocator(Allocator):
         kwargs = self._warm_kwargs(qp, contacts) if self.warm_start else {}
         deadline_ns = None if self.deadline is None else t0 + int(self.deadline * 1e9)
         sol = solve_allocation(
-            qp, self.qp_solver, screening=self.screening, screen_tol=self.screen_tol,
-            deadline_ns=deadline_ns, **kwargs,
-        )  # fmt: skip
+            qp,
+            self.qp_solver,
+            screening=self.screening,
+            screen_tol=self.screen_tol,
+            deadline_ns=deadline_ns,
+            **kwargs,
+        )
         self.last_solution = sol
         dt = _since(t0)
         if sol.x is None or sol.violation > self.feas_tol:

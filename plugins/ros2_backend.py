@@ -140,8 +140,9 @@ class Ros2Backend(Backend):
         except Exception:
             self.session.close()
             raise
-        self._watchdog = threading.Thread(target=self._watch, name="wholehand-watchdog",
-                                          daemon=True)  # fmt: skip
+        self._watchdog = threading.Thread(
+            target=self._watch, name="wholehand-watchdog", daemon=True
+        )
         self._watchdog.start()
 
     # --- incoming (zenoh's threads) -------------------------------------------------------------
@@ -208,10 +209,12 @@ class Ros2Backend(Backend):
         topics = self.config.topics
         missing = [
             f"{kind} on {topics[key]!r}"
-            for kind, key, got in (("no joint state", "joint_states", self._joint),
-                                   ("no object pose", "object_pose", self._pose))
+            for kind, key, got in (
+                ("no joint state", "joint_states", self._joint),
+                ("no object pose", "object_pose", self._pose),
+            )
             if got is None
-        ]  # fmt: skip
+        ]
         rejected = f"; rejected meanwhile: {dict(self.rejected)} (last: {self.last_rejection})"
         raise ConfigError(
             f"{' and '.join(missing)} within {timeout:g} s (zenoh connect="
@@ -230,8 +233,9 @@ class Ros2Backend(Backend):
             self.history.push(sample.stamp, sample.q, self.hand.wMb)
         if joint is None:
             unknown = np.full(self.hand.nq, np.nan)
-            return Observation(unknown, np.zeros(self.hand.nv), self.hand.wMb, 0.0, None, 0.0,
-                               self.history)  # fmt: skip
+            return Observation(
+                unknown, np.zeros(self.hand.nv), self.hand.wMb, 0.0, None, 0.0, self.history
+            )
         dq = joint.dq
         if dq is None:  # no velocities sent: the difference of the last two samples
             dq = np.zeros(self.hand.nv)
@@ -239,8 +243,7 @@ class Ros2Backend(Backend):
                 dq = (joint.q - previous.q) / (joint.stamp - previous.stamp)
         self._stamp_q_seen = joint.stamp
         wMo, stamp_object = (None, joint.stamp) if pose is None else pose
-        return Observation(joint.q, dq, self.hand.wMb, joint.stamp, wMo, stamp_object,
-                           self.history)  # fmt: skip
+        return Observation(joint.q, dq, self.hand.wMb, joint.stamp, wMo, stamp_object, self.history)
 
     def apply(self, command: Command) -> None:
         """Send the command's torques through the safety rules (and the arm's targets)."""

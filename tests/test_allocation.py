@@ -65,9 +65,12 @@ def contact_set(
 def antipodal(lever: float = 0.01, d: float = 0.04) -> tuple[ContactSet, np.ndarray, np.ndarray]:
     """Two fingertips at +-d x pressing along x, each moved along x by its own joint."""
     cs = contact_set(
-        [[d, 0, 0], [-d, 0, 0]], [[1, 0, 0], [-1, 0, 0]], [1, 2], [False, True, True],
+        [[d, 0, 0], [-d, 0, 0]],
+        [[1, 0, 0], [-1, 0, 0]],
+        [1, 2],
         [False, True, True],
-    )  # fmt: skip
+        [False, True, True],
+    )
     J = np.zeros((2, 3, 2))
     J[0, 0, 0] = lever
     J[1, 0, 1] = -lever

@@ -31,18 +31,23 @@ class FixedForceAllocator(Allocator):
     def allocate(self, contacts, J_world, p_com_world, kinematics=None):  # noqa: ANN001, ANN201
         n = len(contacts)
         return Allocation(
-            f_local=np.zeros((n, 3)), f_world=self.f_world.copy(),
-            tau=np.zeros(J_world.shape[2]), residual_wrench=np.zeros(6), status=self.status,
-        )  # fmt: skip
+            f_local=np.zeros((n, 3)),
+            f_world=self.f_world.copy(),
+            tau=np.zeros(J_world.shape[2]),
+            residual_wrench=np.zeros(6),
+            status=self.status,
+        )
 
 
 def _one_contact(hand, link_name: str, p_world: np.ndarray) -> ContactSet:
     return ContactSet(
-        p_world=p_world[None].copy(), n_world=np.array([[0.0, 0.0, 1.0]]),
-        link=np.array([hand.link_index(link_name)]), distance=np.zeros(1),
+        p_world=p_world[None].copy(),
+        n_world=np.array([[0.0, 0.0, 1.0]]),
+        link=np.array([hand.link_index(link_name)]),
+        distance=np.zeros(1),
         link_actuated=np.asarray(hand.link_actuated),
         link_fingertip=np.asarray(hand.link_fingertip),
-    )  # fmt: skip
+    )
 
 
 def _q(hand, seed: int) -> np.ndarray:
@@ -131,9 +136,13 @@ def test_impedance_at_initial_configuration_is_feedforward(allegro):
     obj = load_object(OBJECT)
     grasp = load_grasps("allegro_right", OBJECT)[0]
     backend = registry.load(
-        "backends", "mujoco", hand=allegro, obj=obj,
-        q_init=grasp.q_array(allegro), wMo_init=grasp.object_pose(allegro.wMb),
-    )  # fmt: skip
+        "backends",
+        "mujoco",
+        hand=allegro,
+        obj=obj,
+        q_init=grasp.q_array(allegro),
+        wMo_init=grasp.object_pose(allegro.wMb),
+    )
     contacts = backend.ground_truth_contacts().to_contact_set(allegro)
     assert len(contacts) > 0
     state = backend.observe()
@@ -237,8 +246,9 @@ def test_a_baseline_refuses_a_backend_without_ground_truth(allegro):
     from wholehand.loop.trial import set_up_trial
 
     assert FeedforwardBaseline.needs_ground_truth and ImpedanceBaseline.needs_ground_truth
-    spec = TrialSpec(object=OBJECT, theta_deg=0.0, backend=NoGroundTruthBackend,
-                     protocol_params=TINY)  # fmt: skip
+    spec = TrialSpec(
+        object=OBJECT, theta_deg=0.0, backend=NoGroundTruthBackend, protocol_params=TINY
+    )
     for method in ("feedforward", "impedance"):
         with pytest.raises(ConfigError, match="needs ground-truth contacts"):
             set_up_trial(TrialSpec(**{**spec.__dict__, "allocator": method}), allegro)

@@ -113,15 +113,30 @@ def test_run_finds_a_users_hand_and_its_grasps_by_a_relative_path(tmp_path, monk
 
 def test_run_takes_the_tracking_filters(capsys):
     argv = [
-        "run", "--theta", "0", "--json", "--pose-rate", "30", "--pose-latency", "0.033",
-        "--pose-noise-mm", "0.5", "--pose-dropout", "1.0:0.2", "--estimate-at", "current",
-    ]  # fmt: skip
+        "run",
+        "--theta",
+        "0",
+        "--json",
+        "--pose-rate",
+        "30",
+        "--pose-latency",
+        "0.033",
+        "--pose-noise-mm",
+        "0.5",
+        "--pose-dropout",
+        "1.0:0.2",
+        "--estimate-at",
+        "current",
+    ]
     assert main(argv) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["spec"]["tracking"] == {
-        "rate_hz": 30.0, "latency_s": 0.033, "noise_mm": 0.5, "noise_seed": 0,
+        "rate_hz": 30.0,
+        "latency_s": 0.033,
+        "noise_mm": 0.5,
+        "noise_seed": 0,
         "dropouts": [[1.0, 0.2]],
-    }  # fmt: skip
+    }
     assert summary["spec"]["estimate_at"] == "current"
     assert summary["timing"]["cycles"] == 1300
 

@@ -235,10 +235,20 @@ def test_kernel_ties_keep_row_order(k):
     centre = np.array([p_joint[cluster == c].mean(axis=0) for c in np.unique(cluster)])
     eye = np.eye(4)
     p_world, n_world, got_link, distance = kernels.mesh_sdf_contacts(
-        eye, eye, np.eye(3)[None], np.zeros((1, 3)), p_joint, link,
-        np.r_[start, link.size].astype(np.intp), centre, np.ones(n_clusters),
-        np.zeros(n_clusters, dtype=np.intp), *kernels.grid_arguments(grid), 0.0, k,
-    )  # fmt: skip
+        eye,
+        eye,
+        np.eye(3)[None],
+        np.zeros((1, 3)),
+        p_joint,
+        link,
+        np.r_[start, link.size].astype(np.intp),
+        centre,
+        np.ones(n_clusters),
+        np.zeros(n_clusters, dtype=np.intp),
+        *kernels.grid_arguments(grid),
+        0.0,
+        k,
+    )
     rows = top_k_per_link(link, np.full(link.size, -0.001), k)
     np.testing.assert_array_equal(rows, np.sort(rows))  # row order within each link
     np.testing.assert_array_equal(got_link, link[rows])

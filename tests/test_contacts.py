@@ -226,15 +226,22 @@ def test_top_k_per_link_selection():
     dist = np.array([0.3, 0.2, 0.1, 0.2, 0.1, 0.5])
     picked = top_k_per_link(link, dist, 2)
     assert sorted(zip(link[picked].tolist(), dist[picked].tolist(), strict=True)) == [
-        (0, 0.1), (0, 0.2), (1, 0.5), (2, 0.1), (2, 0.2),
-    ]  # fmt: skip
+        (0, 0.1),
+        (0, 0.2),
+        (1, 0.5),
+        (2, 0.1),
+        (2, 0.2),
+    ]
     assert top_k_per_link(link[:0], dist[:0], 2).size == 0
 
 
 def test_contact_set_rejects_inconsistent_shapes(allegro):
     with pytest.raises(ConfigError, match="n_world"):
         ContactSet(
-            p_world=np.zeros((2, 3)), n_world=np.zeros((3, 3)), link=np.zeros(2, dtype=np.intp),
-            distance=np.zeros(2), link_actuated=allegro.link_actuated,
+            p_world=np.zeros((2, 3)),
+            n_world=np.zeros((3, 3)),
+            link=np.zeros(2, dtype=np.intp),
+            distance=np.zeros(2),
+            link_actuated=allegro.link_actuated,
             link_fingertip=allegro.link_fingertip,
-        )  # fmt: skip
+        )

@@ -14,17 +14,22 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 def _run(name: str, *args: str) -> str:
     done = subprocess.run(
         [sys.executable, str(EXAMPLES / name), "--quick", *args],
-        capture_output=True, text=True, timeout=300, check=False,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     return done.stdout
 
 
 def test_every_example_is_tested():
     tested = {
-        "compare_methods.py", "tracking_noise_estimator.py", "contacts_per_link.py",
+        "compare_methods.py",
+        "tracking_noise_estimator.py",
+        "contacts_per_link.py",
         "tracking_latency.py",
-    }  # fmt: skip
+    }
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
 
 

@@ -110,8 +110,14 @@ actuated = ["{joint}"]
 """
 
 
-def write_hand(tmp_path, base_geom='<box size="0.05 0.05 0.01"/>', joint_type="revolute",
-               palm="base", joint="j1", extra=""):  # fmt: skip
+def write_hand(
+    tmp_path,
+    base_geom='<box size="0.05 0.05 0.01"/>',
+    joint_type="revolute",
+    palm="base",
+    joint="j1",
+    extra="",
+):
     folder = tmp_path / "tiny"
     folder.mkdir(exist_ok=True)
     (folder / "tiny.urdf").write_text(URDF.format(base_geom=base_geom, joint_type=joint_type))
@@ -227,7 +233,9 @@ def _with_grasping(folder, table):
 
 
 def test_grasp_styles_are_parsed_and_checked(tmp_path):
-    folder = _with_grasping(write_hand(tmp_path), """
+    folder = _with_grasping(
+        write_hand(tmp_path),
+        """
         [grasping]
         close_torque = { j1 = 0.1 }
         [grasping.precision]
@@ -235,7 +243,8 @@ def test_grasp_styles_are_parsed_and_checked(tmp_path):
         close_torque = { j1 = 0.05 }
         fingers = ["one"]
         palm_gap = [0.01, 0.02]
-        """)  # fmt: skip
+        """,
+    )
     styles = load_hand(folder).config.grasp_styles
     assert set(styles) == {"power", "precision"}
     power, precision = styles["power"], styles["precision"]

@@ -132,9 +132,12 @@ def test_attachment_is_33_bytes_int64_int64_and_a_sized_gid():
 def _joint_msg(hand, order, q, stamp=100.0, names=None, **kw):
     names = names or [hand.joint_names[i] for i in order]
     return msgs.JointStateMsg(
-        stamp, tuple(names), np.asarray(q, dtype=float)[order],
-        kw.get("velocity", np.zeros(0)), kw.get("effort", np.zeros(0)),
-    )  # fmt: skip
+        stamp,
+        tuple(names),
+        np.asarray(q, dtype=float)[order],
+        kw.get("velocity", np.zeros(0)),
+        kw.get("effort", np.zeros(0)),
+    )
 
 
 def test_joint_states_in_any_order_map_onto_the_model(allegro):
@@ -213,8 +216,9 @@ def test_bad_poses_are_rejected(frame, position, quat, reason):
 
 
 # --- safety rules -----------------------------------------------------------------------------
-LIMITS = SafetyLimits(joint_timeout=0.05, pose_timeout=0.2, pose_ramp=0.5, torque_rate=2.0,
-                      watchdog=0.05)  # fmt: skip
+LIMITS = SafetyLimits(
+    joint_timeout=0.05, pose_timeout=0.2, pose_ramp=0.5, torque_rate=2.0, watchdog=0.05
+)
 
 
 def test_stale_joints_give_zero_torque_at_once():
@@ -292,11 +296,13 @@ def robot_and_backend(allegro):
     from wholehand_plugins.ros2_backend import Ros2Backend
 
     port = free_port()
-    safety = SafetyLimits(pose_timeout=0.3, pose_ramp=0.3, torque_rate=2.0, watchdog=0.1,
-                          joint_timeout=0.5)  # fmt: skip
+    safety = SafetyLimits(
+        pose_timeout=0.3, pose_ramp=0.3, torque_rate=2.0, watchdog=0.1, joint_timeout=0.5
+    )
     robot = FakeRobot(HardwareConfig(listen=(f"tcp/127.0.0.1:{port}",), connect=()))
-    backend = Ros2Backend(allegro, None, HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",),
-                                                        safety=safety))  # fmt: skip
+    backend = Ros2Backend(
+        allegro, None, HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",), safety=safety)
+    )
     yield robot, backend
     backend.close()
     robot.close()
@@ -467,8 +473,13 @@ def test_arm_targets_go_to_the_position_command_in_model_order():
     robot_config = HardwareConfig(listen=(f"tcp/127.0.0.1:{port}",), connect=(), topics=topics)
     session = open_session(robot_config)
     received: list[np.ndarray] = []
-    Subscriber(session, robot_config, "arm_command", msgs.FLOAT64_ARRAY,
-               lambda p, a, t: received.append(msgs.decode_array(p)))  # fmt: skip
+    Subscriber(
+        session,
+        robot_config,
+        "arm_command",
+        msgs.FLOAT64_ARRAY,
+        lambda p, a, t: received.append(msgs.decode_array(p)),
+    )
     config = HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",), topics=topics)
     try:
         with Ros2Backend(rig, None, config) as backend:

@@ -22,13 +22,17 @@ def _free_port() -> int:
 def _wholehand(*args: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
         [sys.executable, "-m", "wholehand.cli.main", *args],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy(),
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=os.environ.copy(),
+    )
 
 
 def _controller(endpoint: str, duration: float, *extra: str) -> subprocess.Popen[str]:
-    return _wholehand("control", "--connect", endpoint, "--listen", "--duration", str(duration),
-                      *extra)  # fmt: skip
+    return _wholehand(
+        "control", "--connect", endpoint, "--listen", "--duration", str(duration), *extra
+    )
 
 
 def _wait_for_line(proc: subprocess.Popen[str], text: str, timeout: float = 120.0) -> None:
@@ -49,8 +53,17 @@ def endpoint():
 
 
 def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(endpoint, tmp_path):
-    sim = _wholehand("hw-sim", "--quick", "--latency", "0.033", "--listen", endpoint,
-                     "--connect", "--json", str(tmp_path / "sim.json"))  # fmt: skip
+    sim = _wholehand(
+        "hw-sim",
+        "--quick",
+        "--latency",
+        "0.033",
+        "--listen",
+        endpoint,
+        "--connect",
+        "--json",
+        str(tmp_path / "sim.json"),
+    )
     control = _controller(endpoint, 4.0, "--json", str(tmp_path / "control.json"))
     out, err = sim.communicate(timeout=180)
     assert sim.returncode == 0, err[-3000:]
@@ -71,8 +84,17 @@ def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(end
 
 
 def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, tmp_path):
-    sim = _wholehand("hw-sim", "--quick", "--settle", "3.0", "--listen", endpoint, "--connect",
-                     "--json", str(tmp_path / "sim.json"))  # fmt: skip
+    sim = _wholehand(
+        "hw-sim",
+        "--quick",
+        "--settle",
+        "3.0",
+        "--listen",
+        endpoint,
+        "--connect",
+        "--json",
+        str(tmp_path / "sim.json"),
+    )
     first = _controller(endpoint, 30.0)
     _wait_for_line(first, "streams up")
     time.sleep(1.0)
@@ -93,8 +115,18 @@ def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, 
 def test_a_pose_dropout_ramps_the_torque_down_and_regulation_resumes(endpoint, tmp_path):
     # One second without poses from 0.3 s: 0.2 s later the torque is held and ramped to zero
     # over 0.5 s; when poses return, regulation resumes.
-    sim = _wholehand("hw-sim", "--quick", "--dropout", "0.3", "1.0", "--listen", endpoint,
-                     "--connect", "--json", str(tmp_path / "sim.json"))  # fmt: skip
+    sim = _wholehand(
+        "hw-sim",
+        "--quick",
+        "--dropout",
+        "0.3",
+        "1.0",
+        "--listen",
+        endpoint,
+        "--connect",
+        "--json",
+        str(tmp_path / "sim.json"),
+    )
     control = _controller(endpoint, 3.0, "--json", str(tmp_path / "control.json"))
     _, err = sim.communicate(timeout=180)
     control.communicate(timeout=60)

@@ -148,9 +148,11 @@ def test_generation_in_the_palm_frame_reproduces_the_shipped_grasps(hx5):
 
 def test_the_paper_hand_holds_a_grasp_through_the_load_test():
     spec = TrialSpec(
-        hand="robotis_hx5_d20_right", object="065-f_cups", theta_deg=0.0,
+        hand="robotis_hx5_d20_right",
+        object="065-f_cups",
+        theta_deg=0.0,
         protocol_params={"settle_time": 0.2, "load_duration": 0.2},
-    )  # fmt: skip
+    )
     record = run_trial(spec)
     outcome = outcome_of(record)
     assert outcome.held and outcome.unbalanced_cycles == 0

@@ -65,9 +65,13 @@ def grasp_backend(hand, obj, grasp=THREE_FINGER_GRASP, backend=None):
     g = load_grasps(hand.name, obj.name)[grasp]
     cls = backend or "mujoco"
     return registry.load(
-        "backends", cls, hand=hand, obj=obj,
-        q_init=g.q_array(hand), wMo_init=g.object_pose(hand.wMb),
-    )  # fmt: skip
+        "backends",
+        cls,
+        hand=hand,
+        obj=obj,
+        q_init=g.q_array(hand),
+        wMo_init=g.object_pose(hand.wMb),
+    )
 
 
 def regulation(hand, obj, allocator="qp", **estimator_params):
@@ -423,9 +427,10 @@ def test_stage_transitions_and_the_end(allegro, cube):
         def step(self, context: CycleContext):
             self.n -= 1
             return StageOutput(
-                Command.torques(np.zeros(context.hand.nv)), self.name,
+                Command.torques(np.zeros(context.hand.nv)),
+                self.name,
                 next=self.nxt if self.n == 0 else None,
-            )  # fmt: skip
+            )
 
     a, b = Count("a", 3, "b"), Count("b", 2, "end")
     seen = Last()
@@ -448,9 +453,12 @@ class MinimalAllocator(Allocator):
         assert kinematics is not None and kinematics.q.shape == (J_world.shape[2],)
         n = len(contacts)
         return Allocation(
-            np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(J_world.shape[2]), np.zeros(6),
+            np.zeros((n, 3)),
+            np.zeros((n, 3)),
+            np.zeros(J_world.shape[2]),
+            np.zeros(6),
             AllocationStatus.OK,
-        )  # fmt: skip
+        )
 
 
 def test_an_allocator_gets_only_the_hand_keywords_it_accepts(allegro):
@@ -461,8 +469,9 @@ def test_an_allocator_gets_only_the_hand_keywords_it_accepts(allegro):
     np.testing.assert_array_equal(qp.params.tau_max, allegro.tau_max)
     record = run_trial(
         TrialSpec(object=OBJECT, theta_deg=0.0, allocator=MinimalAllocator, protocol_params=TINY),
-        allegro, stop_on_loss=False,
-    )  # fmt: skip
+        allegro,
+        stop_on_loss=False,
+    )
     assert record.meta["loop"]["n_errors"] == 0 and (record.arrays()["tau"] == 0).all()
 
 
@@ -498,9 +507,13 @@ def test_no_pose_yet_keeps_the_last_command_and_a_pose_free_stage_runs(allegro, 
     seen = Last()
     blind = [PoseDropout([(0.0, 0.02)])]
     report = ControlLoop(
-        grasp_backend(allegro, cube), allegro, cube, regulation(allegro, cube),
-        filters=blind, observers=[seen],
-    ).run(0.05)  # fmt: skip
+        grasp_backend(allegro, cube),
+        allegro,
+        cube,
+        regulation(allegro, cube),
+        filters=blind,
+        observers=[seen],
+    ).run(0.05)
     statuses = [c.output.status for c in seen.cycles]
     assert statuses[:4] == ["no_pose"] * 4 and statuses[4] == "ok"
     assert report.faults == {"no_pose": 4}
@@ -633,8 +646,15 @@ def test_allocating_once_per_pose_holds_the_torque_between_poses(allegro, cube):
     stage = regulation(allegro, cube)
     stage.allocate_every = "pose"
     seen = Last()
-    loop = ControlLoop(backend, allegro, cube, stage, rate=200.0,
-                       filters=[PoseTracker(30.0, 0.033)], observers=[seen])  # fmt: skip
+    loop = ControlLoop(
+        backend,
+        allegro,
+        cube,
+        stage,
+        rate=200.0,
+        filters=[PoseTracker(30.0, 0.033)],
+        observers=[seen],
+    )
     loop.run(0.2)
     stamps = [c.context.obs.stamp_object for c in seen.cycles]
     statuses = [c.output.status for c in seen.cycles]

@@ -50,9 +50,11 @@ def test_the_mjcf_hand_has_the_urdf_hands_links_joints_and_couplings(pair):
             pin.framesForwardKinematics(hand.model, data, q)
             oMpalm = data.oMf[hand.model.getFrameId("palm")]
             poses.append(
-                [(oMpalm.inverse() * data.oMf[hand.model.getFrameId(n)]).homogeneous
-                 for n in hand.link_names]
-            )  # fmt: skip
+                [
+                    (oMpalm.inverse() * data.oMf[hand.model.getFrameId(n)]).homogeneous
+                    for n in hand.link_names
+                ]
+            )
         np.testing.assert_allclose(poses[0], poses[1], atol=1e-12)
     assert len(mjcf.samples) == len(urdf.samples)
 

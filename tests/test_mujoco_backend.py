@@ -78,9 +78,13 @@ def test_primitive_scene_compiles_and_steps_cleanly(allegro, make):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # MuJoCo compiler warnings become errors
         backend = MujocoBackend(
-            allegro, obj, wMo_init=pose_in_front_of_palm(obj, PALM_UP), q_init=np.zeros(16),
-            wMb=PALM_UP, gravity=True,
-        )  # fmt: skip
+            allegro,
+            obj,
+            wMo_init=pose_in_front_of_palm(obj, PALM_UP),
+            q_init=np.zeros(16),
+            wMb=PALM_UP,
+            gravity=True,
+        )
     m = backend.model
     assert m.nu == int(allegro.actuated_dofs.sum())
     assert m.opt.timestep == pytest.approx(1e-3)
@@ -158,9 +162,13 @@ def test_ycb_scene_compiles_and_steps_cleanly(allegro, name):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         backend = MujocoBackend(
-            allegro, obj, wMo_init=pose_in_front_of_palm(obj, PALM_UP), q_init=np.zeros(16),
-            wMb=PALM_UP, gravity=True,
-        )  # fmt: skip
+            allegro,
+            obj,
+            wMo_init=pose_in_front_of_palm(obj, PALM_UP),
+            q_init=np.zeros(16),
+            wMb=PALM_UP,
+            gravity=True,
+        )
     assert backend.scene.decomposition_parts > 1
     assert backend.data.ncon == 0  # placed clear of the hand
     backend.apply(Command.torques(squeeze(allegro)))
@@ -175,8 +183,10 @@ def test_joint_order_maps_by_name_fk_matches_pinocchio(allegro):
     wMb = pose_from_xyz_rpy([0.1, -0.2, 0.3], [0.3, -0.4, 1.1])
     backend = MujocoBackend(allegro, make_sphere(), wMb=wMb)
     scene = backend.scene
-    names = [mujoco.mj_id2name(backend.model, mujoco.mjtObj.mjOBJ_JOINT, backend.model.dof_jntid[i])
-             for i in scene.qvel_index]  # fmt: skip
+    names = [
+        mujoco.mj_id2name(backend.model, mujoco.mjtObj.mjOBJ_JOINT, backend.model.dof_jntid[i])
+        for i in scene.qvel_index
+    ]
     assert names == list(allegro.joint_names)
     assert not np.array_equal(scene.qpos_index, np.arange(allegro.nq))  # the orders do differ
     data = allegro.model.createData()
@@ -293,8 +303,9 @@ def test_ground_truth_contacts_resting_on_palm(allegro, cone):
     assert len(contacts) >= 3
     assert {allegro.link_names[i] for i in contacts.link} == {"palm_link"}
     # the box's bottom face touches the palm: outward normals point down (world -z)
-    np.testing.assert_allclose(contacts.n_world, np.tile([0.0, 0.0, -1.0], (len(contacts), 1)),
-                               atol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(
+        contacts.n_world, np.tile([0.0, 0.0, -1.0], (len(contacts), 1)), atol=1e-6
+    )
     # the palm pushes the box: force on the object points into it (against its outward normal)
     assert np.all(np.einsum("ij,ij->i", contacts.f_world, contacts.n_world) < 0.0)
     assert np.all(contacts.f_normal > 0.0)
@@ -372,14 +383,17 @@ def probe_contacts(allegro, obj, collision, p_obj, radius):
     """Contacts between the object and a sphere probe placed at p_obj (object frame)."""
     scene = build_scene(allegro, obj, wMo=np.eye(4), options=SceneOptions(collision=collision))
     probe = scene.spec.worldbody.add_body(name="probe", pos=p_obj.tolist(), mocap=True)
-    probe.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0],
-                   contype=HAND_BIT, conaffinity=OBJECT_BIT)  # fmt: skip
+    probe.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[radius, 0, 0],
+        contype=HAND_BIT,
+        conaffinity=OBJECT_BIT,
+    )
     model = scene.spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     probe_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "probe")
-    touching = [c for c in range(data.ncon)
-                if probe_id in model.geom_bodyid[data.contact.geom[c]]]  # fmt: skip
+    touching = [c for c in range(data.ncon) if probe_id in model.geom_bodyid[data.contact.geom[c]]]
     # a ray from the probe's centre straight up leaves the cup through its opening
     geomid = np.zeros(1, dtype=np.int32)
     up = mujoco.mj_ray(model, data, p_obj, np.array([0.0, 0.0, 1.0]), None, 1, probe_id, geomid)

@@ -54,9 +54,14 @@ def _obs(q=(0.1, 0.2), wMo=None, t=0.0, stamp_object=None, history=None):
     if not len(history) or history.newest_stamp < t:
         history.push(t, np.asarray(q, float), np.eye(4))
     return Observation(
-        np.asarray(q, float), np.zeros(2), np.eye(4), t, np.eye(4) if wMo is None else wMo,
-        t if stamp_object is None else stamp_object, history,
-    )  # fmt: skip
+        np.asarray(q, float),
+        np.zeros(2),
+        np.eye(4),
+        t,
+        np.eye(4) if wMo is None else wMo,
+        t if stamp_object is None else stamp_object,
+        history,
+    )
 
 
 def test_check_observation_names_the_field():
@@ -168,9 +173,13 @@ def test_contacts_carried_with_their_links_match_the_frames(allegro):
     n = rng.normal(size=(3, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     contacts = ContactSet(
-        p, n, links, np.zeros(3), np.asarray(allegro.link_actuated),
+        p,
+        n,
+        links,
+        np.zeros(3),
+        np.asarray(allegro.link_actuated),
         np.asarray(allegro.link_fingertip),
-    )  # fmt: skip
+    )
     moved = contacts.in_joint_frames(then).moved_to(now)
     for i, link in enumerate(links):
         name = allegro.link_names[link]
@@ -183,8 +192,9 @@ def test_contacts_carried_with_their_links_match_the_frames(allegro):
     with pytest.raises(ConfigError, match="in_joint_frames"):
         contacts.moved_to(now)
     with pytest.raises(ConfigError, match="together"):
-        ContactSet(p, n, links, np.zeros(3), contacts.link_actuated, contacts.link_fingertip,
-                   p_joint=p)  # fmt: skip
+        ContactSet(
+            p, n, links, np.zeros(3), contacts.link_actuated, contacts.link_fingertip, p_joint=p
+        )
 
 
 class KinematicsSpy(Observer):

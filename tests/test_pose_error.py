@@ -148,8 +148,10 @@ def test_tiny_pose_error_study_writes_its_outputs(tmp_path):
     summary = json.loads(result.summary_path.read_text())
     assert summary["n_trials"] == 4 and summary["n_errors"] == 0
     assert {(g["method"], g["d_thresh"], g["rot_deg"]) for g in summary["groups"]} == {
-        ("qp", 0.01, 0.0), ("qp", 0.01, 30.0), ("feedforward", None, 0.0),
+        ("qp", 0.01, 0.0),
+        ("qp", 0.01, 30.0),
+        ("feedforward", None, 0.0),
         ("feedforward", None, 30.0),
-    }  # fmt: skip
+    }
     assert all("se" in g and 0.0 <= g["success"] <= 1.0 for g in summary["groups"])
     assert result.plot_path.read_bytes()[:4] == b"\x89PNG"

@@ -153,10 +153,13 @@ class Touching(ContactEstimator):
         links = [self.hand.link_index(self.hand.config.fingers[f][-1]) for f in self.fingers]
         n = len(links)
         return ContactSet(
-            p_world=np.zeros((n, 3)), n_world=np.tile([0.0, 0.0, 1.0], (n, 1)),
-            link=np.asarray(links, dtype=np.intp), distance=np.full(n, 0.001),
-            link_actuated=self.hand.link_actuated, link_fingertip=self.hand.link_fingertip,
-        )  # fmt: skip
+            p_world=np.zeros((n, 3)),
+            n_world=np.tile([0.0, 0.0, 1.0], (n, 1)),
+            link=np.asarray(links, dtype=np.intp),
+            distance=np.full(n, 0.001),
+            link_actuated=self.hand.link_actuated,
+            link_fingertip=self.hand.link_fingertip,
+        )
 
 
 def context(hand, q, wMb, wMo, t=0.0) -> CycleContext:
@@ -241,9 +244,16 @@ def test_object_comes_to_rest_on_the_table_and_the_wrist_follows_commands(allegr
     wMb = np.eye(4)
     wMb[:3, 3] = [0.3, 0.0, 0.5]
     backend = registry.load(
-        "backends", "mujoco", hand=allegro, obj=cube, wMo_init=wMo, gravity=True,
-        wMb=wMb, base="mocap", table=table,
-    )  # fmt: skip
+        "backends",
+        "mujoco",
+        hand=allegro,
+        obj=cube,
+        wMo_init=wMo,
+        gravity=True,
+        wMb=wMb,
+        base="mocap",
+        table=table,
+    )
     moved = wMb.copy()
     moved[:3, 3] += [0.0, 0.05, -0.02]
     backend.apply(Command(np.zeros(allegro.nv), base=moved))
@@ -411,9 +421,16 @@ def test_a_floating_wrist_holds_the_hand_up_and_yields_when_pressed_on_an_object
     outcome = {}
     for base in ("floating", "mocap"):
         backend = registry.load(
-            "backends", "mujoco", hand=allegro, obj=box, wMo_init=wMo, gravity=True, wMb=wMb,
-            base=base, table=table,
-        )  # fmt: skip
+            "backends",
+            "mujoco",
+            hand=allegro,
+            obj=box,
+            wMo_init=wMo,
+            gravity=True,
+            wMb=wMb,
+            base=base,
+            table=table,
+        )
         if base == "floating":
             backend.apply(Command(np.zeros(allegro.nv)))
             backend.step(0.3)

@@ -82,10 +82,22 @@ def _make_distribution(root, dist, module, group, name, body):
     )
     site = root / "site"
     subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index",
-         "--no-build-isolation", "--target", str(site), str(src)],
-        check=True, capture_output=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--no-index",
+            "--no-build-isolation",
+            "--target",
+            str(site),
+            str(src),
+        ],
+        check=True,
+        capture_output=True,
+    )
     return site
 
 
@@ -107,9 +119,13 @@ ESTIMATOR_BODY = '''
 
 def test_third_party_estimator_loads_by_name_without_touching_core(tmp_path, monkeypatch, allegro):
     site = _make_distribution(
-        tmp_path, "acme-estimator", "acme_estimator", "wholehand.contact_estimators",
-        "acme_nothing", ESTIMATOR_BODY,
-    )  # fmt: skip
+        tmp_path,
+        "acme-estimator",
+        "acme_estimator",
+        "wholehand.contact_estimators",
+        "acme_nothing",
+        ESTIMATOR_BODY,
+    )
     monkeypatch.syspath_prepend(str(site))
     registry.refresh()
     spec = registry.available("contact_estimators")["acme_nothing"]
@@ -127,9 +143,13 @@ def test_third_party_estimator_loads_by_name_without_touching_core(tmp_path, mon
 
 def test_bad_parameters_name_the_plugin(tmp_path, monkeypatch):
     site = _make_distribution(
-        tmp_path, "acme-estimator", "acme_estimator", "wholehand.contact_estimators",
-        "acme_nothing", ESTIMATOR_BODY,
-    )  # fmt: skip
+        tmp_path,
+        "acme-estimator",
+        "acme_estimator",
+        "wholehand.contact_estimators",
+        "acme_nothing",
+        ESTIMATOR_BODY,
+    )
     monkeypatch.syspath_prepend(str(site))
     registry.refresh()
     with pytest.raises(PluginError, match="acme_nothing.*rejected its parameters"):
@@ -138,9 +158,13 @@ def test_bad_parameters_name_the_plugin(tmp_path, monkeypatch):
 
 def test_failed_import_names_entry_point_and_distribution(tmp_path, monkeypatch):
     site = _make_distribution(
-        tmp_path, "broken-plugin", "broken_plugin", "wholehand.allocators", "broken",
+        tmp_path,
+        "broken-plugin",
+        "broken_plugin",
+        "wholehand.allocators",
+        "broken",
         "import module_that_does_not_exist\n",
-    )  # fmt: skip
+    )
     monkeypatch.syspath_prepend(str(site))
     registry.refresh()
     with pytest.raises(PluginError) as info:
@@ -152,9 +176,13 @@ def test_failed_import_names_entry_point_and_distribution(tmp_path, monkeypatch)
 
 def test_name_clash_warns_and_builtin_wins(tmp_path, monkeypatch):
     site = _make_distribution(
-        tmp_path, "acme-estimator", "acme_estimator", "wholehand.contact_estimators",
-        "mesh_sdf", ESTIMATOR_BODY,
-    )  # fmt: skip
+        tmp_path,
+        "acme-estimator",
+        "acme_estimator",
+        "wholehand.contact_estimators",
+        "mesh_sdf",
+        ESTIMATOR_BODY,
+    )
     monkeypatch.syspath_prepend(str(site))
     registry.refresh()
     with warnings.catch_warnings(record=True) as caught:
@@ -173,6 +201,8 @@ def test_a_plugin_whose_constructor_raises_is_named():
         def __init__(self, gain: float = 1.0) -> None:
             raise RuntimeError("no calibration file")
 
-    with pytest.raises(PluginError, match="Exploding.*raised while it was constructed.*"
-                       "RuntimeError: no calibration file"):  # fmt: skip
+    with pytest.raises(
+        PluginError,
+        match="Exploding.*raised while it was constructed.*RuntimeError: no calibration file",
+    ):
         registry.load("allocators", Exploding, gain=2.0)

@@ -98,13 +98,22 @@ def test_record_row_names_the_failure_stage():
     extra["contact_link"] = np.zeros(0, dtype=int)
     for i, (stage, held) in enumerate([(0, True), (1, True), (1, False)]):
         values = {
-            **extra, "t": 0.005 * i, "stamp_object": 0.005 * i, "phase": stage,
-            "stage": "regulate", "n_contacts": 4 + i,
-            "residual_wrench": np.zeros(6), "tau": np.zeros(2), "qp_time": 1e-4,
-            "estimate_time": 1e-4, "cycle_time": 2e-3,
-            "status": "ok", "held": held,
-            "p_object": np.array([0.0, 0.0, 0.001 * i]), "r_object": np.zeros(3),
-        }  # fmt: skip
+            **extra,
+            "t": 0.005 * i,
+            "stamp_object": 0.005 * i,
+            "phase": stage,
+            "stage": "regulate",
+            "n_contacts": 4 + i,
+            "residual_wrench": np.zeros(6),
+            "tau": np.zeros(2),
+            "qp_time": 1e-4,
+            "estimate_time": 1e-4,
+            "cycle_time": 2e-3,
+            "status": "ok",
+            "held": held,
+            "p_object": np.array([0.0, 0.0, 0.001 * i]),
+            "r_object": np.zeros(3),
+        }
         record.append(**values)
     row = record_row(record)
     assert row["held"] is False and row["failure_stage"] == "load +x"
@@ -157,8 +166,11 @@ def test_tiny_study_is_deterministic_across_executors(tmp_path):
     summary = json.loads(serial.summary_path.read_text())
     assert summary["n_trials"] == 4 and summary["n_errors"] == 0
     assert {(g["method"], g["theta_deg"]) for g in summary["groups"]} == {
-        ("qp", 0.0), ("qp", 60.0), ("feedforward", 0.0), ("feedforward", 60.0),
-    }  # fmt: skip
+        ("qp", 0.0),
+        ("qp", 60.0),
+        ("feedforward", 0.0),
+        ("feedforward", 60.0),
+    }
     assert serial.plot_path.stat().st_size > 1000
     assert serial.plot_path.read_bytes()[:4] == b"\x89PNG"
 
@@ -219,11 +231,33 @@ def test_read_csv_inverts_write_csv(tiny_fresh, tmp_path):
     assert typed(back) == typed(tiny_fresh.rows)
     spec = spec_columns(get_study("perturbation").jobs("tiny", 0)[0].spec)
     assert back[0]["protocol_params"] == spec["protocol_params"]  # JSON text, as written
-    cells = {"n": "077", "u": "1_000", "f": "-0.5", "e": "1e-05", "x": "nan", "i": "-inf",
-             "b": "True", "z": "", "s": "qp", "error": "", "k": "7"}  # fmt: skip
+    cells = {
+        "n": "077",
+        "u": "1_000",
+        "f": "-0.5",
+        "e": "1e-05",
+        "x": "nan",
+        "i": "-inf",
+        "b": "True",
+        "z": "",
+        "s": "qp",
+        "error": "",
+        "k": "7",
+    }
     row = read_csv(write_csv([cells], tmp_path / "cells.csv"))[0]
-    assert row == {**row, "n": "077", "u": "1_000", "f": -0.5, "e": 1e-05, "i": -float("inf"),
-                   "b": True, "z": None, "s": "qp", "error": "", "k": 7}  # fmt: skip
+    assert row == {
+        **row,
+        "n": "077",
+        "u": "1_000",
+        "f": -0.5,
+        "e": 1e-05,
+        "i": -float("inf"),
+        "b": True,
+        "z": None,
+        "s": "qp",
+        "error": "",
+        "k": 7,
+    }
     assert isinstance(row["x"], float) and row["x"] != row["x"]
 
 
@@ -302,8 +336,9 @@ def test_sigterm_ends_a_run_like_ctrl_c(tmp_path, monkeypatch, capsys):
     the previous SIGTERM handler is back afterwards."""
     _sigterm_after_three_trials(monkeypatch)
     before = signal.getsignal(signal.SIGTERM)
-    result = run_study(get_study("perturbation"), "full", tmp_path, executor="serial",
-                       progress=False)  # fmt: skip
+    result = run_study(
+        get_study("perturbation"), "full", tmp_path, executor="serial", progress=False
+    )
     assert result.interrupted and len(read_csv(result.csv_path)) == 3
     assert "--resume" in capsys.readouterr().err
     assert signal.getsignal(signal.SIGTERM) is before
@@ -320,8 +355,9 @@ def test_a_second_sigterm_while_stopping_does_not_break_off_the_writes(tmp_path,
         return write(rows, path)
 
     monkeypatch.setattr(runner, "write_csv", write_after_a_second_sigterm)
-    result = run_study(get_study("perturbation"), "full", tmp_path, executor="serial",
-                       progress=False)  # fmt: skip
+    result = run_study(
+        get_study("perturbation"), "full", tmp_path, executor="serial", progress=False
+    )
     assert result.interrupted and len(read_csv(result.csv_path)) == 3
     assert (tmp_path / "summary.json").is_file()
 
@@ -335,9 +371,14 @@ def test_resume_from_trials_csv_of_an_older_version(tmp_path, tiny_fresh):
     old = [{k: v for k, v in r.items() if k not in OLDER_COLUMNS} for r in tiny_fresh.rows]
     write_csv(old, tmp_path / "trials.csv")
     result = run_study(
-        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
-        resume=True, limit=0,
-    )  # fmt: skip
+        get_study("perturbation"),
+        "tiny",
+        tmp_path,
+        executor="serial",
+        progress=False,
+        resume=True,
+        limit=0,
+    )
     assert result.complete and result.summary["n_reused"] == 4
     assert _strip(result.rows) == _strip(tiny_fresh.rows)  # the missing cells read as defaults
     assert len(_journal_lines(tmp_path)) == 4  # the reused rows are journaled too
@@ -350,9 +391,14 @@ def test_resume_from_trials_csv_mixing_older_and_newer_rows(tmp_path, tiny_fresh
     write_csv([*old[:2], *tiny_fresh.rows[2:]], tmp_path / "trials.csv")
     assert read_csv(tmp_path / "trials.csv")[0]["pose_error"] == ""
     result = run_study(
-        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
-        resume=True, limit=0,
-    )  # fmt: skip
+        get_study("perturbation"),
+        "tiny",
+        tmp_path,
+        executor="serial",
+        progress=False,
+        resume=True,
+        limit=0,
+    )
     assert result.complete and result.summary["n_reused"] == 4
     # The empty cells are filled, so every trial counts for its own grasp in the summary.
     assert _strip(result.rows) == _strip(tiny_fresh.rows)
@@ -369,9 +415,13 @@ def test_resume_reruns_trials_that_raised_and_keeps_diverged_ones(tmp_path, tiny
     journal = "".join(json.dumps(r) + "\n" for r in rows) + cut_short
     (tmp_path / JOURNAL_NAME).write_text(journal)
     result = run_study(
-        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
+        get_study("perturbation"),
+        "tiny",
+        tmp_path,
+        executor="serial",
+        progress=False,
         resume=True,
-    )  # fmt: skip
+    )
     assert result.complete and result.summary["n_reused"] == 3
     assert _strip(result.rows[1:2]) == _strip(tiny_fresh.rows[1:2])  # recomputed
     assert result.rows[2] == rows[2]  # a diverged simulation is a result: kept as it is
@@ -387,9 +437,14 @@ def test_resume_matches_rows_by_content_and_ignores_other_designs(tmp_path, tiny
     journal = other_seed + [moved]
     (tmp_path / JOURNAL_NAME).write_text("".join(json.dumps(r) + "\n" for r in journal))
     result = run_study(
-        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False,
-        resume=True, limit=0,
-    )  # fmt: skip
+        get_study("perturbation"),
+        "tiny",
+        tmp_path,
+        executor="serial",
+        progress=False,
+        resume=True,
+        limit=0,
+    )
     assert result.summary["n_reused"] == 1 and not result.complete
     assert _strip(result.rows) == _strip([rows[3]])  # given the index of its job, 3
     assert "4 rows matching no job of this design ignored" in capsys.readouterr().err
@@ -400,13 +455,23 @@ def test_resume_matches_rows_by_content_and_ignores_other_designs(tmp_path, tiny
 def test_execute_reports_each_result_as_it_arrives():
     jobs = execution_order(get_study("k-sweep").jobs("quick", 0))[::-1][:3]
     seen: list[tuple[int, dict]] = []
-    rows = execute(jobs, operator.attrgetter("labels"), executor="serial",
-                   on_result=lambda i, row: seen.append((i, row)))  # fmt: skip
+    rows = execute(
+        jobs,
+        operator.attrgetter("labels"),
+        executor="serial",
+        on_result=lambda i, row: seen.append((i, row)),
+    )
     assert [i for i, _ in seen] == [j.index for j in jobs]  # submitted in the order given
     assert rows == [j.labels for j in sorted(jobs, key=lambda j: j.index)]
     seen.clear()
-    pooled = execute(jobs, operator.attrgetter("labels"), executor="process", workers=2,
-                     progress=False, on_result=lambda i, row: seen.append((i, row)))  # fmt: skip
+    pooled = execute(
+        jobs,
+        operator.attrgetter("labels"),
+        executor="process",
+        workers=2,
+        progress=False,
+        on_result=lambda i, row: seen.append((i, row)),
+    )
     assert pooled == rows and sorted(i for i, _ in seen) == sorted(j.index for j in jobs)
 
 
@@ -506,9 +571,13 @@ def test_a_study_runs_a_users_hand_and_a_third_party_allocator(tmp_path, monkeyp
     from wholehand.models.hand_config import shipped_hands_dir
 
     site = _make_distribution(
-        tmp_path, "acme-allocator", "acme_allocator", "wholehand.allocators", "acme_qp",
+        tmp_path,
+        "acme-allocator",
+        "acme_allocator",
+        "wholehand.allocators",
+        "acme_qp",
         "from wholehand_plugins.qp import QPAllocator\n\nclass Plugin(QPAllocator):\n    pass\n",
-    )  # fmt: skip
+    )
     monkeypatch.syspath_prepend(str(site))
     registry.refresh()
     hand = tmp_path / "mine"
@@ -516,9 +585,14 @@ def test_a_study_runs_a_users_hand_and_a_third_party_allocator(tmp_path, monkeyp
     shutil.copy(shipped_hands_dir() / "allegro_right" / "hand.toml", hand)
     shutil.copy(grasp_file("allegro_right", "077_rubiks_cube"), hand / "grasps")
     result = run_study(
-        get_study("perturbation"), size="tiny", out=tmp_path / "out", executor="serial",
-        progress=False, hand=str(hand), methods=("qp", "acme_qp"),
-    )  # fmt: skip
+        get_study("perturbation"),
+        size="tiny",
+        out=tmp_path / "out",
+        executor="serial",
+        progress=False,
+        hand=str(hand),
+        methods=("qp", "acme_qp"),
+    )
     rows = _read(result.csv_path)
     assert [(r["method"], r["hand"]) for r in rows] == [
         ("qp", str(hand)),

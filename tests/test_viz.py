@@ -78,15 +78,26 @@ def record(hand, obj) -> RunRecord:
     )
     for i in range(12):
         rec.append(
-            t=0.05 * i, stamp_object=0.05 * i, phase=int(i >= 6), stage="regulate",
+            t=0.05 * i,
+            stamp_object=0.05 * i,
+            phase=int(i >= 6),
+            stage="regulate",
             n_contacts=len(rows),
             residual_wrench=np.full(6, 1e-3 * i),
-            tau=np.linspace(-0.1, 0.1, hand.nv), qp_time=1e-4, estimate_time=1e-4, cycle_time=5e-4,
-            status="ok", held=True, p_object=wMo[:3, 3].copy(), r_object=pin.log3(wMo[:3, :3]),
+            tau=np.linspace(-0.1, 0.1, hand.nv),
+            qp_time=1e-4,
+            estimate_time=1e-4,
+            cycle_time=5e-4,
+            status="ok",
+            held=True,
+            p_object=wMo[:3, 3].copy(),
+            r_object=pin.log3(wMo[:3, :3]),
             q=q.copy(),
-            contact_p=contact_p, contact_n=-direction, contact_f=contact_f,
+            contact_p=contact_p,
+            contact_n=-direction,
+            contact_f=contact_f,
             contact_link=tips.astype(np.intp),
-        )  # fmt: skip
+        )
     return rec
 
 
@@ -222,10 +233,17 @@ def test_cli_view_writes_files(tmp_path, record):
 
 # --- a real browser -------------------------------------------------------------------------------
 CHROMIUM_FLAGS = (
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-    "--hide-scrollbars", "--enable-unsafe-swiftshader",
-)  # fmt: skip
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--hide-scrollbars",
+    "--enable-unsafe-swiftshader",
+)
 WINDOW = (800, 600)
 
 
@@ -244,10 +262,14 @@ def screenshot(html: Path, out: Path, profile: Path) -> np.ndarray:
     if exe is None:
         pytest.skip("Chromium is not installed (apt-get install -y chromium; see .ci/chromium)")
     cmd = [
-        exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--screenshot={out}",
-        f"--window-size={WINDOW[0]},{WINDOW[1]}", "--virtual-time-budget=5000",
+        exe,
+        *CHROMIUM_FLAGS,
+        f"--user-data-dir={profile}",
+        f"--screenshot={out}",
+        f"--window-size={WINDOW[0]},{WINDOW[1]}",
+        "--virtual-time-budget=5000",
         html.resolve().as_uri(),
-    ]  # fmt: skip
+    ]
     try:
         run = subprocess.run(cmd, capture_output=True, text=True, timeout=45)
     except (OSError, subprocess.TimeoutExpired) as err:
@@ -294,9 +316,14 @@ def test_live_page_renders_in_chromium(tmp_path, hand, obj, record):
             pytest.skip("Chromium is not installed (apt-get install -y chromium; see .ci/chromium)")
         out = tmp_path / "live.png"
         cmd = [
-            exe, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={out}",
-            f"--window-size={WINDOW[0]},{WINDOW[1]}", "--virtual-time-budget=8000", viewer.url,
-        ]  # fmt: skip
+            exe,
+            *CHROMIUM_FLAGS,
+            f"--user-data-dir={tmp_path / 'profile'}",
+            f"--screenshot={out}",
+            f"--window-size={WINDOW[0]},{WINDOW[1]}",
+            "--virtual-time-budget=8000",
+            viewer.url,
+        ]
         try:
             subprocess.run(cmd, capture_output=True, text=True, timeout=60)
         except (OSError, subprocess.TimeoutExpired) as err:

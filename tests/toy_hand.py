@@ -25,18 +25,36 @@ def _box(size: tuple[float, ...], xyz: tuple[float, ...]) -> str:
     )
 
 
-def _link(name: str, size: tuple[float, float, float] | None, xyz: tuple[float, ...] = (0, 0, 0),
-          mass: float = 0.02, extra: str = "") -> str:  # fmt: skip
+def _link(
+    name: str,
+    size: tuple[float, float, float] | None,
+    xyz: tuple[float, ...] = (0, 0, 0),
+    mass: float = 0.02,
+    extra: str = "",
+) -> str:
     geometry = ("" if size is None else _box(size, xyz)) + extra
     return f'<link name="{name}">{geometry}{INERTIAL.format(m=mass, i=mass * 1e-4)}</link>\n'
 
 
-def _joint(name: str, parent: str, child: str, xyz: tuple[float, ...], axis: str = "0 1 0",
-           kind: str = "revolute", rpy: tuple[float, ...] = (0, 0, 0), lower: float = -0.2,
-           upper: float = 1.6, inner: str = "") -> str:  # fmt: skip
-    limit = "" if kind == "fixed" else (
-        f'<axis xyz="{axis}"/><limit lower="{lower}" upper="{upper}" effort="1" velocity="5"/>'
-    )  # fmt: skip
+def _joint(
+    name: str,
+    parent: str,
+    child: str,
+    xyz: tuple[float, ...],
+    axis: str = "0 1 0",
+    kind: str = "revolute",
+    rpy: tuple[float, ...] = (0, 0, 0),
+    lower: float = -0.2,
+    upper: float = 1.6,
+    inner: str = "",
+) -> str:
+    limit = (
+        ""
+        if kind == "fixed"
+        else (
+            f'<axis xyz="{axis}"/><limit lower="{lower}" upper="{upper}" effort="1" velocity="5"/>'
+        )
+    )
     return (
         f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
         f'<origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}" rpy="{rpy[0]} {rpy[1]} {rpy[2]}"/>'
@@ -52,8 +70,14 @@ MIMIC = (0.8, 0.1)
 """``mimic=True``: each finger's second joint follows its first, ``q2 = 0.8 q1 + 0.1`` [rad]."""
 
 
-def toy_urdf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), wrist=False, forearm=False,
-             knuckle=False, mimic=False):  # fmt: skip
+def toy_urdf(
+    palm_xyz=(0.0, 0.0, 0.0),
+    palm_rpy=(0.0, 0.0, 0.0),
+    wrist=False,
+    forearm=False,
+    knuckle=False,
+    mimic=False,
+):
     body = _link("root", None, mass=0.1)
     if wrist:
         body += _joint("wrist", "root", "palm", palm_xyz, "1 0 0", rpy=palm_rpy, lower=-1, upper=1)
@@ -76,9 +100,16 @@ def toy_urdf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), wrist=False, fo
     return f'<?xml version="1.0"?>\n<robot name="toy">\n{body}</robot>\n'
 
 
-def _mjcf_body(name: str, size: tuple[float, ...], centre: tuple[float, ...],
-               pos: tuple[float, ...], joint: str, axis: str, inner: str = "",
-               mass: float = 0.02) -> str:  # fmt: skip
+def _mjcf_body(
+    name: str,
+    size: tuple[float, ...],
+    centre: tuple[float, ...],
+    pos: tuple[float, ...],
+    joint: str,
+    axis: str,
+    inner: str = "",
+    mass: float = 0.02,
+) -> str:
     half = " ".join(f"{0.5 * v:g}" for v in size)
     return (
         f'<body name="{name}" pos="{pos[0]} {pos[1]} {pos[2]}">'
@@ -96,10 +127,12 @@ def toy_mjcf(palm_xyz=(0.0, 0.0, 0.0), palm_rpy=(0.0, 0.0, 0.0), mimic=False):
     the couplings as joint equalities."""
     fingers = ""
     for k, y in (("1", 0.025), ("2", -0.025)):
-        tip = _mjcf_body(f"f{k}_2", (0.015, 0.015, 0.03), (0, 0, 0.015), (0, 0, 0.04), f"f{k}_j2",
-                         "0 1 0")  # fmt: skip
-        fingers += _mjcf_body(f"f{k}_1", (0.015, 0.015, 0.04), (0, 0, 0.02), (0, y, 0),
-                              f"f{k}_j1", "0 1 0", tip)  # fmt: skip
+        tip = _mjcf_body(
+            f"f{k}_2", (0.015, 0.015, 0.03), (0, 0, 0.015), (0, 0, 0.04), f"f{k}_j2", "0 1 0"
+        )
+        fingers += _mjcf_body(
+            f"f{k}_1", (0.015, 0.015, 0.04), (0, 0, 0.02), (0, y, 0), f"f{k}_j1", "0 1 0", tip
+        )
     thumb = _mjcf_body("t_1", (0.06, 0.015, 0.015), (0.03, 0, 0), (0, 0, -0.07), "t_j1", "0 -1 0")
     x, r = palm_xyz, palm_rpy
     equality = "".join(
@@ -143,8 +176,9 @@ close_torque = {{ {close} }}
 """
 
 
-def write_toy_hand(folder: Path, top: str = "", tables: str = "", mjcf: bool = False,
-                   **urdf: object) -> Path:  # fmt: skip
+def write_toy_hand(
+    folder: Path, top: str = "", tables: str = "", mjcf: bool = False, **urdf: object
+) -> Path:
     """Write ``toy.urdf`` (or ``toy.xml`` with ``mjcf``) and ``hand.toml`` into ``folder`` (made
     if needed); return it.
 

@@ -329,10 +329,13 @@ def _plot(results: list[dict[str, Any]], path: Path) -> Path:
         label = solver if screening else f"{solver} (no screening)"
         for mode, style in styles.items():
             rows = sorted(
-                (r for r in results if (r["solver"], r["screening"], r["mode"]) == (
-                    solver, screening, mode)),
+                (
+                    r
+                    for r in results
+                    if (r["solver"], r["screening"], r["mode"]) == (solver, screening, mode)
+                ),
                 key=lambda r: r["n_contacts"],
-            )  # fmt: skip
+            )
             if not rows:
                 continue
             x = [r["n_contacts"] for r in rows]

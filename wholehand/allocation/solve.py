@@ -608,10 +608,16 @@ def solve_allocation(
         iterations += res.iterations
         if res.x is None or not np.all(np.isfinite(res.x)):
             return AllocationSolution(
-                x=None, status=res.status if res.x is None else "failed", rounds=rounds,
-                n_rows=t_in.size + n_in.size, iterations=iterations, violation=np.inf,
-                detail=res.detail, torque_sel=t_in, null_sel=n_in,
-            )  # fmt: skip
+                x=None,
+                status=res.status if res.x is None else "failed",
+                rounds=rounds,
+                n_rows=t_in.size + n_in.size,
+                iterations=iterations,
+                violation=np.inf,
+                detail=res.detail,
+                torque_sel=t_in,
+                null_sel=n_in,
+            )
         lam = res.x[: qp.n_lambda]
         t_val = qp.T_lam @ lam
         t_over = np.abs(t_val) - limits
@@ -628,10 +634,16 @@ def solve_allocation(
             break
         if deadline_ns is not None and time.perf_counter_ns() > deadline_ns:
             return AllocationSolution(
-                x=None, status="deadline", rounds=rounds, n_rows=t_in.size + n_in.size,
-                iterations=iterations, violation=np.inf,
-                detail="deadline passed with rows still violated", torque_sel=t_in, null_sel=n_in,
-            )  # fmt: skip
+                x=None,
+                status="deadline",
+                rounds=rounds,
+                n_rows=t_in.size + n_in.size,
+                iterations=iterations,
+                violation=np.inf,
+                detail="deadline passed with rows still violated",
+                torque_sel=t_in,
+                null_sel=n_in,
+            )
         t_mask[add_t] = True
         n_mask[add_n] = True
         t_in, n_in = np.flatnonzero(t_mask), np.flatnonzero(n_mask)
@@ -644,10 +656,18 @@ def solve_allocation(
         z_over.max(initial=0.0),
     )
     return AllocationSolution(
-        x=res.x, status="optimal", rounds=rounds, n_rows=t_in.size + n_in.size,
-        iterations=iterations, violation=float(viol), detail=res.detail, torque_sel=t_in,
-        null_sel=n_in, torque_values=t_val, null_values=z_val,
-    )  # fmt: skip
+        x=res.x,
+        status="optimal",
+        rounds=rounds,
+        n_rows=t_in.size + n_in.size,
+        iterations=iterations,
+        violation=float(viol),
+        detail=res.detail,
+        torque_sel=t_in,
+        null_sel=n_in,
+        torque_values=t_val,
+        null_values=z_val,
+    )
 
 
 def binding_rows(

@@ -211,8 +211,11 @@ def convex_decomposition(
     what = name or "mesh"
     log.info(
         "convex decomposition of %s (%d faces) with CoACD threshold %.3g; this takes up to a "
-        "minute, once (cached)", what, len(mesh.faces), full["threshold"],
-    )  # fmt: skip
+        "minute, once (cached)",
+        what,
+        len(mesh.faces),
+        full["threshold"],
+    )
     started = time.perf_counter()
     parts = _run_coacd(mesh, full)
     seconds = time.perf_counter() - started

@@ -259,9 +259,11 @@ def _edit_hand(
     if opts.base == "floating":  # after the joint edits: the free joint gets no damping
         base.add_freejoint(name=WRIST_JOINT)
         weld = spec.add_equality(
-            type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY,
-            name1=WRIST_TARGET, name2=base.name,
-        )  # fmt: skip
+            type=mujoco.mjtEq.mjEQ_WELD,
+            objtype=mujoco.mjtObj.mjOBJ_BODY,
+            name1=WRIST_TARGET,
+            name2=base.name,
+        )
         weld.solref = list(opts.wrist_solref)
         # anchor (3), relative pose (position 3, quaternion 4), torque scale, unused: the base
         # sits exactly on its target (MjSpec's default data is not a zero offset)
@@ -364,9 +366,15 @@ def _add_visual_mesh(spec: mujoco.MjSpec, body: Any, obj: ObjectModel) -> None:
     mesh.userface = np.asarray(obj.mesh.faces, dtype=np.int32).ravel().tolist()
     mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
     body.add_geom(
-        name="object_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="object_visual",
-        contype=0, conaffinity=0, group=2, density=0, rgba=[0.85, 0.55, 0.2, 0.5],
-    )  # fmt: skip
+        name="object_visual",
+        type=mujoco.mjtGeom.mjGEOM_MESH,
+        meshname="object_visual",
+        contype=0,
+        conaffinity=0,
+        group=2,
+        density=0,
+        rgba=[0.85, 0.55, 0.2, 0.5],
+    )
 
 
 def _add_object(
@@ -519,9 +527,13 @@ def build_scene(
     parts = _add_object(spec, obj, wMo, opts, mu)
     if opts.table is not None:
         opts.table.add_to(
-            spec.worldbody, TABLE_BIT, HAND_BIT | OBJECT_BIT, condim=opts.condim,
-            solref=list(opts.solref), solimp=list(opts.solimp),
-        )  # fmt: skip
+            spec.worldbody,
+            TABLE_BIT,
+            HAND_BIT | OBJECT_BIT,
+            condim=opts.condim,
+            solref=list(opts.solref),
+            solimp=list(opts.solimp),
+        )
 
     o = spec.option
     o.timestep = float(opts.timestep)
@@ -621,10 +633,14 @@ def hand_object_contacts(scene: HandObjectScene, data: mujoco.MjData) -> SimCont
     model = scene.model
     ncon = int(data.ncon)
     empty = SimContacts(
-        p_world=np.zeros((0, 3)), n_world=np.zeros((0, 3)), f_world=np.zeros((0, 3)),
-        link=np.zeros(0, dtype=np.intp), distance=np.zeros(0),
-        geom_object=np.zeros(0, dtype=np.intp), stamp=float(data.time),
-    )  # fmt: skip
+        p_world=np.zeros((0, 3)),
+        n_world=np.zeros((0, 3)),
+        f_world=np.zeros((0, 3)),
+        link=np.zeros(0, dtype=np.intp),
+        distance=np.zeros(0),
+        geom_object=np.zeros(0, dtype=np.intp),
+        stamp=float(data.time),
+    )
     if ncon == 0:
         return empty
     contact = data.contact

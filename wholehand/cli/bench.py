@@ -42,10 +42,13 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
 
         params = {} if args.qp_deadline is None else {"deadline": args.qp_deadline}
         worst = run_worst_case_benchmark(
-            hand=args.hand, grasps=tuple(int(g) for g in (args.grasps or "0,1,2,3,4").split(",")),
+            hand=args.hand,
+            grasps=tuple(int(g) for g in (args.grasps or "0,1,2,3,4").split(",")),
             objects=WORST_OBJECTS if args.object is None else tuple(args.object.split(",")),
-            estimator=args.estimator, allocator=args.allocator, allocator_params=params,
-        )  # fmt: skip
+            estimator=args.estimator,
+            allocator=args.allocator,
+            allocator_params=params,
+        )
         print(json.dumps(worst, indent=2))
         return 0
 
@@ -113,10 +116,15 @@ def _cmd_hw(args: argparse.Namespace) -> int:
 
     objects = PAPER_OBJECTS if args.object == "paper" else tuple(args.object.split(","))
     result = run_hw_benchmark(
-        hand=args.hand, objects=objects, grasps=[int(g) for g in args.grasps.split(",")],
-        latency=args.latency, quick=not args.full, spec=spec, pose_stamp=args.pose_stamp,
+        hand=args.hand,
+        objects=objects,
+        grasps=[int(g) for g in args.grasps.split(",")],
+        latency=args.latency,
+        quick=not args.full,
+        spec=spec,
+        pose_stamp=args.pose_stamp,
         stamp_source=args.stamp_source,
-    )  # fmt: skip
+    )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(result, indent=1))

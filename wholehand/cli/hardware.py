@@ -32,13 +32,21 @@ def _cmd_control(args: argparse.Namespace) -> int:
     from wholehand.models.objects import load_object
 
     spec = ControllerSpec(
-        estimator=args.estimator, allocator=args.allocator, estimate_at=args.estimate_at,
-        allocate_every=args.allocate_every, qp_deadline=args.qp_deadline or None,
-    )  # fmt: skip
+        estimator=args.estimator,
+        allocator=args.allocator,
+        estimate_at=args.estimate_at,
+        allocate_every=args.allocate_every,
+        qp_deadline=args.qp_deadline or None,
+    )
     result = run_controller(
-        load_hand(args.hand), load_object(args.object), _config(args), spec, args.duration,
-        trace=bool(args.json), announce=lambda line: print(line, file=sys.stderr, flush=True),
-    )  # fmt: skip
+        load_hand(args.hand),
+        load_object(args.object),
+        _config(args),
+        spec,
+        args.duration,
+        trace=bool(args.json),
+        announce=lambda line: print(line, file=sys.stderr, flush=True),
+    )
     _write(result, args.json, {k: v for k, v in result.items() if k != "trace"})
     return 0
 
@@ -52,12 +60,20 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
     if args.settle is not None:
         params["settle_time"] = args.settle
     spec = DoubleSpec(
-        hand=args.hand, object=args.object, grasp=args.grasp, theta_deg=args.theta,
-        seed=args.seed, latency=args.latency, noise_mm=args.noise_mm, noise_deg=args.noise_deg,
+        hand=args.hand,
+        object=args.object,
+        grasp=args.grasp,
+        theta_deg=args.theta,
+        seed=args.seed,
+        latency=args.latency,
+        noise_mm=args.noise_mm,
+        noise_deg=args.noise_deg,
         dropouts=tuple((float(a), float(b)) for a, b in args.dropout or ()),
-        pose_stamp=args.pose_stamp, command_timeout=args.command_timeout,
-        gravity=args.gravity, protocol_params=params,
-    )  # fmt: skip
+        pose_stamp=args.pose_stamp,
+        command_timeout=args.command_timeout,
+        gravity=args.gravity,
+        protocol_params=params,
+    )
     summary, record = run_double(spec, _config(args), args.wait)
     if args.save:
         record.save(args.save)

@@ -102,9 +102,12 @@ def _verbose_everywhere(parser: argparse.ArgumentParser) -> None:
         if isinstance(action, argparse._SubParsersAction):
             for subparser in action.choices.values():
                 subparser.add_argument(
-                    "-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                    "-v",
+                    "--verbose",
+                    action="store_true",
+                    default=argparse.SUPPRESS,
                     help="log progress details",
-                )  # fmt: skip
+                )
                 _verbose_everywhere(subparser)
 
 

@@ -52,10 +52,15 @@ def _cmd_reach(args: argparse.Namespace) -> int:
     if args.twist is not None:
         extra["twist_torque"] = args.twist
     spec = EpisodeSpec(
-        hand=args.hand, object=args.object, seed=args.seed, duration=args.duration,
-        reacher=args.reacher, allocator=args.allocator,
-        balance_weight=not args.no_balance_weight, **extra,
-    )  # fmt: skip
+        hand=args.hand,
+        object=args.object,
+        seed=args.seed,
+        duration=args.duration,
+        reacher=args.reacher,
+        allocator=args.allocator,
+        balance_weight=not args.no_balance_weight,
+        **extra,
+    )
     recording = bool(args.record or args.record_html)
     observers = []
     if args.view:

@@ -309,9 +309,14 @@ class GraspGenerator:
 
 
 def generate_grasps(
-    hand: HandModel, obj: ObjectModel, count: int = 10, seed: int = 0,
-    max_candidates: int = MAX_CANDIDATES, progress: bool = False, style: str = "power",
-) -> tuple[list[Grasp], dict[str, object]]:  # fmt: skip
+    hand: HandModel,
+    obj: ObjectModel,
+    count: int = 10,
+    seed: int = 0,
+    max_candidates: int = MAX_CANDIDATES,
+    progress: bool = False,
+    style: str = "power",
+) -> tuple[list[Grasp], dict[str, object]]:
     """Grasps and a description of how they were made (for the file's ``generator`` field)."""
     started = time.perf_counter()
     generator = GraspGenerator(hand, obj, style=style)

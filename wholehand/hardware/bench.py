@@ -68,15 +68,39 @@ def run_hw_benchmark(
         config = HardwareConfig(connect=(endpoint,), listen=(), stamp_source=stamp_source)
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "sim.json"
-            argv = [sys.executable, "-m", "wholehand.cli.main", "hw-sim", "--hand", hand,
-                    "--object", obj, "--grasp", str(grasp), "--latency", str(latency),
-                    "--pose-stamp", pose_stamp, "--listen", endpoint, "--connect",
-                    "--json", str(out), *(["--quick"] if quick else [])]  # fmt: skip
-            sim = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                   text=True, env=os.environ.copy())  # fmt: skip
+            argv = [
+                sys.executable,
+                "-m",
+                "wholehand.cli.main",
+                "hw-sim",
+                "--hand",
+                hand,
+                "--object",
+                obj,
+                "--grasp",
+                str(grasp),
+                "--latency",
+                str(latency),
+                "--pose-stamp",
+                pose_stamp,
+                "--listen",
+                endpoint,
+                "--connect",
+                "--json",
+                str(out),
+                *(["--quick"] if quick else []),
+            ]
+            sim = subprocess.Popen(
+                argv,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+                env=os.environ.copy(),
+            )
             try:
-                result = run_controller(hand_model, obj_model, config, spec, trace=True,
-                                        duration=None, stop=sim.poll)  # fmt: skip
+                result = run_controller(
+                    hand_model, obj_model, config, spec, trace=True, duration=None, stop=sim.poll
+                )
                 _, err = sim.communicate(timeout=60)
             finally:
                 if sim.poll() is None:
@@ -94,27 +118,44 @@ def run_hw_benchmark(
         start, end = robot["run_wall_ns"]
         during = sum(start <= t <= end for t in arrivals.values())
         rates.append(during / (1e-9 * (end - start)))
-        rows.append({
-            "object": obj, "grasp": grasp, "held": robot["held"], "lost_at": robot["lost_at"],
-            "statuses": robot["statuses"], "rejected": result["backend"]["rejected"],
-            "guard": result["backend"]["guard"], "late_cycles": robot["late_cycles"],
-            "max_torque_rate_Nm_s": robot["max_torque_rate_Nm_s"],
-        })  # fmt: skip
+        rows.append(
+            {
+                "object": obj,
+                "grasp": grasp,
+                "held": robot["held"],
+                "lost_at": robot["lost_at"],
+                "statuses": robot["statuses"],
+                "rejected": result["backend"]["rejected"],
+                "guard": result["backend"]["guard"],
+                "late_cycles": robot["late_cycles"],
+                "max_torque_rate_Nm_s": robot["max_torque_rate_Nm_s"],
+            }
+        )
     for row in rows:
-        row["plain_loop_held"] = _plain_loop(hand, row["object"], row["grasp"], latency, quick,
-                                             spec)  # fmt: skip
+        row["plain_loop_held"] = _plain_loop(
+            hand, row["object"], row["grasp"], latency, quick, spec
+        )
     plain = [row["plain_loop_held"] for row in rows]
     return {
         "plain_loop_held": sum(plain),
-        "hand": hand, "objects": list(objects), "latency_s": latency, "quick": quick,
-        "estimate_at": spec.estimate_at, "allocate_every": spec.allocate_every,
-        "pose_stamp": pose_stamp, "stamp_source": stamp_source,
-        "held": sum(r["held"] for r in rows), "grasps": len(rows),
-        "answer_ms": _percentiles(answer), "controller_ms": _percentiles(controller),
-        "transport_ms": _percentiles(transport), "messages": len(answer),
+        "hand": hand,
+        "objects": list(objects),
+        "latency_s": latency,
+        "quick": quick,
+        "estimate_at": spec.estimate_at,
+        "allocate_every": spec.allocate_every,
+        "pose_stamp": pose_stamp,
+        "stamp_source": stamp_source,
+        "held": sum(r["held"] for r in rows),
+        "grasps": len(rows),
+        "answer_ms": _percentiles(answer),
+        "controller_ms": _percentiles(controller),
+        "transport_ms": _percentiles(transport),
+        "messages": len(answer),
         "rate_hz": {"min": float(min(rates)), "mean": float(np.mean(rates))},
-        "control_rate_hz": HardwareConfig().control_rate, "runs": rows,
-    }  # fmt: skip
+        "control_rate_hz": HardwareConfig().control_rate,
+        "runs": rows,
+    }
 
 
 def _plain_loop(
@@ -126,8 +167,14 @@ def _plain_loop(
 
     params = {"settle_time": 0.3, "load_duration": 0.3} if quick else {}
     trial = TrialSpec(
-        hand=hand, object=obj, grasp=grasp, theta_deg=0.0, estimate_at=spec.estimate_at,
-        estimator=spec.estimator, allocator=spec.allocator, protocol_params=params,
+        hand=hand,
+        object=obj,
+        grasp=grasp,
+        theta_deg=0.0,
+        estimate_at=spec.estimate_at,
+        estimator=spec.estimator,
+        allocator=spec.allocator,
+        protocol_params=params,
         tracking={"rate_hz": HardwareConfig().object_pose_rate, "latency_s": latency},
-    )  # fmt: skip
+    )
     return bool(run_trial(trial, stop_on_loss=True).held_throughout)

@@ -209,8 +209,9 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
     Raises:
         ConfigError: an unknown table or key, or a value of the wrong kind (named with the file).
     """
-    unknown = sorted(set(raw) - {"ros2", "topics", "joints", "rates", "qos", "object_pose",
-                                 "safety"})  # fmt: skip
+    unknown = sorted(
+        set(raw) - {"ros2", "topics", "joints", "rates", "qos", "object_pose", "safety"}
+    )
     if unknown:
         raise ConfigError(
             f"{_where(path)}: unknown tables {unknown}; valid: ros2, topics, joints, rates, qos, "

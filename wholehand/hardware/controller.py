@@ -90,17 +90,22 @@ def run_controller(
     """
     from wholehand_plugins.ros2_backend import Ros2Backend
 
-    estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj,
-                              **spec.estimator_params)  # fmt: skip
+    estimator = registry.load(
+        "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params
+    )
     params = dict(spec.allocator_params)
     takes = inspect.signature(registry.get_class("allocators", spec.allocator)).parameters
     if spec.qp_deadline is not None and "deadline" in takes:
         params.setdefault("deadline", spec.qp_deadline)
     allocator = load_allocator(spec.allocator, hand, params)
     regulation = ForceRegulation(
-        hand, obj, estimator, allocator, cast(EstimateAt, spec.estimate_at),
+        hand,
+        obj,
+        estimator,
+        allocator,
+        cast(EstimateAt, spec.estimate_at),
         allocate_every=cast(AllocateEvery, spec.allocate_every),
-    )  # fmt: skip
+    )
     stopped = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():
@@ -122,8 +127,15 @@ def run_controller(
                     f"{config.topics['torque_command']}"
                 )
             gate = ObservationGate(hand)
-            loop = ControlLoop(backend, hand, obj, regulation, rate=config.control_rate,
-                               observers=[stopper], gate=gate)  # fmt: skip
+            loop = ControlLoop(
+                backend,
+                hand,
+                obj,
+                regulation,
+                rate=config.control_rate,
+                observers=[stopper],
+                gate=gate,
+            )
             report = loop.run(duration)
             stats = backend.stats()
             stats["gate_refused"] = dict(gate.refused)

@@ -164,9 +164,13 @@ class RobotPublisher(Observer):
     """Publishes each cycle's joint state and each new tracked pose, stamped in wall time."""
 
     def __init__(
-        self, joints: Publisher, poses: Publisher, names: list[str], frame_id: str,
+        self,
+        joints: Publisher,
+        poses: Publisher,
+        names: list[str],
+        frame_id: str,
         pose_stamp: str,
-    ) -> None:  # fmt: skip
+    ) -> None:
         self.joints, self.poses, self.names = joints, poses, names
         self.frame_id, self.pose_stamp = frame_id, pose_stamp
         self.wall0 = 0.0
@@ -179,9 +183,10 @@ class RobotPublisher(Observer):
     def on_cycle(self, cycle: Cycle) -> str | None:
         truth, seen = cycle.truth, cycle.context.obs
         self.joints.put(
-            encode_joint_state(self.wall0 + truth.stamp_q, self.names, truth.q, truth.dq,
-                               cycle.command.tau)
-        )  # fmt: skip
+            encode_joint_state(
+                self.wall0 + truth.stamp_q, self.names, truth.q, truth.dq, cycle.command.tau
+            )
+        )
         if seen.wMo is not None and seen.stamp_object != self._published:
             self._published = seen.stamp_object
             t = seen.stamp_object if self.pose_stamp == "image" else cycle.t
@@ -240,14 +245,19 @@ def run_double(
         raise ConfigError(f"hw-sim: grasp {spec.grasp} does not exist ({len(grasps)} stored)")
     grasp = grasps[spec.grasp]
     backend = MujocoBackend(
-        hand, obj, q_init=grasp.q_array(hand), wMo_init=grasp.object_pose(hand.wMb),
-        gravity=spec.gravity, timestep=spec.timestep,
-    )  # fmt: skip
+        hand,
+        obj,
+        q_init=grasp.q_array(hand),
+        wMo_init=grasp.object_pose(hand.wMb),
+        gravity=spec.gravity,
+        timestep=spec.timestep,
+    )
     reader = JointStateReader(hand, config)
     names = [reader.msg_name[j] for j in hand.joint_names]
     drives = RemoteTorque(hand, command_dofs(hand, config), spec.command_timeout)
-    protocol = PerturbationProtocol(theta_deg=spec.theta_deg, seed=spec.seed,
-                                    **spec.protocol_params)  # fmt: skip
+    protocol = PerturbationProtocol(
+        theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params
+    )
     rate = config.joint_state_rate
     protocol.check_rate(rate)
     session = open_session(config)
@@ -262,14 +272,18 @@ def run_double(
         pacer = RealTimePacer()
         tracking: dict[str, Any] = {"rate_hz": config.object_pose_rate, "latency_s": spec.latency}
         if spec.noise_mm or spec.noise_deg:
-            tracking.update(noise_mm=spec.noise_mm, noise_deg=spec.noise_deg,
-                            noise_seed=spec.seed)  # fmt: skip
+            tracking.update(noise_mm=spec.noise_mm, noise_deg=spec.noise_deg, noise_seed=spec.seed)
         if spec.dropouts:
             tracking["dropouts"] = [list(d) for d in spec.dropouts]
         loop = ControlLoop(
-            backend, hand, obj, drives, rate=rate, filters=tracking_filters(tracking, obj.com),
+            backend,
+            hand,
+            obj,
+            drives,
+            rate=rate,
+            filters=tracking_filters(tracking, obj.com),
             observers=[driver, loss, recorder, publisher, pacer],
-        )  # fmt: skip
+        )
         # Everything is built and the compiled checks loaded (~0.2 s on their first call)
         # before the wait: the streams go on without a gap when it ends.
         first, kinematics = backend.observe(), HandKinematics(hand)

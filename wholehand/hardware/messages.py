@@ -144,11 +144,13 @@ def encode_pose(stamp: float, frame_id: str, wMo: FloatArray) -> bytes:
     x, y, z, w = pin.Quaternion(np.asarray(wMo[:3, :3], dtype=float)).coeffs()
     geometry = "geometry_msgs/msg/"
     pose = ts.types[geometry + "Pose"](
-        position=ts.types[geometry + "Point"](x=float(wMo[0, 3]), y=float(wMo[1, 3]),
-                                              z=float(wMo[2, 3])),
-        orientation=ts.types[geometry + "Quaternion"](x=float(x), y=float(y), z=float(z),
-                                                      w=float(w)),
-    )  # fmt: skip
+        position=ts.types[geometry + "Point"](
+            x=float(wMo[0, 3]), y=float(wMo[1, 3]), z=float(wMo[2, 3])
+        ),
+        orientation=ts.types[geometry + "Quaternion"](
+            x=float(x), y=float(y), z=float(z), w=float(w)
+        ),
+    )
     msg = ts.types[POSE_STAMPED](header=_header(stamp, frame_id), pose=pose)
     return bytes(ts.serialize_cdr(msg, POSE_STAMPED))
 

@@ -31,9 +31,14 @@ def run_cycle_benchmark(
         times, contacts, qp, est, held = [], [], [], [], []
         for g in grasps:
             spec = TrialSpec(
-                hand=hand, object=obj, grasp=g, estimator=estimator, allocator=allocator,
-                theta_deg=0.0, estimator_params={"k": k},
-            )  # fmt: skip
+                hand=hand,
+                object=obj,
+                grasp=g,
+                estimator=estimator,
+                allocator=allocator,
+                theta_deg=0.0,
+                estimator_params={"k": k},
+            )
             record = run_trial(spec, hand_model, obj_model, stop_on_loss=False)
             a = record.arrays()
             times.append(a["cycle_time"])

@@ -306,9 +306,15 @@ class ControlLoop:
             for f in self.filters:
                 obs = f.apply(obs, t)
             context = CycleContext(
-                t, self.dt, obs, self.hand, self.obj, self._kin_now, self._kin_then,
+                t,
+                self.dt,
+                obs,
+                self.hand,
+                self.obj,
+                self._kin_now,
+                self._kin_then,
                 self._ground_truth(truth, obs),
-            )  # fmt: skip
+            )
             if obs.wMo is None and stage.needs_object_pose:
                 output = StageOutput(None, LoopStatus.NO_POSE.value)
                 fault = "no object pose has arrived yet"
@@ -337,9 +343,16 @@ class ControlLoop:
                 log.info("cycle at t = %.4f s: %s (%s)", t, output.status, fault)
             report.last_fault = fault
         return Cycle(
-            index, t, truth, context, stage.name, output, self.command,
-            time.perf_counter() - started, fault,
-        )  # fmt: skip
+            index,
+            t,
+            truth,
+            context,
+            stage.name,
+            output,
+            self.command,
+            time.perf_counter() - started,
+            fault,
+        )
 
     def _checked(self, command: Command) -> Command:
         """The command with its torques within the hand's limits (0 on joints without a

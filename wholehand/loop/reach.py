@@ -308,6 +308,7 @@ class HoldStage(Stage):
         tau = out.command.tau.copy()
         tau[self.arm.dofs] = self.arm.feedforward(context.obs.q, context.obs.wMb)
         arm = self.arm
-        servo = JointTargets(arm.dofs, self._hold, None, np.asarray(arm.kp), np.asarray(arm.kd),
-                             "arm")  # fmt: skip
+        servo = JointTargets(
+            arm.dofs, self._hold, None, np.asarray(arm.kp), np.asarray(arm.kd), "arm"
+        )
         return dataclasses.replace(out, command=Command(tau, (servo,)))

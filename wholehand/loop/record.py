@@ -49,10 +49,24 @@ class RunRecord:
     rows: dict[str, list[Any]] = field(default_factory=dict)
 
     FIELDS = (
-        "t", "stamp_object", "phase", "stage", "n_contacts", "residual_wrench", "tau", "qp_time",
-        "estimate_time", "cycle_time", "status", "held", "p_object", "r_object", "q", "p_base",
+        "t",
+        "stamp_object",
+        "phase",
+        "stage",
+        "n_contacts",
+        "residual_wrench",
+        "tau",
+        "qp_time",
+        "estimate_time",
+        "cycle_time",
+        "status",
+        "held",
+        "p_object",
+        "r_object",
+        "q",
+        "p_base",
         "r_base",
-    )  # fmt: skip
+    )
     OPTIONAL_FIELDS = ("p_base", "r_base")
     """Fields that records of older versions lack (loaded as the hand's mount pose, None)."""
     CONTACT_FIELDS = ("contact_p", "contact_n", "contact_f", "contact_link")

@@ -82,8 +82,13 @@ OBSERVATION_FAULTS: dict[str, Callable[[Observation], Observation]] = {
 
 ESTIMATOR_FAULTS = ("estimator_raises", "normals_zero", "normals_nan", "contacts_empty")
 """The contact estimator raises, or returns contacts with zero or NaN normals, or none."""
-ALLOCATOR_FAULTS = ("allocator_raises", "tau_nan", "tau_wrong_shape", "tau_over_limit",
-                    "solver_failed")  # fmt: skip
+ALLOCATOR_FAULTS = (
+    "allocator_raises",
+    "tau_nan",
+    "tau_wrong_shape",
+    "tau_over_limit",
+    "solver_failed",
+)
 """The allocator raises, returns NaN torques, torques of the wrong length, torques ten times the
 limit, or reports a failed solve."""
 
@@ -171,9 +176,12 @@ class FaultyAllocator(Allocator):
         self.inner.reset()
 
     def allocate(
-        self, contacts: ContactSet, J_world: FloatArray, p_com_world: FloatArray,
+        self,
+        contacts: ContactSet,
+        J_world: FloatArray,
+        p_com_world: FloatArray,
         kinematics: Any = None,
-    ) -> Allocation:  # fmt: skip
+    ) -> Allocation:
         fault = self.schedule.current
         if fault == "allocator_raises":
             raise np.linalg.LinAlgError("injected: singular matrix while building the QP")
@@ -250,13 +258,19 @@ def run_soak(
     regulation = trial.regulation
     regulation.estimator = FaultyEstimator(regulation.estimator, schedule)
     regulation.allocator = FaultyAllocator(regulation.allocator, schedule)
-    monitor = SoakMonitor(np.where(trial.hand.actuated_dofs, trial.hand.tau_max, 0.0), schedule,
-                          cycles)  # fmt: skip
+    monitor = SoakMonitor(
+        np.where(trial.hand.actuated_dofs, trial.hand.tau_max, 0.0), schedule, cycles
+    )
     loss = GraspLossMonitor(trial.hand, trial.obj, stop_on_loss=False)
     loop = ControlLoop(
-        FaultyBackend(trial.backend, schedule), trial.hand, trial.obj, regulation, rate=rate,
-        observers=[loss, monitor], gate=ObservationGate(trial.hand),
-    )  # fmt: skip
+        FaultyBackend(trial.backend, schedule),
+        trial.hand,
+        trial.obj,
+        regulation,
+        rate=rate,
+        observers=[loss, monitor],
+        gate=ObservationGate(trial.hand),
+    )
     exceptions: list[str] = []
     started = time.perf_counter()
     try:

@@ -185,9 +185,14 @@ class TrialSetup:
     def loop(self, observers: Sequence[Observer], rate: float = CONTROL_RATE) -> ControlLoop:
         """A control loop of the trial's stage, filters and the given observers."""
         return ControlLoop(
-            self.backend, self.hand, self.obj, self.regulation, rate=rate,
-            filters=self.filters, observers=observers,
-        )  # fmt: skip
+            self.backend,
+            self.hand,
+            self.obj,
+            self.regulation,
+            rate=rate,
+            filters=self.filters,
+            observers=observers,
+        )
 
 
 def set_up_trial(
@@ -277,9 +282,10 @@ def run_trial(
     driver = ProtocolDriver(protocol, trial.obj)
     loss = GraspLossMonitor(trial.hand, trial.obj, stop_on_loss)
     recorder = Recorder(
-        loss, driver, {"control_rate": spec.control_rate, "theta_deg": protocol.theta_deg,
-                       "seed": protocol.seed},
-    )  # fmt: skip
+        loss,
+        driver,
+        {"control_rate": spec.control_rate, "theta_deg": protocol.theta_deg, "seed": protocol.seed},
+    )
     loop = trial.loop([driver, loss, recorder, *observers], spec.control_rate)
     report = loop.run(protocol.duration)
     record = recorder.record

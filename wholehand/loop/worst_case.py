@@ -84,8 +84,12 @@ def replay(
 def _stats(ns: np.ndarray) -> dict[str, float]:
     us = ns / 1e3
     p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
-    return {"p50_us": round(float(p50), 1), "p99_us": round(float(p99), 1),
-            "p99.9_us": round(float(p999), 1), "max_us": round(float(us.max()), 1)}  # fmt: skip
+    return {
+        "p50_us": round(float(p50), 1),
+        "p99_us": round(float(p99), 1),
+        "p99.9_us": round(float(p999), 1),
+        "max_us": round(float(us.max()), 1),
+    }
 
 
 def run_worst_case_benchmark(
@@ -106,8 +110,14 @@ def run_worst_case_benchmark(
     for name in objects:
         obj = load_object(name)
         for g in grasps:
-            spec = TrialSpec(hand=hand, object=name, grasp=g, theta_deg=theta_deg,
-                             estimator=estimator, allocator=allocator)  # fmt: skip
+            spec = TrialSpec(
+                hand=hand,
+                object=name,
+                grasp=g,
+                theta_deg=theta_deg,
+                estimator=estimator,
+                allocator=allocator,
+            )
             record = run_trial(spec, hand_model, obj, stop_on_loss=True)
             if record.held_throughout:
                 continue
@@ -125,13 +135,21 @@ def run_worst_case_benchmark(
     rest = np.maximum(cat["step"] - cat["estimate"] - cat["qp"], 0)
     return {
         "benchmark": "cycle-worst",
-        "hand": hand, "theta_deg": theta_deg, "estimator": estimator, "allocator": allocator,
+        "hand": hand,
+        "theta_deg": theta_deg,
+        "estimator": estimator,
+        "allocator": allocator,
         "allocator_params": allocator_params or {},
-        "lost_trials": lost, "cycles": int(cat["step"].size),
-        "stages": {"step": _stats(cat["step"]), "estimate": _stats(cat["estimate"]),
-                   "qp": _stats(cat["qp"]), "rest": _stats(rest)},
+        "lost_trials": lost,
+        "cycles": int(cat["step"].size),
+        "stages": {
+            "step": _stats(cat["step"]),
+            "estimate": _stats(cat["estimate"]),
+            "qp": _stats(cat["qp"]),
+            "rest": _stats(rest),
+        },
         "statuses": dict(statuses),
         "qp_over_deadline": int((cat["qp"] > deadline * 1e9).sum()),
         "deadline_ms": deadline * 1e3,
         "machine": {"python": platform.python_version(), "cpu": platform.machine()},
-    }  # fmt: skip
+    }

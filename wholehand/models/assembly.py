@@ -96,9 +96,15 @@ def parse_assembly(table: Any, where: Path) -> Assembly:
     ):
         raise ConfigError(f"{where}: [assembly] home must be a list of angles [rad], got {home!r}")
     return Assembly(
-        arm, hand_toml, str(table["flange"]), xyz, rpy, float(kp), float(kd),
+        arm,
+        hand_toml,
+        str(table["flange"]),
+        xyz,
+        rpy,
+        float(kp),
+        float(kd),
         tuple(float(v) for v in home),
-    )  # fmt: skip
+    )
 
 
 def _read(path: Path) -> ET.Element:
@@ -160,10 +166,13 @@ def merged_urdf(
     ET.SubElement(mount, "parent", {"link": assembly.flange})
     ET.SubElement(mount, "child", {"link": root_link(hand_root, hand.model_path)})
     ET.SubElement(
-        mount, "origin",
-        {"xyz": " ".join(map(repr, assembly.mount_xyz)),
-         "rpy": " ".join(map(repr, assembly.mount_rpy))},
-    )  # fmt: skip
+        mount,
+        "origin",
+        {
+            "xyz": " ".join(map(repr, assembly.mount_xyz)),
+            "rpy": " ".join(map(repr, assembly.mount_rpy)),
+        },
+    )
     ET.indent(out, space="  ")
     return ET.tostring(out, encoding="unicode"), moving_joints(arm), arm_links
 

@@ -66,8 +66,9 @@ def _folder_unusable(err: OSError) -> None:
         log.warning(
             "the wholehand cache %s cannot be used (%s); computing without it: set "
             "WHOLEHAND_CACHE to a writable folder",
-            where, err,
-        )  # fmt: skip
+            where,
+            err,
+        )
 
 
 def load_arrays(
@@ -87,14 +88,17 @@ def load_arrays(
         with np.load(path, allow_pickle=False) as data:
             arrays = {name: data[name] for name in data.files}
     except _UNREADABLE as err:
-        log.warning("cache entry %s is unreadable (%s: %s); recomputing it", path,
-                    type(err).__name__, err)  # fmt: skip
+        log.warning(
+            "cache entry %s is unreadable (%s: %s); recomputing it", path, type(err).__name__, err
+        )
         return None
     if names is not None and set(arrays) != set(names):
         log.warning(
             "cache entry %s holds arrays %s, expected %s; recomputing it",
-            path, sorted(arrays), sorted(names),
-        )  # fmt: skip
+            path,
+            sorted(arrays),
+            sorted(names),
+        )
         return None
     return arrays
 

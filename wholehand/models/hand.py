@@ -41,9 +41,15 @@ IntArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
 
 SUPPORTED_JOINTS = {
-    "JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",
-    "JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned",
-}  # fmt: skip
+    "JointModelRX",
+    "JointModelRY",
+    "JointModelRZ",
+    "JointModelRevoluteUnaligned",
+    "JointModelPX",
+    "JointModelPY",
+    "JointModelPZ",
+    "JointModelPrismaticUnaligned",
+}
 """Pinocchio joint types a hand may have: revolute and prismatic, one DoF each (nq = nv)."""
 
 
@@ -394,14 +400,19 @@ class HandModel:
         if not self.config.outer_surface_only:
             return samples
         found = find_buried_samples(
-            self.model, self.collision_model, samples.p_joint, samples.joint,
+            self.model,
+            self.collision_model,
+            samples.p_joint,
+            samples.joint,
             self.sample_params["seed"],
-        )  # fmt: skip
+        )
         if found.skipped_shapes:
             log.warning(
                 "%s: outer_surface_only skips %d collision shapes that are not closed surfaces: %s",
-                self.config.path, len(found.skipped_shapes), found.skipped_shapes,
-            )  # fmt: skip
+                self.config.path,
+                len(found.skipped_shapes),
+                found.skipped_shapes,
+            )
         keep = ~found.buried
         return SurfaceSamples(**{k: v[keep] for k, v in samples.__dict__.items()})
 

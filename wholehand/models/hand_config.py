@@ -186,10 +186,22 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         return _assembly_config(raw, path)
 
     known = {
-        "name", "urdf", "mjcf", "palm_link", "passive_links", "sample_surface", "thumb",
-        "fingertip_links", "excluded_links", "outer_surface_only", "fingers", "joints",
-        "simulation", "mount", "grasping",
-    }  # fmt: skip
+        "name",
+        "urdf",
+        "mjcf",
+        "palm_link",
+        "passive_links",
+        "sample_surface",
+        "thumb",
+        "fingertip_links",
+        "excluded_links",
+        "outer_surface_only",
+        "fingers",
+        "joints",
+        "simulation",
+        "mount",
+        "grasping",
+    }
     unknown = sorted(set(raw) - known)
     if unknown:
         raise ConfigError(f"{path}: unknown keys {unknown}; valid keys are {sorted(known)}")

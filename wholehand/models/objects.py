@@ -201,9 +201,13 @@ class ObjectModel:
             log.warning(
                 "%s: a grid fine enough for its %.2f mm walls (%.2f mm spacing) would pass %d "
                 "nodes; using %.2f mm, which resolves walls of %.2f mm and up",
-                self.name, self.thinnest_wall * 1e3, spacing * 1e3, MAX_GRID_NODES,
-                coarser * 1e3, coarser * CELLS_PER_WALL * 1e3,
-            )  # fmt: skip
+                self.name,
+                self.thinnest_wall * 1e3,
+                spacing * 1e3,
+                MAX_GRID_NODES,
+                coarser * 1e3,
+                coarser * CELLS_PER_WALL * 1e3,
+            )
             spacing = coarser
         return spacing
 

@@ -64,11 +64,10 @@ def grid_errors(obj: ObjectModel, wall: float, points: int, seed: int) -> dict[s
         out[band] = {
             "points": int(rows.sum()),
             "wrong_sign_pct": 100.0 * float(wrong_sign.mean()),
-            "normal_off_pct": 100.0 * float(
-                (cos[rows] < np.cos(np.radians(NORMAL_TOLERANCE_DEG))).mean()
-            ),
+            "normal_off_pct": 100.0
+            * float((cos[rows] < np.cos(np.radians(NORMAL_TOLERANCE_DEG))).mean()),
             "normal_flipped_pct": 100.0 * float((cos[rows] < 0.0).mean()),
-        }  # fmt: skip
+        }
     return out
 
 

@@ -272,9 +272,15 @@ def run_episode(
         wMb0[:3, 3] += np.array([0.0, 0.0, 0.1]) + 0.1 * np.r_[rng.normal(size=2), 0.0]
         placement = {"q_init": start.q_pre, "wMb": wMb0, "base": "floating"}
     backend = registry.load(
-        "backends", "mujoco", hand=hand, obj=obj, wMo_init=wMo, gravity=True, table=table,
+        "backends",
+        "mujoco",
+        hand=hand,
+        obj=obj,
+        wMo_init=wMo,
+        gravity=True,
+        table=table,
         **placement,
-    )  # fmt: skip
+    )
     estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj)
     # The first estimate loads its compiled kernel (~0.1 s): done here, not in the first cycle.
     warm, first = HandKinematics(hand), backend.observe()
@@ -381,6 +387,8 @@ def percentiles(values: list[float]) -> dict[str, float]:
         return {}
     v = np.asarray(values)
     return {
-        "p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
-        "max": float(v.max()), "n": int(v.size),
-    }  # fmt: skip
+        "p50": float(np.percentile(v, 50)),
+        "p99": float(np.percentile(v, 99)),
+        "max": float(v.max()),
+        "n": int(v.size),
+    }

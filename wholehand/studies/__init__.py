@@ -24,7 +24,7 @@ STUDIES: dict[str, type[Study]] = {
         ConsistencyStudy,
         ContactsStudy,
         ReachStudy,
-    )  # fmt: skip
+    )
 }
 """Study name -> class, in the paper's priority order."""
 
@@ -37,6 +37,12 @@ def get_study(name: str) -> Study:
 
 
 __all__ = [
-    "SIZES", "STUDIES", "TIMING_COLUMNS", "Study", "StudyResult", "TrialJob", "get_study",
+    "SIZES",
+    "STUDIES",
+    "TIMING_COLUMNS",
+    "Study",
+    "StudyResult",
+    "TrialJob",
+    "get_study",
     "run_study",
-]  # fmt: skip
+]

@@ -48,10 +48,21 @@ METHODS = ("qp", "qp_no_consistency")
 GRASP_TYPES = ("power", "precision")
 """Grasp styles of the load-test part (paper: Dexonomy types 1 and 7)."""
 NET_FORCE_COLUMNS = (
-    "method", "object", "grasp", "held", "net_force_N", "net_force_x", "net_force_y",
-    "net_force_z", "net_force_mean_N", "displacement_mm", "normal_force_sum_N",
-    "n_contacts_gt_end", "links_gt_end", "error",
-)  # fmt: skip
+    "method",
+    "object",
+    "grasp",
+    "held",
+    "net_force_N",
+    "net_force_x",
+    "net_force_y",
+    "net_force_z",
+    "net_force_mean_N",
+    "displacement_mm",
+    "normal_force_sum_N",
+    "n_contacts_gt_end",
+    "links_gt_end",
+    "error",
+)
 NET_FORCE_TIME = 2.0
 """When the net force is measured, after initialisation [s] (paper Fig. 5)."""
 
@@ -113,17 +124,21 @@ def net_force_row(job: TrialJob) -> dict[str, Any]:
     assert gt is not None
     net = gt.f_world.sum(axis=0)
     row = record_row(record)
-    row.update({
-        "stages_total": 1, "stages_reached": 1,
-        "n_contacts_gt_end": len(gt),
-        "links_gt_end": " ".join(sorted({hand.link_names[i] for i in gt.link})),
-        "net_force_N": round(float(np.linalg.norm(net)), 6),
-        "net_force_x": round(float(net[0]), 6), "net_force_y": round(float(net[1]), 6),
-        "net_force_z": round(float(net[2]), 6),
-        "net_force_mean_N": round(float(np.mean(sampler.resultants)), 6),
-        "displacement_mm": row["final_displacement_mm"],
-        "normal_force_sum_N": round(float(gt.f_normal.sum()), 6),
-    })  # fmt: skip
+    row.update(
+        {
+            "stages_total": 1,
+            "stages_reached": 1,
+            "n_contacts_gt_end": len(gt),
+            "links_gt_end": " ".join(sorted({hand.link_names[i] for i in gt.link})),
+            "net_force_N": round(float(np.linalg.norm(net)), 6),
+            "net_force_x": round(float(net[0]), 6),
+            "net_force_y": round(float(net[1]), 6),
+            "net_force_z": round(float(net[2]), 6),
+            "net_force_mean_N": round(float(np.mean(sampler.resultants)), 6),
+            "displacement_mm": row["final_displacement_mm"],
+            "normal_force_sum_N": round(float(gt.f_normal.sum()), 6),
+        }
+    )
     row["held"] = bool(record.held_throughout)
     row["failure_stage"] = "" if row["held"] else "settle"
     return row
@@ -144,20 +159,29 @@ class ConsistencyStudy(Study):
                 for grasp in stored_grasp_indices(hand, obj, style, cfg.grasps):
                     for method in METHODS:
                         spec = TrialSpec(
-                            hand=hand, object=obj, grasp=grasp, grasp_type=style,
+                            hand=hand,
+                            object=obj,
+                            grasp=grasp,
+                            grasp_type=style,
                             allocator=method,
-                            theta_deg=0.0, seed=seed, protocol_params=protocol_for(size),
-                        )  # fmt: skip
+                            theta_deg=0.0,
+                            seed=seed,
+                            protocol_params=protocol_for(size),
+                        )
                         labels = {"method": method, "part": "load_test"}
                         jobs.append(TrialJob(len(jobs), spec, labels))
         for obj in cfg.net_force_objects:
             for grasp in stored_grasp_indices(hand, obj, "precision", cfg.net_force_grasps):
                 for method in METHODS:
                     spec = TrialSpec(
-                        hand=hand, object=obj, grasp=grasp, grasp_type="precision",
+                        hand=hand,
+                        object=obj,
+                        grasp=grasp,
+                        grasp_type="precision",
                         allocator=method,
-                        theta_deg=0.0, seed=seed,
-                    )  # fmt: skip
+                        theta_deg=0.0,
+                        seed=seed,
+                    )
                     labels = {"method": method, "part": "net_force"}
                     jobs.append(TrialJob(len(jobs), spec, labels, "net_force"))
         return jobs
@@ -174,13 +198,17 @@ class ConsistencyStudy(Study):
             final = np.array([r["net_force_N"] for r in group], dtype=float)
             mean = np.array([r["net_force_mean_N"] for r in group], dtype=float)
             moved = np.array([r["displacement_mm"] for r in group], dtype=float)
-            net.append({
-                "method": m, "n_grasps": len(group),
-                "held": int(sum(bool(r["held"]) for r in group)),
-                "net_force_N_mean": float(final.mean()), "net_force_N_max": float(final.max()),
-                "net_force_window_mean_N": float(mean.mean()),
-                "displacement_mm_mean": float(moved.mean()),
-            })  # fmt: skip
+            net.append(
+                {
+                    "method": m,
+                    "n_grasps": len(group),
+                    "held": int(sum(bool(r["held"]) for r in group)),
+                    "net_force_N_mean": float(final.mean()),
+                    "net_force_N_max": float(final.max()),
+                    "net_force_window_mean_N": float(mean.mean()),
+                    "displacement_mm_mean": float(moved.mean()),
+                }
+            )
         per_grasp = [
             {k: r.get(k) for k in NET_FORCE_COLUMNS} for r in rows if r["part"] == "net_force"
         ]
@@ -202,10 +230,13 @@ class ConsistencyStudy(Study):
             cells = {x["grasp_type"]: x for x in s if x["method"] == method}
             xs = [j + (i - 0.5 * (len(METHODS) - 1)) * width for j in range(len(styles))]
             axes[0].bar(
-                xs, [100 * cells[t]["success"] if t in cells else 0.0 for t in styles], width,
-                yerr=[100 * cells[t]["se"] if t in cells else 0.0 for t in styles], capsize=3,
+                xs,
+                [100 * cells[t]["success"] if t in cells else 0.0 for t in styles],
+                width,
+                yerr=[100 * cells[t]["se"] if t in cells else 0.0 for t in styles],
+                capsize=3,
                 label=method,
-            )  # fmt: skip
+            )
         axes[0].set_xticks(range(len(styles)), styles)
         axes[0].set_ylabel("load-test success [%]")
         axes[0].set_ylim(0, 105)

@@ -69,9 +69,14 @@ class ContactsStudy(Study):
             for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
                 for method in cfg.methods:
                     spec = TrialSpec(
-                        hand=hand, object=obj, grasp=grasp, allocator=method, theta_deg=0.0,
-                        seed=seed, protocol_params=protocol_for(size),
-                    )  # fmt: skip
+                        hand=hand,
+                        object=obj,
+                        grasp=grasp,
+                        allocator=method,
+                        theta_deg=0.0,
+                        seed=seed,
+                        protocol_params=protocol_for(size),
+                    )
                     jobs.append(TrialJob(len(jobs), spec, {"method": method}))
         return jobs
 
@@ -94,8 +99,14 @@ class ContactsStudy(Study):
                 members = per_bin.get((b,), [])
                 if members:
                     held = sum(bool(r["held"]) for r in members)
-                    bins.append({"method": method, "bin": b, "n": len(members),
-                                 "success": held / len(members)})  # fmt: skip
+                    bins.append(
+                        {
+                            "method": method,
+                            "bin": b,
+                            "n": len(members),
+                            "success": held / len(members),
+                        }
+                    )
         settle_failures = {
             method: sum(1 for r in group if str(r.get("failure_stage", "")) == "settle")
             for (method,), group in group_rows(rows, "method").items()

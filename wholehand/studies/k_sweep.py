@@ -58,11 +58,15 @@ class KSweepStudy(Study):
                         trial_seed = derive_seed(seed, oi, grasp, repeat)
                         for k in cfg.ks:
                             spec = TrialSpec(
-                                hand=hand, object=obj, grasp=grasp, allocator="qp",
+                                hand=hand,
+                                object=obj,
+                                grasp=grasp,
+                                allocator="qp",
                                 theta_deg=theta,
-                                seed=trial_seed, estimator_params={"k": k},
+                                seed=trial_seed,
+                                estimator_params={"k": k},
                                 protocol_params=protocol_for(size),
-                            )  # fmt: skip
+                            )
                             jobs.append(TrialJob(len(jobs), spec, {"k": k, "repeat": repeat}))
         return jobs
 
@@ -71,12 +75,14 @@ class KSweepStudy(Study):
         for (k,), group in group_rows(rows, "k").items():
             contacts = [float(r["contacts_mean"]) for r in group if r.get("cycles")]
             cycle = [float(r["cycle_mean_us"]) for r in group if r.get("cycles")]
-            groups.append({
-                "k": k,
-                **success_stats(group),
-                "qp_contacts_mean": float(np.mean(contacts)) if contacts else float("nan"),
-                "control_rate_hz": float(1e6 / np.mean(cycle)) if cycle else float("nan"),
-            })  # fmt: skip
+            groups.append(
+                {
+                    "k": k,
+                    **success_stats(group),
+                    "qp_contacts_mean": float(np.mean(contacts)) if contacts else float("nan"),
+                    "control_rate_hz": float(1e6 / np.mean(cycle)) if cycle else float("nan"),
+                }
+            )
         return {"groups": groups}
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:

@@ -65,10 +65,14 @@ class PerturbationStudy(Study):
                         trial_seed = derive_seed(seed, oi, grasp, repeat)
                         for method in cfg.methods:
                             spec = TrialSpec(
-                                hand=hand, object=obj, grasp=grasp, allocator=method,
+                                hand=hand,
+                                object=obj,
+                                grasp=grasp,
+                                allocator=method,
                                 theta_deg=theta,
-                                seed=trial_seed, protocol_params=protocol,
-                            )  # fmt: skip
+                                seed=trial_seed,
+                                protocol_params=protocol,
+                            )
                             labels = {"method": method, "repeat": repeat}
                             jobs.append(TrialJob(len(jobs), spec, labels))
         return jobs

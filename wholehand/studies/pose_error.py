@@ -81,21 +81,34 @@ class PoseErrorStudy(Study):
                     zero = rot == 0.0 and trans == 0.0
                     for repeat in range(1 if zero else cfg.repeats):
                         offset_seed = derive_seed(seed, oi, grasp, repeat)
-                        pose_error = {} if zero else {
-                            "rot_deg": rot, "trans_mm": trans, "seed": offset_seed,
-                        }  # fmt: skip
+                        pose_error = (
+                            {}
+                            if zero
+                            else {
+                                "rot_deg": rot,
+                                "trans_mm": trans,
+                                "seed": offset_seed,
+                            }
+                        )
                         for method, d_thresh in variants:
                             spec = TrialSpec(
-                                hand=hand, object=obj, grasp=grasp, allocator=method,
+                                hand=hand,
+                                object=obj,
+                                grasp=grasp,
+                                allocator=method,
                                 theta_deg=0.0,
-                                seed=offset_seed, protocol_params=protocol,
+                                seed=offset_seed,
+                                protocol_params=protocol,
                                 estimator_params={} if d_thresh is None else {"d_thresh": d_thresh},
                                 pose_error=pose_error,
-                            )  # fmt: skip
+                            )
                             labels = {
-                                "method": method, "d_thresh": d_thresh, "rot_deg": rot,
-                                "trans_mm": round(trans, 6), "repeat": repeat,
-                            }  # fmt: skip
+                                "method": method,
+                                "d_thresh": d_thresh,
+                                "rot_deg": rot,
+                                "trans_mm": round(trans, 6),
+                                "repeat": repeat,
+                            }
                             jobs.append(TrialJob(len(jobs), spec, labels))
         return jobs
 
@@ -103,10 +116,15 @@ class PoseErrorStudy(Study):
         groups = []
         keys = ("method", "d_thresh", "rot_deg", "trans_mm")
         for (method, d_thresh, rot, trans), group in group_rows(rows, *keys).items():
-            groups.append({
-                "method": method, "d_thresh": d_thresh, "rot_deg": rot, "trans_mm": trans,
-                **success_stats(group),
-            })  # fmt: skip
+            groups.append(
+                {
+                    "method": method,
+                    "d_thresh": d_thresh,
+                    "rot_deg": rot,
+                    "trans_mm": trans,
+                    **success_stats(group),
+                }
+            )
         failures: dict[str, dict[str, int]] = {}
         for r in rows:
             if not r["held"]:

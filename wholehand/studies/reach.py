@@ -48,12 +48,15 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
     started = time.perf_counter()
     summary = run_episode(
         EpisodeSpec(
-            hand=s.hand, object=s.object, seed=s.seed, rate=s.control_rate,
+            hand=s.hand,
+            object=s.object,
+            seed=s.seed,
+            rate=s.control_rate,
             allocator=str(s.allocator),
             # --methods puts plain allocator names here: those run the paper's balance
             balance_weight=METHODS.get(job.labels["method"], False),
         )
-    )  # fmt: skip
+    )
     warnings = summary["mujoco_warnings"]
     diverged = warnings.get("bad_qacc", 0) + warnings.get("bad_qpos", 0)
     loop = summary["loop"]

@@ -375,9 +375,13 @@ def _terminate_as_interrupt() -> Iterator[_Termination]:
 
 
 def continue_command(
-    study: Study, folder: Path, size: str, seed: int, hand: str = DEFAULT_HAND,
+    study: Study,
+    folder: Path,
+    size: str,
+    seed: int,
+    hand: str = DEFAULT_HAND,
     methods: tuple[str, ...] | None = None,
-) -> str:  # fmt: skip
+) -> str:
     """The command line that continues a study run in ``folder``."""
     words = ["wholehand", "study", study.name, "--out", str(folder), "--resume"]
     if size != "full":
@@ -392,9 +396,12 @@ def continue_command(
 
 
 def study_jobs(
-    study: Study, size: str, seed: int, hand: str = DEFAULT_HAND,
+    study: Study,
+    size: str,
+    seed: int,
+    hand: str = DEFAULT_HAND,
     methods: tuple[str, ...] | None = None,
-) -> list[TrialJob]:  # fmt: skip
+) -> list[TrialJob]:
     """The jobs of ``study`` on ``hand``, with ``methods`` in place of its own (if given)."""
     jobs = study.jobs(size, seed, hand)
     return jobs if methods is None else with_methods(jobs, tuple(methods))

@@ -46,8 +46,16 @@ def plot_run(record: RunRecord, path: str | Path, title: str | None = None) -> P
         for start, name in phase_boundaries(record):
             for ax in axes:
                 ax.axvline(start, color="0.6", lw=0.6, ls="--")
-            ax_n.annotate(name, (start, 1.0), xycoords=("data", "axes fraction"), rotation=90,
-                          fontsize=7, va="top", ha="right", color="0.3")  # fmt: skip
+            ax_n.annotate(
+                name,
+                (start, 1.0),
+                xycoords=("data", "axes fraction"),
+                rotation=90,
+                fontsize=7,
+                va="top",
+                ha="right",
+                color="0.3",
+            )
     ax_n.set_ylabel("contacts")
     ax_w.set_ylabel("residual wrench")
     ax_tau.set_ylabel("tau [N*m]")

@@ -122,9 +122,12 @@ def build_animation(viewer: SceneViewer, record: RunRecord, fps: float = REPLAY_
     for frame, i in enumerate(cycles):
         c = record.contacts_at(int(i))
         poses = viewer.poses(
-            q[int(i)], object_pose(record, int(i)), c["contact_p"], c["contact_f"],
+            q[int(i)],
+            object_pose(record, int(i)),
+            c["contact_p"],
+            c["contact_f"],
             base_pose(record, int(i)),
-        )  # fmt: skip
+        )
         for path, pose in poses.items():
             clip = clips.get(path)
             if clip is None:
@@ -158,9 +161,13 @@ def write_html(
         hand, obj = hand or loaded[0], obj or loaded[1]
     threshold = FORCE_ARROW_MIN_N if min_force is None else float(min_force)
     viewer = SceneViewer.offline(
-        hand, obj, colour_scale=record_colour_scale(record, threshold), min_force=threshold,
-        distance_colours=distance_colours, legend=False,
-    )  # fmt: skip
+        hand,
+        obj,
+        colour_scale=record_colour_scale(record, threshold),
+        min_force=threshold,
+        distance_colours=distance_colours,
+        legend=False,
+    )
     if record.meta.get("table"):
         from wholehand.backends.table import Table
 
@@ -195,9 +202,12 @@ def replay_live(
     for i in frame_cycles(record, fps):
         c = record.contacts_at(int(i))
         viewer.update(
-            record.rows["q"][int(i)], object_pose(record, int(i)), c["contact_p"], c["contact_f"],
+            record.rows["q"][int(i)],
+            object_pose(record, int(i)),
+            c["contact_p"],
+            c["contact_f"],
             base_pose(record, int(i)),
-        )  # fmt: skip
+        )
         wait = (t[i] - t[0]) / speed - (time.perf_counter() - start)
         if wait > 0:
             time.sleep(wait)

@@ -35,16 +35,15 @@ from wholehand.allocation.problem import (
     build_allocation_qp,
 )
 from wholehand.allocation.solve import (
-    DEFAULT_SOLVER,
     FEAS_TOL,
     MATCH_RADIUS,
     SCREEN_TOL,
     AllocationSolution,
     WarmStart,
     binding_rows,
-    make_solver,
     solve_allocation,
 )
+from wholehand.allocation.solvers import DEFAULT_SOLVER, make_solver
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 
@@ -91,7 +90,7 @@ class QPAllocator(Allocator):
             :mod:`wholehand.allocation.problem`), > 0.
         consistency: Impose the actuation-consistency rows; None: the class default.
         actuated_dofs: Commanded joints: an (n_v,) boolean mask or joint indices; None: all.
-        solver: QP solver name, see :func:`wholehand.allocation.solve.available_solvers`.
+        solver: QP solver name, see :func:`wholehand.allocation.solvers.available_solvers`.
         solver_settings: Solver settings on top of the adapter's tight defaults.
         warm_start: Start each solve from the previous cycle's matched solution.
         screening: Solve with a working subset of torque/consistency rows (exact).

@@ -22,12 +22,8 @@ from wholehand.allocation.problem import (
     direct_problem,
     friction_edges,
 )
-from wholehand.allocation.solve import (
-    NATIVE_SOLVERS,
-    available_solvers,
-    make_solver,
-    solve_allocation,
-)
+from wholehand.allocation.solve import solve_allocation
+from wholehand.allocation.solvers import NATIVE_SOLVERS, available_solvers, make_solver
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 

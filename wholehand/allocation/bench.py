@@ -256,7 +256,7 @@ def run_allocation_benchmark(
         mean screening rounds, largest accepted constraint violation and median residual-wrench
         norm), ``best`` (per N, the fastest warm configuration) and ``plot`` (PNG path or None).
     """
-    from wholehand.allocation.solve import NATIVE_SOLVERS
+    from wholehand.allocation.solvers import NATIVE_SOLVERS
 
     qp_allocator = registry.get_class("allocators", "qp")
 

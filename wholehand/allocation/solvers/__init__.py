@@ -1,0 +1,95 @@
+"""QP solver adapters, one per module, and their registry (as qpsolvers keeps its own).
+
+Solvers are named by a string. ``"daqp"``, ``"osqp"`` and ``"piqp"`` are driven through their own
+Python APIs: a persistent DAQP model per problem shape, OSQP without the wrapper's conversions,
+PIQP's sparse KKT solver (the qpsolvers wrappers add per-cycle conversions; ``wholehand bench
+allocate`` compares them). Any other name in ``qpsolvers.available_solvers``, and
+``"qpsolvers:<name>"`` for any of them, goes through :func:`qpsolvers.solve_problem`.
+:func:`available_solvers` lists what is installed; an unknown name raises :class:`ConfigError`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from wholehand.allocation.solvers.base import BIG, DenseQP, QPResult, QPSolver
+from wholehand.allocation.solvers.daqp_solver import DaqpSolver
+from wholehand.allocation.solvers.osqp_solver import OsqpSolver
+from wholehand.allocation.solvers.piqp_solver import PiqpSolver
+from wholehand.allocation.solvers.qpsolvers_solver import QpsolversSolver
+from wholehand.errors import ConfigError
+
+NATIVE_SOLVERS: dict[str, type[QPSolver]] = {}
+"""Solvers driven through their own API, filled by guarded imports."""
+
+for _cls, _module in ((DaqpSolver, "daqp"), (OsqpSolver, "osqp"), (PiqpSolver, "piqp")):
+    try:
+        __import__(_module)
+    except ImportError:  # pragma: no cover - depends on the environment
+        continue
+    NATIVE_SOLVERS[_cls.name] = _cls
+
+DEFAULT_SOLVER: str = "daqp"
+"""Fastest exact solver on the benchmark (``wholehand bench allocate``)."""
+
+
+def _qpsolvers_available() -> list[str]:
+    try:
+        import qpsolvers
+    except ImportError:  # pragma: no cover
+        return []
+    return list(qpsolvers.available_solvers)
+
+
+def available_solvers() -> list[str]:
+    """Every solver name :func:`make_solver` accepts in this environment."""
+    generic = _qpsolvers_available()
+    plain = [s for s in generic if s not in NATIVE_SOLVERS]
+    return [*NATIVE_SOLVERS, *plain, *(f"qpsolvers:{s}" for s in generic)]
+
+
+def make_solver(
+    name: str, settings: Mapping[str, Any] | None = None, owner: str = "make_solver"
+) -> QPSolver:
+    """The adapter for solver ``name`` with ``settings`` on top of its defaults.
+
+    User ``settings`` are tried once on a tiny problem, so that a bad one fails here.
+
+    Raises:
+        ConfigError: ``name`` is not an installed solver (the message lists the installed
+            ones), or the solver rejects ``settings``.
+    """
+    generic = _qpsolvers_available()
+    solver: QPSolver | None = None
+    if isinstance(name, str):
+        base = name.removeprefix("qpsolvers:")
+        if name in NATIVE_SOLVERS:
+            solver = NATIVE_SOLVERS[name](settings)
+        elif base in generic:
+            solver = QpsolversSolver(base, settings)
+    if solver is not None:
+        if settings:
+            solver.probe(owner)
+        return solver
+    raise ConfigError(
+        f"{owner}: parameter solver={name!r} is not an installed QP solver; installed: "
+        f"{', '.join(available_solvers()) or 'none'}. Install another with e.g. "
+        f"`pip install qpsolvers[clarabel]` or `pip install proxsuite`."
+    )
+
+
+__all__ = [
+    "BIG",
+    "DEFAULT_SOLVER",
+    "NATIVE_SOLVERS",
+    "DaqpSolver",
+    "DenseQP",
+    "OsqpSolver",
+    "PiqpSolver",
+    "QPResult",
+    "QPSolver",
+    "QpsolversSolver",
+    "available_solvers",
+    "make_solver",
+]

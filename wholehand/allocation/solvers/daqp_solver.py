@@ -1,0 +1,82 @@
+"""DAQP through its own API (dense dual active set; the default solver)."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from wholehand.allocation.solvers.base import BIG, DenseQP, FloatArray, QPResult, QPSolver
+
+
+class DaqpSolver(QPSolver):
+    """DAQP (dual active set, dense; Arnström et al. 2022) through its own API.
+
+    One ``daqp.Model`` is kept per problem shape ``(n, m)``, so the Hessian is processed once
+    and each cycle only updates ``A`` and the bounds. A warm solve (``warm``, same shape as the
+    previous solve) starts from the previous solve's working set; if it fails, the problem is
+    solved again from scratch. The values of ``x0`` are not used.
+    """
+
+    name = "daqp"
+    defaults: ClassVar[Mapping[str, Any]] = {"primal_tol": 1e-9, "iter_limit": 2000}
+    primal_warm_start = False
+    max_models: ClassVar[int] = 8
+    """Problem shapes kept (least recently used dropped first)."""
+
+    def __init__(self, settings: Mapping[str, Any] | None = None) -> None:
+        import daqp  # noqa: F401  (fail at construction when missing)
+
+        super().__init__(settings)
+        self._models: OrderedDict[tuple[int, int, int], tuple[Any, FloatArray]] = OrderedDict()
+        self._last_key: tuple[int, int, int] | None = None
+
+    def reset(self) -> None:
+        """Drop the kept models (and with them the warm-start state)."""
+        self._models.clear()
+        self._last_key = None
+
+    def _solve(self, qp: DenseQP, x0: FloatArray | None, warm: bool) -> QPResult:
+        import daqp
+
+        n = qp.p_diag.size
+        key = (n, qp.A.shape[0], qp.n_eq)
+        bu = np.minimum(np.concatenate((qp.ub, qp.upper)), BIG)
+        bl = np.maximum(np.concatenate((qp.lb, qp.lower)), -BIG)
+        sense = np.zeros(bu.size, dtype=np.intc)
+        sense[n : n + qp.n_eq] = 5  # active + immutable: equality
+        entry = self._models.get(key)
+        warm = warm and key == self._last_key and entry is not None
+        if entry is None or not np.array_equal(entry[1], qp.p_diag):
+            model = daqp.Model()
+            unknown = set(self.settings) - set(model.settings)
+            if unknown:
+                raise ValueError(
+                    f"unknown DAQP settings {sorted(unknown)}; known: {sorted(model.settings)}"
+                )
+            model.settings = dict(self.settings)
+            model.setup(np.diag(qp.p_diag), np.zeros(n), qp.A, bu, bl, sense)
+            self._models[key] = (model, qp.p_diag.copy())
+            warm = False
+        else:
+            model = entry[0]
+            self._models.move_to_end(key)
+            if warm:
+                model.update(A=qp.A, bupper=bu, blower=bl)
+            else:
+                model.update(A=qp.A, bupper=bu, blower=bl, sense=sense)
+        while len(self._models) > self.max_models:
+            self._models.popitem(last=False)
+        self._last_key = key
+        x, _, flag, info = model.solve()
+        if flag <= 0 and warm:
+            model.update(A=qp.A, bupper=bu, blower=bl, sense=sense)
+            x, _, flag, info = model.solve()
+        it = int(info.get("iterations", 0))
+        if flag > 0:
+            return QPResult(np.array(x, dtype=np.float64), "optimal", it, f"exitflag {flag}", info)
+        self._last_key = None
+        status = "infeasible" if flag == -1 else "failed"
+        return QPResult(None, status, it, f"exitflag {flag}", info)

@@ -19,7 +19,7 @@ import argparse
 
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
-from wholehand.models.objects import load_object
+from wholehand.models.object_catalogue import load_object
 from wholehand.studies.base import METHODS, TINY_PROTOCOL
 from wholehand.studies.rows import record_row
 

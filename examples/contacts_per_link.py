@@ -22,7 +22,7 @@ import numpy as np
 
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
-from wholehand.models.objects import load_object
+from wholehand.models.object_catalogue import load_object
 from wholehand.studies.base import TINY_PROTOCOL
 
 

@@ -28,7 +28,8 @@ from wholehand.contacts import ContactEstimator, ContactSet
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
-from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.object_catalogue import load_object
+from wholehand.models.objects import ObjectModel
 from wholehand.studies.base import TINY_PROTOCOL
 from wholehand.studies.rows import record_row
 

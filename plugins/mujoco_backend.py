@@ -95,7 +95,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
     Args:
         hand: a :class:`~wholehand.models.hand.HandModel` or the name/path of a hand.
         obj: an :class:`~wholehand.models.objects.ObjectModel` or an object spec accepted by
-            :func:`~wholehand.models.objects.load_object` (e.g. ``"077_rubiks_cube"``).
+            :func:`~wholehand.models.object_catalogue.load_object` (e.g. ``"077_rubiks_cube"``).
         wMo_init: (4, 4) initial pose of the object frame in the world; default: 0.5 m below the
             hand base, clear of the hand.
         q_init: (n_q,) initial joint positions, Pinocchio order; default ``hand.neutral()``.
@@ -129,7 +129,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
 
             hand = load_hand(hand)
         if isinstance(obj, str):
-            from wholehand.models.objects import load_object
+            from wholehand.models.object_catalogue import load_object
 
             obj = load_object(obj)
         fields = set(SceneOptions.__dataclass_fields__) - {"gravity", "timestep"}

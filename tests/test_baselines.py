@@ -131,7 +131,7 @@ def test_impedance_one_contact_is_spring_gradient(allegro, tip_setup):
 
 def test_impedance_at_initial_configuration_is_feedforward(allegro):
     """On real ground-truth contacts both baselines start with tau = J_gt^T f of the same QP."""
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
 
     obj = load_object(OBJECT)
     grasp = load_grasps("allegro_right", OBJECT)[0]
@@ -165,7 +165,7 @@ def test_impedance_at_initial_configuration_is_feedforward(allegro):
 
 
 def test_trial_feedforward_torque_never_changes_impedance_does(allegro):
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
 
     obj = load_object(OBJECT)
     taus = {}

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from wholehand.grasps.store import load_grasps, stored_grasp_indices
-from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies import get_study, run_study
 from wholehand.studies.consistency import METHODS
 

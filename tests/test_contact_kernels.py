@@ -18,7 +18,8 @@ from wholehand.contacts.bench import grasp_like_states
 from wholehand.contacts.selection import top_k_per_link
 from wholehand.errors import ConfigError
 from wholehand.models.kinematics import HandKinematics
-from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.object_catalogue import load_object
+from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import inverse, pose_from_xyz_rpy
 from wholehand.models.sdf import SignedDistanceGrid
 

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from wholehand.grasps.store import load_grasps
 from wholehand.loop.grasp_loss import LINEAR_SUPPORT_MAX_POINTS, GraspLossCheck
 from wholehand.models.kinematics import HandKinematics
-from wholehand.models.objects import load_object
+from wholehand.models.object_catalogue import load_object
 
 
 def hull_meets_box(points: np.ndarray, wMo: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:

@@ -17,7 +17,7 @@ from wholehand.grasps.store import (
     objects_with_grasps,
     save_grasps,
 )
-from wholehand.models.objects import PAPER_OBJECTS, load_object
+from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
 
 
 @pytest.mark.parametrize("name", PAPER_OBJECTS)
@@ -134,11 +134,11 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
     """``--object all`` runs the generator once per YCB mesh, writes the files that have grasps
     to --out (never the shipped folder then) and names the objects that yield none."""
     import wholehand.grasps.generate as generate
-    import wholehand.models.objects as objects
+    import wholehand.models.object_catalogue as catalogue
     from wholehand.cli.main import main
 
     names = ["077_rubiks_cube", "065-f_cups"]
-    monkeypatch.setattr(objects, "available_objects", lambda: names)
+    monkeypatch.setattr(catalogue, "available_objects", lambda: names)
     seen: list[str] = []
 
     def fake(hand, obj, count, seed, max_candidates, progress, style):

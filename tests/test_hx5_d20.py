@@ -18,7 +18,8 @@ from wholehand.loop.outcome import outcome_of
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
 from wholehand.models.hand_config import shipped_hands_dir
-from wholehand.models.objects import PAPER_OBJECTS, ObjectModel, load_object
+from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
+from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import pose_from_xyz_rpy
 
 FOLDER = shipped_hands_dir() / "robotis_hx5_d20_right"

@@ -24,7 +24,7 @@ from wholehand.loop.record import RunRecord
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import CycleContext, LoopStatus, Stage, StageOutput
 from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.models.objects import load_object
+from wholehand.models.object_catalogue import load_object
 from wholehand.studies.rows import record_row
 
 OBJECT = "077_rubiks_cube"

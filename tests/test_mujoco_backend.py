@@ -24,7 +24,8 @@ from wholehand.backends.mujoco_scene import (
 from wholehand.errors import AssetError, ConfigError, WholehandError
 from wholehand.grasps.store import objects_with_grasps
 from wholehand.loop.command import Command
-from wholehand.models.objects import PAPER_OBJECTS, ObjectModel, load_object
+from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
+from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import pose_from_xyz_rpy
 
 

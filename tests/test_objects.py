@@ -13,17 +13,16 @@ import trimesh
 
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import objects
-from wholehand.models.objects import (
-    DEFAULT_DENSITY,
+from wholehand.models.mesh_repair import repair_mesh
+from wholehand.models.object_catalogue import (
     PAPER_OBJECTS,
-    ObjectModel,
     available_objects,
     load_object,
     parse_primitive_spec,
-    repair_mesh,
     ycb_mesh_dir,
     ycb_registry,
 )
+from wholehand.models.objects import DEFAULT_DENSITY, ObjectModel
 from wholehand.models.sdf import MeshDistance, SignedDistanceGrid
 
 
@@ -228,11 +227,11 @@ def test_a_nan_vertex_is_named_not_reported_as_holes(tmp_path: Path) -> None:
 
 
 def test_a_huge_mesh_is_refused_with_the_fix(tmp_path: Path, monkeypatch) -> None:
-    import wholehand.models.objects as objects
+    import wholehand.models.mesh_repair as mesh_repair
 
     path = tmp_path / "scan.stl"
     trimesh.creation.icosphere(subdivisions=3, radius=0.05).export(path)  # 1280 faces
-    monkeypatch.setattr(objects, "MAX_MESH_FACES", 1000)
+    monkeypatch.setattr(mesh_repair, "MAX_MESH_FACES", 1000)
     with pytest.raises(AssetError, match="has 1280 triangles, more than the 1000.*decimate"):
         ObjectModel.from_mesh(path)
 
@@ -343,7 +342,7 @@ def test_mustard_mesh_is_not_watertight_and_needs_repair() -> None:
 
 
 def test_registered_object_is_repaired_on_load(caplog: pytest.LogCaptureFixture) -> None:
-    with caplog.at_level(logging.INFO, logger="wholehand.models.objects"):
+    with caplog.at_level(logging.INFO, logger="wholehand.models.object_catalogue"):
         obj = load_object("006_mustard_bottle")
     assert "repairing" in caplog.text
     assert obj.mesh.is_watertight and "repaired" in obj.source and "(+0.00 %)" in obj.source

@@ -11,7 +11,7 @@ import pytest
 
 from wholehand.errors import ConfigError
 from wholehand.loop.trial import TrialSpec, pose_error_offset, run_trial
-from wholehand.models.objects import load_object
+from wholehand.models.object_catalogue import load_object
 from wholehand.studies import get_study, run_study
 from wholehand.studies.base import TINY_PROTOCOL
 

@@ -34,7 +34,7 @@ OBJECT = "077_rubiks_cube"
 
 @pytest.fixture(scope="module")
 def cube(allegro):
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
 
     return load_object(OBJECT)
 
@@ -320,7 +320,7 @@ def test_mesh_distance_is_to_the_hull_so_the_object_collides_as_its_parts(allegr
     from wholehand_plugins.mink_reacher import build_reach_model
 
     from wholehand.backends.convex import convex_decomposition
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
 
     cup = load_object("065-f_cups")
     spec = mujoco.MjSpec()

@@ -11,7 +11,7 @@ import trimesh
 
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import sdf as sdf_module
-from wholehand.models.objects import ycb_mesh_dir
+from wholehand.models.object_catalogue import ycb_mesh_dir
 from wholehand.models.sdf import MeshDistance, SignedDistanceGrid
 
 SPACING = 0.002

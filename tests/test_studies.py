@@ -18,7 +18,7 @@ import pytest
 from wholehand.errors import ConfigError, PluginError
 from wholehand.grasps.store import load_grasps, objects_with_grasps
 from wholehand.loop.record import RunRecord
-from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies import STUDIES, TIMING_COLUMNS, get_study, run_study, runner
 from wholehand.studies.base import derive_seed, success_stats
 from wholehand.studies.executors import execute

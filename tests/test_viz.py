@@ -21,7 +21,7 @@ from wholehand.grasps.store import load_grasps
 from wholehand.loop.record import RunRecord
 from wholehand.models.hand import load_hand
 from wholehand.models.kinematics import HandKinematics
-from wholehand.models.objects import load_object
+from wholehand.models.object_catalogue import load_object
 from wholehand.viz.plots import phase_boundaries, plot_run
 from wholehand.viz.replay import build_animation, frame_cycles, write_html
 from wholehand.viz.scene import (

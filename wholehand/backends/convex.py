@@ -29,7 +29,7 @@ import numpy.typing as npt
 
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import cache
-from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.models.object_catalogue import PAPER_OBJECTS
 
 if TYPE_CHECKING:
     import trimesh
@@ -234,7 +234,7 @@ def ship_decompositions(
 
     Returns, per name, the file written, the number of parts and the CoACD time [s].
     """
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
 
     folder = folder or shipped_dir()
     folder.mkdir(parents=True, exist_ok=True)

@@ -112,7 +112,7 @@ def _cmd_hw(args: argparse.Namespace) -> int:
     from wholehand.hardware.controller import ControllerSpec
 
     spec = ControllerSpec(estimate_at=args.estimate_at, allocate_every=args.allocate_every)
-    from wholehand.models.objects import PAPER_OBJECTS
+    from wholehand.models.object_catalogue import PAPER_OBJECTS
 
     objects = PAPER_OBJECTS if args.object == "paper" else tuple(args.object.split(","))
     result = run_hw_benchmark(

@@ -42,7 +42,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     from wholehand.grasps.generate import generate_grasps
     from wholehand.grasps.store import grasp_file, grasps_dir, hand_grasps_dir, save_grasps
     from wholehand.models.hand import load_hand
-    from wholehand.models.objects import PAPER_OBJECTS, available_objects, load_object
+    from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects, load_object
 
     hand = load_hand(args.hand)
     shipped_hand = hand_grasps_dir(args.hand).is_relative_to(grasps_dir())

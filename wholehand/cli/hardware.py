@@ -29,7 +29,7 @@ def _write(result: dict[str, Any], path: str | None, summary: dict[str, Any]) ->
 def _cmd_control(args: argparse.Namespace) -> int:
     from wholehand.hardware.controller import ControllerSpec, run_controller
     from wholehand.models.hand import load_hand
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
 
     spec = ControllerSpec(
         estimator=args.estimator,

@@ -27,7 +27,7 @@ def _cmd_plugins(args: argparse.Namespace) -> int:
 
 def _cmd_info(args: argparse.Namespace) -> int:
     from wholehand.models.hand import load_hand
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
 
     hand = load_hand(args.hand)
     obj = load_object(args.object)
@@ -46,7 +46,7 @@ def _cmd_hands(args: argparse.Namespace) -> int:
 
 
 def _cmd_objects(args: argparse.Namespace) -> int:
-    from wholehand.models.objects import available_objects
+    from wholehand.models.object_catalogue import available_objects
 
     print("\n".join(available_objects()))
     return 0

@@ -137,7 +137,8 @@ def _object(name: str, sdf_spacing: str | None) -> ObjectModel | None:
     """The object with ``--sdf-spacing`` applied (None: the trial loads it as registered)."""
     if sdf_spacing is None:
         return None
-    from wholehand.models.objects import AUTO_SPACING, load_object
+    from wholehand.models.object_catalogue import load_object
+    from wholehand.models.objects import AUTO_SPACING
 
     if sdf_spacing == AUTO_SPACING:
         return load_object(name, sdf_spacing=AUTO_SPACING)
@@ -222,7 +223,7 @@ def live_view(spec: Any, every: int, table: Table | None = None) -> Observer:
     pose, the contacts and forces the controller used), and ``table`` if given."""
     from wholehand.loop.control_loop import Observer
     from wholehand.models.hand import load_hand
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
     from wholehand.viz.scene import SceneViewer
 
     hand, obj = load_hand(spec.hand), load_object(spec.object)

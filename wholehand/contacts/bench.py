@@ -13,7 +13,8 @@ from wholehand import registry
 from wholehand.grasps.styles import style_arrays
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
-from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.object_catalogue import load_object
+from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
 from wholehand.models.poses import inverse, pose_from_xyz_rpy
 from wholehand.timing import percentiles_us, time_calls

@@ -33,7 +33,7 @@ from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig, StampSource
 from wholehand.hardware.controller import ControllerSpec, run_controller
 from wholehand.models.hand import load_hand
-from wholehand.models.objects import load_object
+from wholehand.models.object_catalogue import load_object
 
 
 def _free_port() -> int:

@@ -46,7 +46,8 @@ from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.loop.trial import tracking_filters
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
-from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.object_catalogue import load_object
+from wholehand.models.objects import ObjectModel
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -30,7 +30,8 @@ from wholehand.loop.protocol import PerturbationProtocol, ProtocolDriver
 from wholehand.loop.record import Recorder, RunRecord
 from wholehand.loop.regulation import EstimateAt, ForceRegulation
 from wholehand.models.hand import HandModel, load_hand
-from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.object_catalogue import load_object
+from wholehand.models.objects import ObjectModel
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -32,7 +32,8 @@ from wholehand.loop.stage import CycleContext
 from wholehand.loop.trial import TrialSpec, load_allocator, run_trial
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
-from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.object_catalogue import load_object
+from wholehand.models.objects import ObjectModel
 
 WORST_OBJECTS = ("006_mustard_bottle", "052_extra_large_clamp")
 """Where the paper's method loses most grasps in the perturbation study (theta 90 deg)."""

@@ -45,7 +45,8 @@ from wholehand.loop.stage import Stage
 from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
-from wholehand.models.objects import ObjectModel, load_object
+from wholehand.models.object_catalogue import load_object
+from wholehand.models.objects import ObjectModel
 from wholehand.reaching.pregrasp import GraspPlan, plan_pregrasp, usable_on_table
 
 FloatArray = npt.NDArray[np.float64]

@@ -29,7 +29,7 @@ from wholehand.errors import ConfigError
 from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
     Study,

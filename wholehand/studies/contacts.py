@@ -15,7 +15,7 @@ from typing import Any
 
 from wholehand.grasps.store import objects_with_grasps, stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
-from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
     METHODS,

@@ -16,7 +16,7 @@ import numpy as np
 
 from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
-from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
     Study,

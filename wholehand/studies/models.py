@@ -17,7 +17,7 @@ def model(kind: str, name: str) -> Any:
 
             _MODELS[key] = load_hand(name)
         else:
-            from wholehand.models.objects import load_object
+            from wholehand.models.object_catalogue import load_object
 
             _MODELS[key] = load_object(name)
     return _MODELS[key]

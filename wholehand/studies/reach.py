@@ -18,7 +18,7 @@ import numpy as np
 
 from wholehand.loop.outcome import DIVERGED_PREFIX
 from wholehand.loop.trial import TrialSpec
-from wholehand.models.objects import PAPER_OBJECTS
+from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, derive_seed, group_rows
 
 METHODS = {"qp": False, "qp+weight": True}

@@ -30,7 +30,7 @@ REPLAY_FPS = 20.0
 def load_models(record: RunRecord) -> tuple[HandModel, ObjectModel]:
     """The hand and object named in the record's spec."""
     from wholehand.models.hand import load_hand
-    from wholehand.models.objects import load_object
+    from wholehand.models.object_catalogue import load_object
 
     spec = record.meta.get("spec") or {}
     return load_hand(spec.get("hand", "allegro_right")), load_object(

@@ -23,7 +23,8 @@ from wholehand.models.object_catalogue import (
     ycb_registry,
 )
 from wholehand.models.objects import DEFAULT_DENSITY, ObjectModel
-from wholehand.models.sdf import MeshDistance, SignedDistanceGrid
+from wholehand.models.sdf import SignedDistanceGrid
+from wholehand.models.sdf_build import MeshDistance
 
 
 def write_mesh(mesh: trimesh.Trimesh, path: Path) -> Path:

@@ -12,7 +12,8 @@ import trimesh
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import sdf as sdf_module
 from wholehand.models.object_catalogue import ycb_mesh_dir
-from wholehand.models.sdf import MeshDistance, SignedDistanceGrid
+from wholehand.models.sdf import SignedDistanceGrid
+from wholehand.models.sdf_build import MeshDistance
 
 SPACING = 0.002
 RADIUS = 0.04

@@ -4,7 +4,7 @@ For each wall thickness, a tilted plate and a cylindrical shell (a tube, as a cu
 built at the default grid spacing and at ``sdf_spacing="auto"``. Points are placed near the
 surface (up to a third of the wall inside, up to 2 mm outside) and the grid's sign and normal
 (gradient) are compared with the exact signed distance to the mesh and the direction to its
-closest point (:class:`~wholehand.models.sdf.MeshDistance`).
+closest point (:class:`~wholehand.models.sdf_build.MeshDistance`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ import numpy as np
 import trimesh
 
 from wholehand.models.objects import AUTO_SPACING, ObjectModel
-from wholehand.models.sdf import DEFAULT_SPACING, MeshDistance
+from wholehand.models.sdf import DEFAULT_SPACING
+from wholehand.models.sdf_build import MeshDistance
 
 WALLS_MM = (2.0, 3.0, 4.0, 5.0)
 """Wall thicknesses measured by default [mm]."""

@@ -22,18 +22,12 @@ from wholehand.loop.record import RunRecord
 from wholehand.models.hand import load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
+from wholehand.viz.arrows import force_arrows
+from wholehand.viz.colours import ColourScale, distance_rgb, distance_to_nearest_contact
 from wholehand.viz.plots import phase_boundaries, plot_run
+from wholehand.viz.recording import RecordingWindow
 from wholehand.viz.replay import build_animation, frame_cycles, write_html
-from wholehand.viz.scene import (
-    HIDDEN_SCALE,
-    ColourScale,
-    NodePose,
-    RecordingWindow,
-    SceneViewer,
-    distance_rgb,
-    distance_to_nearest_contact,
-    force_arrows,
-)
+from wholehand.viz.scene import HIDDEN_SCALE, NodePose, SceneViewer
 
 FORCES_N = (0.3, 1.0, 2.5, 4.5)
 """Synthetic contact force magnitudes; the first is below the 0.5 N arrow threshold."""

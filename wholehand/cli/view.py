@@ -56,8 +56,9 @@ def _cmd_view(args: argparse.Namespace) -> int:
         print(f"html: {out}")
     if args.plot or args.html:
         return 0
+    from wholehand.viz.arrows import FORCE_ARROW_MIN_N
     from wholehand.viz.replay import load_models, record_colour_scale, replay_live
-    from wholehand.viz.scene import FORCE_ARROW_MIN_N, SceneViewer
+    from wholehand.viz.scene import SceneViewer
 
     hand, obj = load_models(record)
     threshold = FORCE_ARROW_MIN_N if args.min_force is None else args.min_force

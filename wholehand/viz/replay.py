@@ -18,7 +18,9 @@ from meshcat.animation import Animation, AnimationClip
 from wholehand.loop.record import RunRecord
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
-from wholehand.viz.scene import ColourScale, NodePose, SceneViewer, force_arrows
+from wholehand.viz.arrows import force_arrows
+from wholehand.viz.colours import ColourScale
+from wholehand.viz.scene import NodePose, SceneViewer
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -154,7 +156,7 @@ def write_html(
     loop: bool = True,
 ) -> Path:
     """Write the record as a standalone HTML animation (opens offline); returns the path."""
-    from wholehand.viz.scene import FORCE_ARROW_MIN_N
+    from wholehand.viz.arrows import FORCE_ARROW_MIN_N
 
     if hand is None or obj is None:
         loaded = load_models(record)

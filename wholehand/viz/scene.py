@@ -24,7 +24,6 @@ scaled by :data:`HIDDEN_SCALE`.
 from __future__ import annotations
 
 import base64
-import io
 import logging
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple, cast
@@ -35,13 +34,13 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 import trimesh
-import umsgpack
-from meshcat.servers.tree import SceneTree, find_node, walk
 
-from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
+from wholehand.viz.arrows import FORCE_ARROW_MIN_N, force_arrows, y_to
+from wholehand.viz.colours import ColourScale, distance_rgb, distance_to_nearest_contact
+from wholehand.viz.recording import RecordingWindow
 
 if TYPE_CHECKING:
     from wholehand.backends.table import Table
@@ -51,30 +50,16 @@ log = logging.getLogger(__name__)
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 
-FORCE_ARROW_MIN_N = 0.5
-"""Smallest commanded contact force drawn as an arrow [N] (paper, Fig. 1 caption)."""
-FORCE_COLOURMAP = "plasma"
-"""Matplotlib colour map of the force magnitude."""
-FORCE_COLOUR_BINS = 8
-"""Number of discrete colours of the force scale (one arrow pool per colour)."""
-ARROW_M_PER_N = 0.01
-"""Arrow length per newton of force [m/N]."""
-ARROW_LENGTH_RANGE_M = (0.01, 0.06)
-"""Shortest and longest arrow drawn [m]."""
 ARROW_RADIUS_M = 0.0015
 """Shaft radius of a force arrow [m]."""
 CONTACT_RADIUS_M = 0.002
 """Radius of a contact-point sphere [m]."""
-DISTANCE_COLOURMAP = "viridis_r"
-"""Matplotlib colour map of the hand's distance to the nearest contact (near = yellow)."""
-DISTANCE_RANGE_M = 0.05
-"""Distance mapped to the far end of the distance colour map [m]."""
 HAND_RGB = (0.25, 0.25, 0.28)
 """Hand colour where the URDF gives none."""
 OBJECT_RGB = (0.2, 0.75, 0.7)
+"""Object colour (teal, away from the force colour map)."""
 TABLE_RGB = (0.55, 0.45, 0.35)
 """Colour of a table."""
-"""Object colour (teal, away from the force colour map)."""
 OBJECT_OPACITY = 0.55
 BACKGROUND_RGB = (1.0, 1.0, 1.0)
 HIDDEN_SCALE = 1e-6
@@ -114,242 +99,6 @@ class NodePose(NamedTuple):
 
 
 HIDDEN = NodePose((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), (HIDDEN_SCALE,) * 3)
-
-
-# --- colour scales ------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ColourScale:
-    """Discrete colour scale of force magnitudes over [f_min, f_max] [N]."""
-
-    f_min: float = FORCE_ARROW_MIN_N
-    """Magnitude at the low end (the arrow threshold) [N]."""
-    f_max: float = 5.0
-    """Magnitude at the high end; larger forces take the last colour [N]."""
-    n_bins: int = FORCE_COLOUR_BINS
-    cmap: str = FORCE_COLOURMAP
-
-    def __post_init__(self) -> None:
-        if not (
-            np.isfinite(self.f_min) and np.isfinite(self.f_max) and self.f_max > self.f_min >= 0
-        ):
-            raise ConfigError(
-                f"ColourScale: need 0 <= f_min < f_max (finite) [N], "
-                f"got {self.f_min!r}, {self.f_max!r}"
-            )
-        if self.n_bins < 1:
-            raise ConfigError(f"ColourScale: n_bins must be >= 1, got {self.n_bins!r}")
-
-    @classmethod
-    def for_forces(cls, magnitudes: npt.ArrayLike, f_min: float = FORCE_ARROW_MIN_N) -> ColourScale:
-        """From f_min to the largest magnitude rounded up to whole newtons (>= f_min + 1)."""
-        m = np.asarray(magnitudes, dtype=float)
-        top = float(np.ceil(m.max())) if m.size else 0.0
-        return cls(f_min=f_min, f_max=max(top, f_min + 1.0))
-
-    def bin(self, magnitude: npt.ArrayLike) -> IntArray:
-        """(N,) colour-bin index of each magnitude, clipped to [0, n_bins - 1]."""
-        u = (np.asarray(magnitude, dtype=float) - self.f_min) / (self.f_max - self.f_min)
-        return np.clip(np.floor(u * self.n_bins), 0, self.n_bins - 1).astype(np.intp)
-
-    def bin_rgb(self) -> FloatArray:
-        """(n_bins, 3) RGB in [0, 1] of every bin (the colour map at the bin centres)."""
-        from matplotlib import colormaps
-
-        centres = (np.arange(self.n_bins) + 0.5) / self.n_bins
-        return np.asarray(colormaps[self.cmap](centres))[:, :3]
-
-    def rgb(self, magnitude: npt.ArrayLike) -> FloatArray:
-        """(N, 3) RGB in [0, 1] of each magnitude."""
-        return self.bin_rgb()[self.bin(magnitude)]
-
-    def bin_edges(self) -> FloatArray:
-        """(n_bins + 1,) magnitudes at the bin edges [N]."""
-        return np.linspace(self.f_min, self.f_max, self.n_bins + 1)
-
-    def legend_png(self, width_px: int = 140, height_px: int = 260) -> bytes:
-        """A vertical colour bar with magnitude ticks, as PNG bytes (matplotlib, Agg)."""
-        from matplotlib.colors import BoundaryNorm, ListedColormap
-        from matplotlib.figure import Figure
-
-        dpi = 100
-        fig = Figure(figsize=(width_px / dpi, height_px / dpi), dpi=dpi, facecolor="white")
-        ax = fig.add_axes((0.12, 0.05, 0.22, 0.82))
-        edges = self.bin_edges()
-        cmap = ListedColormap(self.bin_rgb())
-        norm = BoundaryNorm(edges, cmap.N)
-        from matplotlib.cm import ScalarMappable
-
-        bar = fig.colorbar(
-            ScalarMappable(norm=norm, cmap=cmap), cax=ax, ticks=edges[:: max(1, self.n_bins // 4)]
-        )
-        bar.ax.tick_params(labelsize=8)
-        ax.set_title("|f| [N]", fontsize=9, loc="left", pad=6)
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=dpi, facecolor="white")
-        return buf.getvalue()
-
-
-def distance_to_nearest_contact(points: FloatArray, contact_p: FloatArray) -> FloatArray:
-    """(P,) distance of each point to the nearest contact point [m]; inf where there is none."""
-    points = np.asarray(points, dtype=float).reshape(-1, 3)
-    contact_p = np.asarray(contact_p, dtype=float).reshape(-1, 3)
-    if contact_p.shape[0] == 0:
-        return np.full(points.shape[0], np.inf)
-    from scipy.spatial import cKDTree
-
-    d, _ = cKDTree(contact_p).query(points)
-    return np.asarray(d, dtype=float)
-
-
-def distance_rgb(
-    distance: FloatArray, d_max: float = DISTANCE_RANGE_M, cmap: str = DISTANCE_COLOURMAP
-) -> FloatArray:
-    """(P, 3) RGB in [0, 1] of distances [m], clipped to [0, d_max] (inf takes the far colour)."""
-    from matplotlib import colormaps
-
-    u = np.clip(np.nan_to_num(np.asarray(distance, dtype=float), posinf=d_max) / d_max, 0.0, 1.0)
-    return np.asarray(colormaps[cmap](u))[:, :3]
-
-
-# --- force arrows -------------------------------------------------------------------------------
-class ForceArrows(NamedTuple):
-    """The force arrows of one cycle (N of them, forces of at least the threshold)."""
-
-    row: IntArray
-    """(N,) row of each arrow in the cycle's contact arrays."""
-    tip: FloatArray
-    """(N, 3) arrow tips: the contact points, world frame [m]."""
-    direction: FloatArray
-    """(N, 3) unit directions of the forces on the object, world frame."""
-    magnitude: FloatArray
-    """(N,) force magnitudes [N]."""
-    length: FloatArray
-    """(N,) drawn arrow lengths [m]."""
-
-
-def force_arrows(
-    contact_p: npt.ArrayLike, contact_f: npt.ArrayLike, min_force: float = FORCE_ARROW_MIN_N
-) -> ForceArrows:
-    """The arrows to draw: contacts whose commanded force is at least ``min_force`` [N].
-
-    The arrow ends at the contact point and points along the force on the object, so it shows
-    the hand pushing on the object from outside.
-    """
-    p = np.asarray(contact_p, dtype=float).reshape(-1, 3)
-    f = np.asarray(contact_f, dtype=float).reshape(-1, 3)
-    if p.shape != f.shape:
-        raise ConfigError(
-            f"force_arrows: contact_p {p.shape} and contact_f {f.shape} differ in shape"
-        )
-    magnitude = np.linalg.norm(f, axis=1)
-    keep = np.flatnonzero(magnitude >= min_force)
-    m = magnitude[keep]
-    lo, hi = ARROW_LENGTH_RANGE_M
-    return ForceArrows(
-        row=keep,
-        tip=p[keep],
-        direction=f[keep] / np.maximum(m, 1e-12)[:, None],
-        magnitude=m,
-        length=np.clip(ARROW_M_PER_N * m, lo, hi),
-    )
-
-
-def _y_to(direction: FloatArray) -> FloatArray:
-    """(3, 3) rotation taking +y to a unit direction."""
-    R = pin.Quaternion.FromTwoVectors(np.array([0.0, 1.0, 0.0]), np.asarray(direction, dtype=float))
-    return R.toRotationMatrix()
-
-
-# --- an offline window ----------------------------------------------------------------------------
-class RecordingWindow:
-    """A meshcat window without a server: keeps the scene tree to write standalone HTML.
-
-    It stands in for :class:`meshcat.visualizer.ViewerWindow` (``send`` and ``get_scene``), so a
-    :class:`meshcat.Visualizer` built on it records commands instead of sending them; the HTML
-    embeds meshcat's packaged viewer JavaScript and opens offline from a file.
-    """
-
-    web_url: str | None = None
-
-    def __init__(self) -> None:
-        self.tree = SceneTree()
-
-    def send(self, command: Any) -> None:
-        data = command.lower()
-        path = [p for p in data["path"].split("/") if p]
-        packed = umsgpack.packb(data)
-        kind = data["type"]
-        node = find_node(self.tree, path)
-        if kind == "set_transform":
-            node.transform = packed
-        elif kind == "set_object":
-            node.object = packed
-            node.properties = []
-        elif kind == "set_property":
-            node.properties.append(packed)
-        elif kind == "set_animation":
-            node.animation = packed
-        elif kind == "delete":
-            if path:
-                find_node(self.tree, path[:-1]).pop(path[-1], None)
-            else:
-                self.tree = SceneTree()
-
-    def get_scene(self, overlay_html: str = "", title: str = "wholehand") -> str:
-        """Standalone HTML of the scene (viewer JS inlined; data as base64 msgpack).
-
-        Unlike meshcat's own ``static_html`` (one asynchronous ``fetch`` per command, resolved
-        in any order), the commands are decoded and run synchronously in tree order, parents
-        first, with animations last, so every node exists before the animation binds to it.
-        """
-        import meshcat.servers.zmqserver as zs
-
-        scene, animations = [], []
-        for node in walk(self.tree):
-            for packed in [node.object, *node.properties, node.transform]:
-                if packed is not None:
-                    scene.append(packed)
-            if node.animation is not None:
-                animations.append(node.animation)
-        blobs = ",\n".join(f'"{base64.b64encode(b).decode("ascii")}"' for b in scene + animations)
-        with open(f"{zs.VIEWER_ROOT}/main.min.js", encoding="utf-8") as f:
-            viewer_js = f.read()
-        return _HTML.format(title=title, viewer_js=viewer_js, commands=blobs, overlay=overlay_html)
-
-    def open(self) -> RecordingWindow:
-        return self
-
-    def close(self) -> None:
-        pass
-
-
-_HTML = """<!DOCTYPE html>
-<html>
-<head><meta charset="utf-8"><title>{title}</title>
-<style>body {{margin: 0;}} #meshcat-pane {{width: 100vw; height: 100vh; overflow: hidden;}}
-#wholehand-overlay {{position: fixed; left: 8px; bottom: 8px; pointer-events: none;
- font: 12px sans-serif; background: rgba(255,255,255,0.85);}}</style></head>
-<body>
-<div id="meshcat-pane"></div>
-<script>
-{viewer_js}
-</script>
-<script>
-var viewer = new MeshCat.Viewer(document.getElementById("meshcat-pane"));
-var commands = [
-{commands}
-];
-for (const b64 of commands) {{
-  const bin = atob(b64);
-  const bytes = new Uint8Array(bin.length);
-  for (let i = 0; i < bin.length; i++) bytes[i] = bin.charCodeAt(i);
-  viewer.handle_command_bytearray(bytes);
-}}
-</script>
-{overlay}
-</body>
-</html>
-"""
 
 
 # --- the viewer -----------------------------------------------------------------------------------
@@ -596,7 +345,7 @@ class SceneViewer:
                     continue
                 i = rows[k]
                 M = np.eye(4)
-                M[:3, :3] = _y_to(arrows.direction[i])
+                M[:3, :3] = y_to(arrows.direction[i])
                 M[:3, 3] = arrows.tip[i] - arrows.length[i] * arrows.direction[i]
                 out[path] = NodePose.from_matrix(M, (1.0, float(arrows.length[i]), 1.0))
         return out

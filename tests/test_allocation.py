@@ -19,9 +19,9 @@ from wholehand.allocation.problem import (
     AllocationParams,
     AllocationQP,
     build_allocation_qp,
-    direct_problem,
     friction_edges,
 )
+from wholehand.allocation.reference import direct_problem, solved_problem
 from wholehand.allocation.solve import solve_allocation
 from wholehand.allocation.solvers import NATIVE_SOLVERS, available_solvers, make_solver
 from wholehand.contacts.base import ContactSet
@@ -98,7 +98,7 @@ def objective(qp: AllocationQP, lam: np.ndarray) -> float:
 
 def reference(qp: AllocationQP) -> tuple[float, qpsolvers.Solution]:
     """Optimal objective of the full (unscreened) problem, certified by KKT residuals."""
-    sol = qpsolvers.solve_problem(qp.to_problem(), solver="daqp", primal_tol=1e-10)
+    sol = qpsolvers.solve_problem(solved_problem(qp), solver="daqp", primal_tol=1e-10)
     assert sol.found
     assert sol.primal_residual() < 1e-9
     assert sol.dual_residual() < 1e-9
@@ -155,7 +155,7 @@ def test_reference_solutions_satisfy_kkt_for_every_solver(case: tuple[int, int, 
     for solver in qpsolvers.available_solvers:
         sparse = solver in qpsolvers.sparse_solvers and solver not in qpsolvers.dense_solvers
         sol = qpsolvers.solve_problem(
-            qp.to_problem(sparse=sparse), solver=solver, **settings_for(f"qpsolvers:{solver}")
+            solved_problem(qp, sparse=sparse), solver=solver, **settings_for(f"qpsolvers:{solver}")
         )
         assert sol.found, solver
         assert sol.primal_residual() < 1e-6, solver
@@ -347,7 +347,7 @@ def test_edge_form_equals_direct_form(case: tuple[int, int, float]) -> None:
     cs, J, com = synthetic_grasp(seed, n).cycle()
     params = AllocationParams.checked("test", tau_max=tmax, reg=1e-8)
     qp = build_allocation_qp(cs, J, com, params)
-    direct, edge = direct_problem(qp), qp.to_problem()
+    direct, edge = direct_problem(qp), solved_problem(qp)
     # Same non-pyramid rows: direct rows composed with f = blockdiag(E) lambda are the edge rows.
     Eb = np.kron(np.eye(qp.n_contacts), friction_edges(params.mu))
     np.testing.assert_allclose(direct.G[4 * n :] @ Eb, edge.G[:, : qp.n_lambda], atol=1e-12)
@@ -635,7 +635,7 @@ def test_edge_form_equals_direct_form_with_a_weight(case: tuple[int, int, float]
     w_ext = np.array([0.0, 0.0, -1.5, 0.01, 0.0, 0.0])
     params = AllocationParams.checked("test", tau_max=tmax, reg=1e-8)
     qp = build_allocation_qp(cs, J, com, params, w_ext=w_ext)
-    edge = qpsolvers.solve_problem(qp.to_problem(), solver="daqp", primal_tol=1e-10)
+    edge = qpsolvers.solve_problem(solved_problem(qp), solver="daqp", primal_tol=1e-10)
     direct = qpsolvers.solve_problem(direct_problem(qp), solver="daqp", primal_tol=1e-10)
     assert edge.found and direct.found
     lam = edge.x[: qp.n_lambda]

@@ -7,7 +7,7 @@ import pytest
 
 from wholehand import registry
 from wholehand.contacts.base import ContactSet
-from wholehand.contacts.selection import top_k_per_link
+from wholehand.contacts.reference import top_k_per_link
 from wholehand.errors import ConfigError
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel

@@ -10,7 +10,8 @@ Paper form (variables ``f``: the local forces ``[f_n, f_t1, f_t2]`` of all N con
 
 where ``f_act`` stacks the *world-axis* forces of the contacts on actuated links, in the
 coordinates ``J_act`` acts on: ``f_act,i = wRc_i f_i`` (see :mod:`wholehand.allocation.grasp`
-for frames and signs). :func:`direct_problem` builds exactly this (plus the tie-break below).
+for frames and signs). :func:`wholehand.allocation.reference.direct_problem` builds exactly this
+(plus the tie-break below).
 
 Torque sign. ``f`` is the force of the hand on the object, so the object pushes the hand with
 ``-f``. A static hand needs ``tau + J^T (-f) = 0``, i.e. ``tau = J^T f``. One-joint check: a link
@@ -28,7 +29,8 @@ price is bounded: the residual part of the objective exceeds the true optimum by
 (``reg = 1e-6``, ``f_n_min = 10 N``); residual wrenches of balanced synthetic grasps come out at
 1e-8..1e-6. DAQP, OSQP and PIQP were checked from ``reg = 1e-8`` to ``1e-4``.
 
-Solved form (what :class:`AllocationQP` and :meth:`AllocationQP.to_problem` carry). Two exact
+Solved form (what :class:`AllocationQP` and :func:`~wholehand.allocation.reference.solved_problem`
+carry). Two exact
 reformulations make the problem cheap for a dense active-set solver:
 
 1. Friction-pyramid edges. Per contact ``f_i = E lambda_i`` with ``lambda_i >= 0`` (4,) and
@@ -44,7 +46,7 @@ reformulations make the problem cheap for a dense active-set solver:
 
 The tie-break is then a ridge on the edge weights (for a pure normal force ``||lambda||^2 =
 f_n^2 / 4``); optimal residuals agree with the paper form up to the bound above, and the tests
-check the feasible sets and optimal values against :func:`direct_problem`.
+check the feasible sets and optimal values against the reference forms.
 
 Actuation-consistency basis. ``N_u`` (columns of ``U`` beyond rank in a full SVD
 ``J_act = U S V^T``, rank by an *absolute* tolerance on the singular values, units of ``J``)
@@ -66,7 +68,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as spa
 from scipy.linalg import lapack
 
 from wholehand import defaults
@@ -74,8 +75,6 @@ from wholehand.allocation.grasp import contact_frames, wrench_map
 from wholehand.errors import ConfigError
 
 if TYPE_CHECKING:
-    import qpsolvers
-
     from wholehand.contacts.base import ContactSet
 
 FloatArray = npt.NDArray[np.float64]
@@ -418,48 +417,6 @@ class AllocationQP:
         out = max(v)
         return out if np.isfinite(out) else np.inf
 
-    def to_problem(self, sparse: bool = False) -> qpsolvers.Problem:
-        """The full QP in the solved (edge, wrench-split) form as a :class:`qpsolvers.Problem`.
-
-        ``x = [lambda; w]``; ``P = diag(reg, ..., reg, 1, ..., 1)``, ``q = 0``; equality
-        ``G_lam lambda - w = -w_ext``; inequalities ``-sum(lambda) <= -f_n_min``, ``+-T_lam lambda
-        <= tau_max``, ``+-C lambda <= eps_margin``; bounds ``lambda >= 0``.
-
-        Args:
-            sparse: Return CSC matrices (for sparse solvers) instead of dense arrays.
-        """
-        import qpsolvers
-
-        nl, n = self.n_lambda, self.n_x
-        P = np.concatenate((np.full(nl, self.params.reg), np.ones(N_WRENCH)))
-        A = np.hstack((self.G_lam, -np.eye(N_WRENCH)))
-        rows = [-np.ones((1, nl))]
-        h = [np.array([-self.params.f_n_min])]
-        if self.torque_rows.size:
-            rows += [self.T_lam, -self.T_lam]
-            h += [self.tau_max[self.torque_rows]] * 2
-        if self.n_null and np.isfinite(self.params.eps_margin):
-            C = self.null_rows(np.arange(self.n_null))
-            rows += [C, -C]
-            h += [np.full(self.n_null, self.params.eps_margin)] * 2
-        Gi = np.vstack(rows)
-        Gi = np.hstack((Gi, np.zeros((Gi.shape[0], N_WRENCH))))
-        hv = np.concatenate(h)
-        lb = np.concatenate((np.zeros(nl), np.full(N_WRENCH, -np.inf)))
-        ub = np.full(n, np.inf)
-        if sparse:
-            return qpsolvers.Problem(
-                spa.diags(P, format="csc"),
-                np.zeros(n),
-                spa.csc_matrix(Gi),
-                hv,
-                spa.csc_matrix(A),
-                -self.w_ext,
-                lb,
-                ub,
-            )
-        return qpsolvers.Problem(np.diag(P), np.zeros(n), Gi, hv, A, -self.w_ext, lb, ub)
-
 
 def build_allocation_qp(
     contacts: ContactSet,
@@ -552,51 +509,3 @@ def _wrench(w_ext: npt.ArrayLike, owner: str) -> FloatArray:
             f"{owner}: external wrench must be 6 finite numbers [N, N*m], got {w_ext!r}"
         )
     return w
-
-
-def direct_problem(qp: AllocationQP, reg: float | None = None) -> qpsolvers.Problem:
-    """The paper's form on local forces ``f`` (3N,) as a dense :class:`qpsolvers.Problem`.
-
-    ``min 1/2 ||G f + w_ext||^2 + reg/2 ||f||^2`` subject to ``f_n >= 0`` (bounds), four
-    friction rows per contact, the minimum squeeze, the torque rows and the consistency rows
-    (same ``N_u`` as ``qp``). A reference for tests and A/B comparisons, not used in the control
-    loop.
-
-    Args:
-        qp: Structured problem of the cycle.
-        reg: Ridge weight on ``f`` (default ``qp.params.reg``).
-    """
-    import qpsolvers
-
-    p = qp.params
-    n = qp.n_contacts
-    reg = p.reg if reg is None else reg
-    P = qp.G.T @ qp.G + reg * np.eye(3 * n)
-    fric = np.zeros((n, 4, n, 3))
-    signs = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]])
-    i = np.arange(n)
-    fric[i, :, i, 0] = -p.mu
-    fric[i, :, i, 1] = signs[:, 0]
-    fric[i, :, i, 2] = signs[:, 1]
-    rows = [fric.reshape(4 * n, 3 * n)]
-    h = [np.zeros(4 * n)]
-    s = np.zeros((1, n, 3))
-    s[0, :, 0] = -1.0
-    rows.append(s.reshape(1, -1))
-    h.append(np.array([-p.f_n_min]))
-    # f_act (3 N_act,) = Rb f with Rb block-diagonal of the actuated contacts' frames.
-    blocks = np.zeros((qp.act_idx.size, 3, n, 3))
-    blocks[np.arange(qp.act_idx.size), :, qp.act_idx, :] = qp.wRc[qp.act_idx]
-    Rb = blocks.reshape(3 * qp.act_idx.size, 3 * n)
-    if qp.torque_rows.size:
-        T = (qp.J_act.T @ Rb)[qp.torque_rows]
-        rows += [T, -T]
-        h += [qp.tau_max[qp.torque_rows]] * 2
-    if qp.n_null and np.isfinite(p.eps_margin):
-        assert qp.null is not None
-        C = qp.null.basis().T @ Rb
-        rows += [C, -C]
-        h += [np.full(qp.n_null, p.eps_margin)] * 2
-    lb = np.tile([0.0, -np.inf, -np.inf], n)
-    q = qp.G.T @ qp.w_ext
-    return qpsolvers.Problem(P, q, np.vstack(rows), np.concatenate(h), lb=lb)

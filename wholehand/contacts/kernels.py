@@ -72,7 +72,7 @@ def grid_arguments(
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
-def _grid_tuples(
+def grid_tuples(
     dims: npt.NDArray[np.int64], geom: FloatArray
 ) -> tuple[tuple[int, int, int], tuple[float, float, float, float, float]]:
     """``dims`` and ``geom`` as tuples of scalars, for the per-point lookups."""
@@ -197,30 +197,6 @@ def sdf_value_and_gradient(
     return d, np.float64(gx / norm), np.float64(gy / norm), np.float64(gz / norm)
 
 
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def sdf_query(
-    values: npt.NDArray[np.float32],
-    dims: npt.NDArray[np.int64],
-    geom: FloatArray,
-    points_obj: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
-    """Distances (P,) [m] and unit gradients (P, 3) at (P, 3) object-frame points [m]: the
-    batch form of :func:`sdf_value_and_gradient` (for tests and offline use)."""
-    shape, g = _grid_tuples(dims, geom)
-    n = points_obj.shape[0]
-    dist = np.empty(n)
-    grad = np.empty((n, 3))
-    for i in range(n):
-        d, gx, gy, gz = sdf_value_and_gradient(
-            values, shape, g, points_obj[i, 0], points_obj[i, 1], points_obj[i, 2]
-        )
-        dist[i] = d
-        grad[i, 0] = gx
-        grad[i, 1] = gy
-        grad[i, 2] = gz
-    return dist, grad
-
-
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _joint_poses_in_object(
     wMo: FloatArray, wMb: FloatArray, bRj: FloatArray, bp_j: FloatArray
@@ -316,7 +292,7 @@ def mesh_sdf_contacts(
         ordered by link then distance: (N, 3) points on the hand [m] and (N, 3) unit outward
         object normals, world frame; (N,) link indices; (N,) signed distances [m].
     """
-    shape, g = _grid_tuples(dims, geom)
+    shape, g = grid_tuples(dims, geom)
     R, t = _joint_poses_in_object(wMo, wMb, bRj, bp_j)
     # Links are sorted, so at most (last - first + 1) of them hold points.
     n_links = point_link[-1] - point_link[0] + 1 if point_link.shape[0] else 0

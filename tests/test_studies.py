@@ -22,14 +22,9 @@ from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies import STUDIES, TIMING_COLUMNS, get_study, run_study, runner
 from wholehand.studies.base import derive_seed, success_stats
 from wholehand.studies.executors import execute
+from wholehand.studies.resume import execution_order, match_rows
 from wholehand.studies.rows import SPEC_COLUMNS, record_row, spec_columns
-from wholehand.studies.runner import (
-    JOURNAL_NAME,
-    execution_order,
-    match_rows,
-    read_csv,
-    write_csv,
-)
+from wholehand.studies.study_files import JOURNAL_NAME, read_csv, read_journal, write_csv
 
 
 def _read(path) -> list[dict[str, str]]:
@@ -427,7 +422,7 @@ def test_resume_reruns_trials_that_raised_and_keeps_diverged_ones(tmp_path, tiny
     assert result.rows[2] == rows[2]  # a diverged simulation is a result: kept as it is
     lines = _journal_lines(tmp_path)
     assert lines[4] == cut_short and json.loads(lines[5])["index"] == 1  # appended on a new line
-    assert len(runner.read_journal(tmp_path / JOURNAL_NAME)) == 5  # the cut line is skipped
+    assert len(read_journal(tmp_path / JOURNAL_NAME)) == 5  # the cut line is skipped
 
 
 def test_resume_matches_rows_by_content_and_ignores_other_designs(tmp_path, tiny_fresh, capsys):

@@ -13,7 +13,8 @@ from wholehand.studies.k_sweep import KSweepStudy
 from wholehand.studies.perturbation import PerturbationStudy
 from wholehand.studies.pose_error import PoseErrorStudy
 from wholehand.studies.reach import ReachStudy
-from wholehand.studies.runner import TIMING_COLUMNS, StudyResult, run_study
+from wholehand.studies.runner import StudyResult, run_study
+from wholehand.studies.study_files import TIMING_COLUMNS
 
 STUDIES: dict[str, type[Study]] = {
     cls.name: cls

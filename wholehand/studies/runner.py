@@ -3,63 +3,57 @@
 Every row of ``trials.csv`` is one trial, sorted by its index in the study. Its columns are the
 study's labels, every :class:`~wholehand.loop.trial.TrialSpec` field, the outcome (held, stages
 reached, failure stage, contact counts, final object displacement) and, last, the wall-clock
-timings listed in :data:`TIMING_COLUMNS`. Everything but the timings is a function of the study,
-its size and its seed: the same seed gives the same rows whatever the executor or worker count.
+timings (``TIMING_COLUMNS`` of :mod:`wholehand.studies.study_files`). Everything but the timings
+is a function of the study, its size and its seed: the same seed gives the same rows whatever
+the executor or worker count.
 
 Long runs: while a study runs, every finished row is appended to the journal ``rows.jsonl``
-(:data:`JOURNAL_NAME`, one JSON object a line, flushed per row). ``run_study(..., resume=True)``
-reads the rows already in the folder (journal and ``trials.csv``), matches them to the study's
-jobs by content (:func:`match_rows`) and runs only the rest; ``limit`` caps the trials run this
+(one JSON object a line, flushed per row). ``run_study(..., resume=True)`` reads the rows
+already in the folder (journal and ``trials.csv``), matches them to the study's jobs by content
+(:mod:`wholehand.studies.resume`) and runs only the rest; ``limit`` caps the trials run this
 time. A run that ends with trials missing still writes its outputs, marked ``"complete": false``.
 """
 
 from __future__ import annotations
 
 import contextlib
-import csv
-import dataclasses
 import json
 import logging
-import math
-import os
-import re
-import shlex
 import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
-
-import numpy as np
+from typing import Any
 
 from wholehand import registry
 from wholehand.errors import ConfigError
-from wholehand.loop.trial import TrialSpec, run_trial
+from wholehand.loop.trial import run_trial
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, with_methods
 from wholehand.studies.consistency import net_force_row
 from wholehand.studies.executors import execute
 from wholehand.studies.models import model
 from wholehand.studies.reach import episode_row
-from wholehand.studies.rows import SPEC_COLUMNS, record_row, spec_columns
+from wholehand.studies.resume import (
+    content_key,
+    continue_command,
+    execution_order,
+    failed_to_run,
+    match_rows,
+)
+from wholehand.studies.rows import record_row, spec_columns
+from wholehand.studies.study_files import (
+    JOURNAL_NAME,
+    folder_rows,
+    journal_line,
+    json_safe,
+    open_journal,
+    write_csv,
+)
 
 log = logging.getLogger(__name__)
-
-TIMING_COLUMNS = ("wall_time_s", "qp_p50_us", "cycle_mean_us", "control_rate_hz")
-"""Wall-clock columns of ``trials.csv``: they vary from run to run (not part of determinism)."""
-
-TEXT_COLUMNS = ("kind", "failure_stage", "error") + tuple(
-    f.name
-    for f in dataclasses.fields(TrialSpec)
-    if isinstance(f.default, str) or f.default_factory is dict
-)
-"""Columns :func:`read_csv` keeps as strings, an empty cell included (``""``, not None): the
-job kind, the failure stage, the error and the spec's names and JSON parameter dicts."""
-
-JOURNAL_NAME = "rows.jsonl"
-"""Journal of a study folder: every finished row as one JSON line, appended as it arrives."""
 
 
 def _trial(job: TrialJob) -> dict[str, Any]:
@@ -129,218 +123,6 @@ class StudyResult:
         return self.csv_path.parent / JOURNAL_NAME
 
 
-def columns_of(rows: list[dict[str, Any]]) -> list[str]:
-    """CSV header: every key in first-seen order, timing columns last."""
-    cols: list[str] = []
-    for r in rows:
-        cols += [k for k in r if k not in cols]
-    return [c for c in cols if c not in TIMING_COLUMNS] + [c for c in TIMING_COLUMNS if c in cols]
-
-
-def write_csv(rows: list[dict[str, Any]], path: str | Path) -> Path:
-    """Write ``rows`` as CSV (header :func:`columns_of`, None as an empty cell); read it back
-    with :func:`read_csv`. The file is replaced at once (written aside, then renamed), so an
-    interruption never leaves half a ``trials.csv``."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=columns_of(rows), restval="")
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: ("" if v is None else v) for k, v in r.items()})
-    os.replace(tmp, path)
-    return path
-
-
-_INT = re.compile(r"[-+]?(0|[1-9][0-9]*)")
-"""An int as ``str(int)`` writes it (no leading zeros: ``"077"`` stays a string)."""
-_FLOAT = re.compile(
-    r"[-+]?(([0-9]+\.[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?|[0-9]+[eE][-+]?[0-9]+|nan|inf)"
-)
-"""A float as ``str(float)`` writes it: with a point or an exponent, or nan / inf."""
-
-
-def _cell(text: str) -> Any:
-    """A CSV cell written by :func:`write_csv` as the Python value it came from."""
-    if text == "":
-        return None
-    if text in ("True", "False"):
-        return text == "True"
-    if _INT.fullmatch(text):
-        return int(text)
-    if _FLOAT.fullmatch(text):
-        return float(text)
-    return text
-
-
-def read_csv(path: str | Path) -> list[dict[str, Any]]:
-    """Rows of a CSV written by :func:`write_csv`, typed back: ``True``/``False`` as booleans,
-    integers (no leading zeros) as int, numbers with a point or an exponent, ``nan`` and
-    ``inf`` as float, an empty cell as None, anything else as a string. :data:`TEXT_COLUMNS`
-    always stay strings (``""`` included), so the spec's JSON parameter dicts compare equal to
-    :func:`spec_columns`.
-
-    Raises:
-        ConfigError: a line has more cells than the header has columns.
-    """
-    path = Path(path)
-    rows: list[dict[str, Any]] = []
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        for raw in reader:
-            if None in raw:
-                raise ConfigError(
-                    f"{path}, line {reader.line_num}: more cells than the header's "
-                    f"{len(reader.fieldnames or ())} columns; the file is not a trials.csv "
-                    "written by wholehand (remove it, or the line, to go on)"
-                )
-            rows.append({k: (v if k in TEXT_COLUMNS else _cell(v or "")) for k, v in raw.items()})
-    return rows
-
-
-def read_journal(path: str | Path) -> list[dict[str, Any]]:
-    """Rows of a journal (:data:`JOURNAL_NAME`), in the order they were appended. A line that is
-    not a JSON object (e.g. cut short when the run was killed) is skipped with a warning."""
-    path = Path(path)
-    rows: list[dict[str, Any]] = []
-    with open(path, encoding="utf-8") as fh:
-        for number, line in enumerate(fh, start=1):
-            if not line.strip():
-                continue
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                row = None
-            if not isinstance(row, dict):
-                log.warning("%s, line %d: not a JSON row (cut short?); skipped", path, number)
-                continue
-            rows.append(row)
-    return rows
-
-
-def _folder_rows(folder: Path) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """(rows of ``trials.csv``, rows of the journal) of a folder, each empty if absent."""
-    csv_path, journal_path = folder / "trials.csv", folder / JOURNAL_NAME
-    from_csv = read_csv(csv_path) if csv_path.exists() else []
-    from_journal = read_journal(journal_path) if journal_path.exists() else []
-    return from_csv, from_journal
-
-
-def _key(kind: Any, labels: dict[str, Any], spec: Iterable[Any]) -> str:
-    return json.dumps([kind, labels, list(spec)], sort_keys=True, default=str)
-
-
-def job_key(job: TrialJob) -> str:
-    """What identifies a job's row by content: (kind, labels, spec columns) as a JSON string.
-    The spec holds the seed, the protocol and every parameter, not the job's index."""
-    return _key(job.kind, job.labels, spec_columns(job.spec).values())
-
-
-def failed_to_run(row: dict[str, Any]) -> bool:
-    """The trial raised (``failure_stage == "error"``): its row is no result and is re-run.
-    A diverged simulation is a result (deterministic) and is kept."""
-    return row.get("failure_stage") == "error"
-
-
-@dataclass(frozen=True)
-class Matched:
-    """Finished rows of a folder matched to a study's jobs (:func:`match_rows`)."""
-
-    rows: dict[int, dict[str, Any]]
-    """Job index -> its row (``index`` set to the job's)."""
-    n_ignored: int
-    """Rows that match no job of the study (another design, size or seed)."""
-    n_failed: int
-    """Rows skipped because the trial raised (their jobs run again)."""
-
-
-def match_rows(jobs: Sequence[TrialJob], rows: Iterable[dict[str, Any]]) -> Matched:
-    """Give each job the finished row of the same content (:func:`job_key`), whatever index the
-    row had: rows of a narrower design with the same seeds fill the matching jobs of a wider
-    one. Rows of trials that raised (:func:`failed_to_run`) are not used; later rows win. A spec
-    column a row lacks, or holds empty (written before the field existed: such a row read back
-    from a ``trials.csv`` that also holds newer rows has an empty cell there), counts as the
-    field's default; no spec field has the empty string as a valid value. A matched row gets
-    the job's kind and spec cells, so rows of older versions read back like new ones."""
-    by_key: dict[str, list[int]] = {}
-    for job in jobs:
-        by_key.setdefault(job_key(job), []).append(job.index)
-    jobs_by_index = {job.index: job for job in jobs}
-    label_sets = list(dict.fromkeys(tuple(job.labels) for job in jobs))
-    default = spec_columns(TrialSpec())  # for spec fields a row predates (older versions)
-    matched: dict[int, dict[str, Any]] = {}
-    n_ignored = n_failed = 0
-    for row in rows:
-        if failed_to_run(row):
-            n_failed += 1
-            continue
-        spec = [default[c] if row.get(c) in (None, "") else row[c] for c in SPEC_COLUMNS]
-        hits: list[int] = []
-        for names in label_sets:
-            if all(n in row for n in names):
-                labels = {n: row[n] for n in names}
-                hits += by_key.get(_key(row.get("kind") or "trial", labels, spec), [])
-        if not hits:
-            n_ignored += 1
-        for index in hits:
-            job = jobs_by_index[index]
-            matched[index] = {**row, "kind": job.kind, **spec_columns(job.spec), "index": index}
-    return Matched(matched, n_ignored, n_failed)
-
-
-def execution_order(jobs: Sequence[TrialJob]) -> list[TrialJob]:
-    """Jobs in the order they are submitted: by (``labels["repeat"]`` (0 if absent), index).
-    Every grasp, method and angle gets its repeat 0 before any gets a repeat 1, so a run cut
-    short is a balanced subset of the design."""
-    return sorted(jobs, key=lambda j: (j.labels.get("repeat", 0), j.index))
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    return str(value)
-
-
-def _journal_line(row: dict[str, Any]) -> str:
-    """One journal line: the row as JSON (NaN and inf as Python's json writes them)."""
-    return json.dumps(row, default=_json_default) + "\n"
-
-
-def _content_key(row: dict[str, Any]) -> str:
-    """A row's content without its index and timings (None cells dropped): equal for a journal
-    row and the same row read back from ``trials.csv``."""
-    kept = {k: v for k, v in row.items() if v is not None and k not in ("index", *TIMING_COLUMNS)}
-    return json.dumps(kept, sort_keys=True, default=_json_default)
-
-
-def _open_journal(path: Path, fresh: bool) -> IO[str]:
-    """The journal opened for appending (emptied first if ``fresh``); a last line cut short by a
-    killed run is ended so that the next row starts on a line of its own."""
-    if fresh or not path.exists():
-        return open(path, "w", encoding="utf-8")
-    cut_short = False
-    if path.stat().st_size:
-        with open(path, "rb") as raw:
-            raw.seek(-1, os.SEEK_END)
-            cut_short = raw.read(1) != b"\n"
-    fh = open(path, "a", encoding="utf-8")  # closed by run_study
-    if cut_short:
-        fh.write("\n")
-    return fh
-
-
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, np.generic):
-        return _json_safe(value.item())
-    return value
-
-
 class _Termination:
     """SIGTERM handling of a study run: see :func:`_terminate_as_interrupt`."""
 
@@ -372,27 +154,6 @@ def _terminate_as_interrupt() -> Iterator[_Termination]:
         yield termination
     finally:
         signal.signal(signal.SIGTERM, previous)
-
-
-def continue_command(
-    study: Study,
-    folder: Path,
-    size: str,
-    seed: int,
-    hand: str = DEFAULT_HAND,
-    methods: tuple[str, ...] | None = None,
-) -> str:
-    """The command line that continues a study run in ``folder``."""
-    words = ["wholehand", "study", study.name, "--out", str(folder), "--resume"]
-    if size != "full":
-        words += ["--size", size]
-    if seed != 0:
-        words += ["--seed", str(seed)]
-    if hand != DEFAULT_HAND:
-        words += ["--hand", hand]
-    if methods is not None:
-        words += ["--methods", ",".join(methods)]
-    return shlex.join(words)
 
 
 def study_jobs(
@@ -470,7 +231,7 @@ def run_study(
     done: dict[int, dict[str, Any]] = {}
     from_csv: list[dict[str, Any]] = []
     if resume:
-        from_csv, from_journal = _folder_rows(folder)
+        from_csv, from_journal = folder_rows(folder)
         matched = match_rows(jobs, from_csv + from_journal)
         done.update(matched.rows)
         print(
@@ -484,18 +245,18 @@ def run_study(
     if limit is not None:
         todo = todo[: int(limit)]
 
-    journal = _open_journal(journal_path, fresh=not resume)
+    journal = open_journal(journal_path, fresh=not resume)
     if from_csv:  # keep every row of trials.csv in the journal: trials.csv is rewritten below
-        in_journal = {_content_key(r) for r in from_journal}
+        in_journal = {content_key(r) for r in from_journal}
         for row in from_csv:
-            key = _content_key(row)
+            key = content_key(row)
             if not failed_to_run(row) and key not in in_journal:
                 in_journal.add(key)
-                journal.write(_journal_line(row))
+                journal.write(journal_line(row))
         journal.flush()
 
     def finished(index: int, row: dict[str, Any]) -> None:
-        journal.write(_journal_line(row))
+        journal.write(journal_line(row))
         journal.flush()
         done[index] = row
 
@@ -541,7 +302,7 @@ def run_study(
         }
         csv_path = write_csv(rows, folder / "trials.csv")
         summary_path = folder / "summary.json"
-        summary_path.write_text(json.dumps(_json_safe(summary), indent=2) + "\n")
+        summary_path.write_text(json.dumps(json_safe(summary), indent=2) + "\n")
         plot_path = folder / f"{study.name}.png"
         import matplotlib
 
@@ -549,7 +310,7 @@ def run_study(
         # The plot gets NaN, not JSON's None, where a group has no valid trial (more likely in a
         # partial run): a gap in the figure instead of a TypeError.
         study.plot(rows, summary, plot_path)
-        summary = _json_safe(summary)
+        summary = json_safe(summary)
         if not complete:
             why = "interrupted" if interrupted else f"limit {limit}"
             print(

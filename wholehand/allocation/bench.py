@@ -317,13 +317,13 @@ def run_allocation_benchmark(
 
 def _plot(results: list[dict[str, Any]], path: Path) -> Path:
     import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    fig = Figure(figsize=(10.5, 4.2))
 
-    fig, (ax50, ax99) = plt.subplots(1, 2, figsize=(10.5, 4.2), sharey=True)
+    (ax50, ax99) = fig.subplots(1, 2, sharey=True)
     keys = sorted({(r["solver"], r["screening"]) for r in results})
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     styles = {"warm": "-", "no_warm_start": ":", "cold": "--"}
     for i, (solver, screening) in enumerate(keys):
         label = solver if screening else f"{solver} (no screening)"
@@ -352,7 +352,6 @@ def _plot(results: list[dict[str, Any]], path: Path) -> Path:
     ax50.legend(fontsize=6, ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 

@@ -139,7 +139,6 @@ def trials_label(summary: dict[str, Any]) -> str:
 
 def save_success_figure(fig: Any, ax: Any, path: Path, title: str | None = None) -> None:
     """Finish a success-rate plot (axis label and range, title, legend) and write it as PNG."""
-    import matplotlib.pyplot as plt
 
     ax.set_ylabel("success [%]")
     ax.set_ylim(-5, 105)
@@ -148,7 +147,6 @@ def save_success_figure(fig: Any, ax: Any, path: Path, title: str | None = None)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def with_methods(jobs: list[TrialJob], methods: tuple[str, ...]) -> list[TrialJob]:

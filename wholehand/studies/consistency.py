@@ -220,9 +220,11 @@ class ConsistencyStudy(Study):
         }
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
 
-        fig, axes = plt.subplots(1, 2, figsize=(8, 3.2))
+        fig = Figure(figsize=(8, 3.2))
+
+        axes = fig.subplots(1, 2)
         s = summary["load_test"]
         styles = sorted({x["grasp_type"] for x in s}, key=GRASP_TYPES.index)
         width = 0.8 / len(METHODS)
@@ -252,4 +254,3 @@ class ConsistencyStudy(Study):
             ax.tick_params(axis="x", labelsize=8)
         fig.tight_layout()
         fig.savefig(path, dpi=120)
-        plt.close(fig)

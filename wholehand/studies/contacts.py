@@ -119,13 +119,14 @@ class ContactsStudy(Study):
         }
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
-        import matplotlib.pyplot as plt
         import numpy as np
+        from matplotlib.figure import Figure
 
         order = summary["bin_order"]
         methods = list(dict.fromkeys(b["method"] for b in summary["bins"]))
         width = 0.8 / max(len(methods), 1)
-        fig, ax = plt.subplots(figsize=(6, 3.5))
+        fig = Figure(figsize=(6, 3.5))
+        ax = fig.subplots()
         for i, method in enumerate(methods):
             rate = {b["bin"]: b["success"] for b in summary["bins"] if b["method"] == method}
             x = np.arange(len(order)) + (i - (len(methods) - 1) / 2) * width

@@ -86,11 +86,12 @@ class KSweepStudy(Study):
         return {"groups": groups}
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
 
         g = summary["groups"]
         k = np.array([x["k"] for x in g])
-        fig, axes = plt.subplots(1, 3, figsize=(9, 3))
+        fig = Figure(figsize=(9, 3))
+        axes = fig.subplots(1, 3)
         rate, se = 100 * np.array([x["success"] for x in g]), 100 * np.array([x["se"] for x in g])
         axes[0].plot(k, rate, marker="o")
         axes[0].fill_between(k, rate - se, rate + se, alpha=0.2)
@@ -104,4 +105,3 @@ class KSweepStudy(Study):
             ax.set_xticks(k)
         fig.tight_layout()
         fig.savefig(path, dpi=120)
-        plt.close(fig)

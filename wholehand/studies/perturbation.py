@@ -90,10 +90,12 @@ class PerturbationStudy(Study):
         return {"groups": groups, "failure_stages": failures}
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
-        import matplotlib.pyplot as plt
         import numpy as np
+        from matplotlib.figure import Figure
 
-        fig, ax = plt.subplots(figsize=(5, 3.5))
+        fig = Figure(figsize=(5, 3.5))
+
+        ax = fig.subplots()
         by_method = group_rows(summary["groups"], "method")
         for (method,), groups in by_method.items():
             theta = np.array([g["theta_deg"] for g in groups])

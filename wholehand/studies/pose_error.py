@@ -134,10 +134,12 @@ class PoseErrorStudy(Study):
         return {"groups": groups, "failure_stages": failures}
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
-        import matplotlib.pyplot as plt
         import numpy as np
+        from matplotlib.figure import Figure
 
-        fig, ax = plt.subplots(figsize=(5.5, 3.5))
+        fig = Figure(figsize=(5.5, 3.5))
+
+        ax = fig.subplots()
         by_variant = group_rows(summary["groups"], "method", "d_thresh")
         ticks: dict[float, str] = {}
         for (method, d_thresh), groups in by_variant.items():

@@ -135,11 +135,12 @@ class ReachStudy(Study):
         return {"groups": groups, "by_object": by_object, "n_excluded": len(rows) - len(valid)}
 
     def plot(self, rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> None:
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
 
         g = summary["groups"]
         names = ("acquired", "completed")
-        fig, axes = plt.subplots(1, 2, figsize=(8, 3.2))
+        fig = Figure(figsize=(8, 3.2))
+        axes = fig.subplots(1, 2)
         xs = np.arange(len(g))
         width = 0.8 / len(names)
         for i, name in enumerate(names):
@@ -156,4 +157,3 @@ class ReachStudy(Study):
             ax.set_xticks(xs, [x["method"] for x in g])
         fig.tight_layout()
         fig.savefig(path, dpi=120)
-        plt.close(fig)

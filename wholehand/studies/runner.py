@@ -304,9 +304,6 @@ def run_study(
         summary_path = folder / "summary.json"
         summary_path.write_text(json.dumps(json_safe(summary), indent=2) + "\n")
         plot_path = folder / f"{study.name}.png"
-        import matplotlib
-
-        matplotlib.use("Agg")
         # The plot gets NaN, not JSON's None, where a group has no valid trial (more likely in a
         # partial run): a gap in the figure instead of a TypeError.
         study.plot(rows, summary, plot_path)

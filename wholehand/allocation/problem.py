@@ -61,10 +61,11 @@ unchanged. It is kept as Householder reflectors and applied in O(m n), never for
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -118,20 +119,17 @@ class AllocationParams:
     """Indices of the joints whose torque this allocator commands; None: all n_v joints."""
 
     @classmethod
-    def checked(
-        cls,
-        owner: str,
-        *,
-        mu: float = defaults.MU,
-        f_n_min: float = defaults.F_N_MIN,
-        tau_max: float | npt.ArrayLike = defaults.TAU_MAX,
-        eps_margin: float = defaults.EPS_MARGIN,
-        svd_tol: float = defaults.SVD_TOL,
-        reg: float = REG,
-        consistency: bool = True,
-        actuated_dofs: npt.ArrayLike | None = None,
-    ) -> AllocationParams:
-        """Validated parameters; a bad value raises :class:`ConfigError` naming ``owner``."""
+    def checked(cls, owner: str, **values: Any) -> AllocationParams:
+        """Validated parameters: the given ``values`` (field names), the fields' defaults for the
+        rest; an unknown name or a bad value raises :class:`ConfigError` naming ``owner``."""
+        given = {f.name: f.default for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - set(given))
+        if unknown:
+            raise ConfigError(f"{owner}: unknown parameters {unknown}; known: {sorted(given)}")
+        given.update(values)
+        mu, f_n_min, tau_max = given["mu"], given["f_n_min"], given["tau_max"]
+        eps_margin, svd_tol, reg = given["eps_margin"], given["svd_tol"], given["reg"]
+        consistency, actuated_dofs = given["consistency"], given["actuated_dofs"]
 
         def bad(name: str, value: object, want: str) -> ConfigError:
             return ConfigError(f"{owner}: parameter {name}={value!r} is invalid; it must be {want}")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import inspect
 import signal
 import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, cast
@@ -28,6 +29,9 @@ from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
+
+CYCLE_TIMES_KEPT = 100_000
+"""Cycle times the report's percentiles cover (the latest; a controller may run for hours)."""
 
 QP_DEADLINE = 0.002
 """Default time budget of one allocation on a robot [s]: 40 % of the 5 ms period at 200 Hz."""
@@ -56,7 +60,7 @@ class _StopWhen(Observer):
 
     def __init__(self, event: threading.Event, stop: Callable[[], object] | None) -> None:
         self.event, self.stop = event, stop
-        self.cycle_times: list[float] = []
+        self.cycle_times: deque[float] = deque(maxlen=CYCLE_TIMES_KEPT)
 
     def on_cycle(self, cycle: Cycle) -> str | None:
         self.cycle_times.append(cycle.cycle_time)

@@ -24,6 +24,7 @@ from wholehand.backends.base import (
     ReportsWarnings,
     Resettable,
 )
+from wholehand.backends.mujoco_contacts import SimContacts, hand_object_contacts, warning_counts
 from wholehand.backends.mujoco_poses import mujoco_quat, pose_from_mujoco
 from wholehand.backends.mujoco_scene import (
     DEFAULT_TIMESTEP,
@@ -31,10 +32,7 @@ from wholehand.backends.mujoco_scene import (
     WRIST_TARGET,
     HandObjectScene,
     SceneOptions,
-    SimContacts,
     build_scene,
-    hand_object_contacts,
-    warning_counts,
 )
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command

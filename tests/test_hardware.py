@@ -3,7 +3,6 @@ safety rules, and the ros2 backend against a fake robot on loopback."""
 
 from __future__ import annotations
 
-import socket
 import struct
 import time
 
@@ -25,15 +24,10 @@ from wholehand.hardware.rmw_zenoh import (
     Attachment,
     Publisher,
     Subscriber,
+    loopback_endpoint,
     open_session,
     topic_key,
 )
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 # --- config -----------------------------------------------------------------------------------
@@ -295,14 +289,12 @@ class FakeRobot:
 def robot_and_backend(allegro):
     from wholehand_plugins.ros2_backend import Ros2Backend
 
-    port = free_port()
+    endpoint = loopback_endpoint()
     safety = SafetyLimits(
         pose_timeout=0.3, pose_ramp=0.3, torque_rate=2.0, watchdog=0.1, joint_timeout=0.5
     )
-    robot = FakeRobot(HardwareConfig(listen=(f"tcp/127.0.0.1:{port}",), connect=()))
-    backend = Ros2Backend(
-        allegro, None, HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",), safety=safety)
-    )
+    robot = FakeRobot(HardwareConfig(listen=(endpoint,), connect=()))
+    backend = Ros2Backend(allegro, None, HardwareConfig(connect=(endpoint,), safety=safety))
     yield robot, backend
     backend.close()
     robot.close()
@@ -422,8 +414,8 @@ def test_backend_with_no_joint_state_sends_zero_and_wait_names_the_topic(allegro
 
     from wholehand.loop.command import Command
 
-    port = free_port()
-    with Ros2Backend(allegro, None, HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",))) as b:
+    endpoint = loopback_endpoint()
+    with Ros2Backend(allegro, None, HardwareConfig(connect=(endpoint,))) as b:
         assert np.isnan(b.observe().q).all()  # the loop's bad_state
         b.apply(Command.torques(np.full(allegro.nv, 0.2)))
         assert b.guard.counts == {"joints_stale": 1}
@@ -468,9 +460,9 @@ def test_arm_targets_go_to_the_position_command_in_model_order():
 
     rig = load_hand("flexiv_rizon4_allegro_right")
     arm = np.flatnonzero(rig.arm_dofs)
-    port = free_port()
+    endpoint = loopback_endpoint()
     topics = {**HardwareConfig().topics, "arm_command": "/arm_position_controller/commands"}
-    robot_config = HardwareConfig(listen=(f"tcp/127.0.0.1:{port}",), connect=(), topics=topics)
+    robot_config = HardwareConfig(listen=(endpoint,), connect=(), topics=topics)
     session = open_session(robot_config)
     received: list[np.ndarray] = []
     Subscriber(
@@ -480,7 +472,7 @@ def test_arm_targets_go_to_the_position_command_in_model_order():
         msgs.FLOAT64_ARRAY,
         lambda p, a, t: received.append(msgs.decode_array(p)),
     )
-    config = HardwareConfig(connect=(f"tcp/127.0.0.1:{port}",), topics=topics)
+    config = HardwareConfig(connect=(endpoint,), topics=topics)
     try:
         with Ros2Backend(rig, None, config) as backend:
             q_arm = 0.1 * np.arange(1, arm.size + 1)

@@ -5,18 +5,13 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
 
 import pytest
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from wholehand.hardware.rmw_zenoh import loopback_endpoint
 
 
 def _wholehand(*args: str) -> subprocess.Popen[str]:
@@ -49,7 +44,7 @@ def _wait_for_line(proc: subprocess.Popen[str], text: str, timeout: float = 120.
 
 @pytest.fixture
 def endpoint():
-    return f"tcp/127.0.0.1:{_free_port()}"
+    return loopback_endpoint()
 
 
 def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(endpoint, tmp_path):

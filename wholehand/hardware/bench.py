@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -32,14 +31,9 @@ import numpy as np
 from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig, StampSource
 from wholehand.hardware.controller import ControllerSpec, run_controller
+from wholehand.hardware.rmw_zenoh import loopback_endpoint
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _percentiles(values: Sequence[float]) -> dict[str, float | None]:
@@ -64,7 +58,7 @@ def run_hw_benchmark(
     answer, controller, transport, rates, rows = [], [], [], [], []
     for obj, grasp in ((o, g) for o in objects for g in grasps):
         obj_model = load_object(obj)
-        endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        endpoint = loopback_endpoint()
         config = HardwareConfig(connect=(endpoint,), listen=(), stamp_source=stamp_source)
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "sim.json"

@@ -83,6 +83,8 @@ class JointStateReader:
         self._name_at_q = {self._q_index[self.msg_name[j]]: j for j in hand.joint_names}
         self._cache: tuple[tuple[str, ...], npt.NDArray[np.intp], npt.NDArray[np.intp]] | None
         self._cache = None
+        self._q_neutral = hand.neutral()
+        """Positions of joints a message may leave out (followers, set from their leaders)."""
         self._lower = hand.q_lower - LIMIT_SLACK
         self._upper = hand.q_upper + LIMIT_SLACK
 
@@ -127,7 +129,7 @@ class JointStateReader:
         check_stamp(msg.stamp, now, self.max_future)
         rows, idx = self._mapping(msg.names)
         hand = self.hand
-        q = hand.neutral()
+        q = self._q_neutral.copy()
         q[idx] = msg.position[rows]
         if hand.coupled and len(rows) < hand.nq:
             q = hand.couple(q)

@@ -17,6 +17,7 @@ without them, but ROS 2 graph tools do not list wholehand's publishers.
 from __future__ import annotations
 
 import os
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -95,6 +96,14 @@ def open_session(config: HardwareConfig) -> zenoh.Session:
             f"{list(config.connect)} listen={list(config.listen)}: {err}; check the [ros2] "
             "endpoints (e.g. 'tcp/127.0.0.1:7447') and that no other process listens there"
         ) from err
+
+
+def loopback_endpoint() -> str:
+    """A zenoh TCP endpoint on 127.0.0.1 at a port free now (the OS picks it), for a double and
+    a controller on one machine."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def _json_list(items: tuple[str, ...]) -> str:

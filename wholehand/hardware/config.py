@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -140,8 +140,6 @@ class HardwareConfig:
         self, connect: tuple[str, ...] | None = None, listen: tuple[str, ...] | None = None
     ) -> HardwareConfig:
         """A copy with other zenoh endpoints (e.g. from the command line)."""
-        from dataclasses import replace
-
         return replace(
             self,
             connect=self.connect if connect is None else tuple(connect),

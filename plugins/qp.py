@@ -97,11 +97,12 @@ class QPAllocator(Allocator):
         feas_tol: Largest violation of an accepted solution [N or N*m].
         screen_tol: Violation above which a left-out row joins the working set.
         match_radius: Contacts on one link closer than this across cycles are the same [m].
-        deadline: Time budget of one allocation, from its start [s]: once past it no further
-            screening round starts, and an allocation not yet exact ends as ``DEADLINE`` (no
-            torque: the loop keeps the last feasible one), counted in ``counts``. A round
-            already started finishes. None (default): no deadline, so simulation results do
-            not depend on the machine's speed.
+        deadline: Time budget of one allocation, from its start [s]: DAQP and OSQP stop at
+            it (checking the clock every few dozen iterations), other solvers finish the solve
+            under way, and no screening round starts past it. An allocation not exact by then
+            ends as ``DEADLINE`` (no torque: the loop keeps the last feasible one), counted in
+            ``counts``. None (default): no deadline, so simulation results do not depend on the
+            machine's speed.
 
         Raises:
             ConfigError: A value is out of range or the solver is not installed.
@@ -254,12 +255,18 @@ class QPAllocator(Allocator):
         )
         self.last_solution = sol
         dt = _since(t0)
+        if sol.status == "deadline":
+            # The problem is fine, only slow: keep the warm start, with the rows found binding.
+            same = self._warm.same_links(contacts.link)
+            self._warm.add_rows(
+                qp.dofs[qp.torque_rows[sol.torque_sel]], sol.null_sel if same else sol.null_sel[:0]
+            )
+            return self._result(AllocationStatus.DEADLINE, n, n_v, solve_time=dt)
         if sol.x is None or sol.violation > self.feas_tol:
             self._warm.clear()
-            status = {
-                "infeasible": AllocationStatus.INFEASIBLE,
-                "deadline": AllocationStatus.DEADLINE,
-            }.get(sol.status, AllocationStatus.SOLVER_FAILED)
+            status = {"infeasible": AllocationStatus.INFEASIBLE}.get(
+                sol.status, AllocationStatus.SOLVER_FAILED
+            )
             return self._result(status, n, n_v, solve_time=dt)
         lam = sol.x[: qp.n_lambda]
         tau = qp.tau(lam)
@@ -280,7 +287,9 @@ class QPAllocator(Allocator):
         warm = self._warm
         if warm.lam is None:
             return {}
-        torque_sel = np.flatnonzero(np.isin(qp.dofs[qp.torque_rows], warm.torque_dofs))
+        was_binding = np.zeros(qp.n_v, dtype=bool)
+        was_binding[warm.torque_dofs[warm.torque_dofs < qp.n_v]] = True
+        torque_sel = np.flatnonzero(was_binding[qp.dofs[qp.torque_rows]])
         null_sel = warm.null_rows if warm.same_links(contacts.link) else None
         out: dict[str, Any] = {"warm": True, "torque_sel": torque_sel, "null_sel": null_sel}
         if self.qp_solver.primal_warm_start:

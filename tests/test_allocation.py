@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,7 +23,7 @@ from wholehand.allocation.problem import (
     friction_edges,
 )
 from wholehand.allocation.reference import direct_problem, solved_problem
-from wholehand.allocation.solve import solve_allocation
+from wholehand.allocation.solve import dense_qp, solve_allocation
 from wholehand.allocation.solvers import NATIVE_SOLVERS, available_solvers, make_solver
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
@@ -671,7 +672,7 @@ def test_a_passed_deadline_stops_screening_and_gives_no_torque(
     solver = make_solver("daqp")
     assert solve_allocation(qp, solver, screening=True).rounds > 1  # rows bind in every case
     late = solve_allocation(qp, solver, screening=True, deadline_ns=0)  # always passed
-    assert late.status == "deadline" and late.x is None and late.rounds == 1
+    assert late.status == "deadline" and late.x is None and late.rounds == 0
     allocator = QPAllocator(tau_max=tmax, warm_start=False, deadline=1e-9)
     allocation = allocator.allocate(cs, J, com)
     assert allocation.status == AllocationStatus.DEADLINE and allocation.tau is None
@@ -679,6 +680,47 @@ def test_a_passed_deadline_stops_screening_and_gives_no_torque(
     # Without a deadline the same allocator is exact (the deadline changes nothing else).
     exact = QPAllocator(tau_max=tmax, warm_start=False).allocate(cs, J, com)
     assert exact.status == AllocationStatus.OK
+
+
+def near_loss() -> tuple[ContactSet, np.ndarray, np.ndarray]:
+    """A recorded hard cycle: the mustard bottle's grasp 0 pulled by 90 deg, 42 contacts just
+    before the loss (``wholehand bench cycle --worst``). The wrench cannot be balanced, most
+    edge weights are zero at the optimum, and torque and consistency rows bind: a cold DAQP
+    solve of the full problem takes hundreds of iterations."""
+    d = np.load(Path(__file__).parent / "data" / "near_loss_allocation.npz")
+    n = d["n_world"] / np.linalg.norm(d["n_world"], axis=1, keepdims=True)  # unit to 1e-7 there
+    cs = contact_set(d["p_world"], n, d["link"], d["link_actuated"], d["link_fingertip"])
+    return cs, d["J_world"], d["p_com_world"]
+
+
+def test_the_recorded_near_loss_cycle_is_solved_exactly() -> None:
+    cs, J, com = near_loss()
+    params = AllocationParams.checked("test")
+    alloc = QPAllocator().allocate(cs, J, com)
+    check_allocation(alloc, cs, J, com, params)
+    qp = build_allocation_qp(cs, J, com, params)
+    best, _ = reference(qp)  # the full problem, certified by its KKT residuals
+    w = alloc.residual_wrench
+    assert 0.5 * float(w @ w) == pytest.approx(best, rel=1e-5)  # best has the tiny ridge too
+    assert np.linalg.norm(w) > 1.0  # not balanced: the grasp is being lost
+
+
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_a_solver_stops_itself_at_its_time_limit(solver: str) -> None:
+    """A limit far below one solve stops the solver itself (status deadline, no x); a generous
+    one changes nothing."""
+    cs, J, com = near_loss()
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test"))
+    rows = np.arange(qp.torque_rows.size), np.arange(qp.n_null)
+    adapter = make_solver(solver)
+    assert adapter.time_limited
+    free = adapter.solve(dense_qp(qp, *rows))
+    assert free.status == "optimal" and free.iterations > 64  # longer than one clock check
+    stopped = adapter.solve(dense_qp(qp, *rows), time_limit=1e-9)
+    assert stopped.status == "deadline" and stopped.x is None
+    roomy = adapter.solve(dense_qp(qp, *rows), time_limit=60.0)
+    assert roomy.status == "optimal" and roomy.x is not None and free.x is not None
+    np.testing.assert_allclose(roomy.x, free.x, atol=1e-6)
 
 
 def test_deadline_must_be_positive() -> None:

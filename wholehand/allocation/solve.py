@@ -95,6 +95,12 @@ class WarmStart:
         ok = d2[np.arange(n), j] <= r2
         return np.where(ok, j, -1).astype(np.intp)
 
+    def add_rows(self, torque_dofs: IntArray, null_rows: IntArray) -> None:
+        """Seed the next cycle with these rows too (a cycle that ran out of time found them
+        violated); the consistency rows only count while the contacts stay on the same links."""
+        self.torque_dofs = np.union1d(self.torque_dofs, torque_dofs).astype(np.intp)
+        self.null_rows = np.union1d(self.null_rows, null_rows).astype(np.intp)
+
     def same_links(self, link: IntArray) -> bool:
         """True when the contacts sit on the same links, in the same order, as last cycle."""
         return self.link is not None and np.array_equal(self.link, link)
@@ -183,9 +189,11 @@ def solve_allocation(
         screening: False: solve once with every row (reference behaviour).
         screen_tol: Violation beyond which a left-out row is added [N or N*m].
         max_rounds: Solves before falling back to the full problem.
-        deadline_ns: ``time.perf_counter_ns()`` past which no further solve starts: a solution
-            that still violates a left-out row then ends with status ``"deadline"`` and no x.
-            None: no deadline.
+        deadline_ns: ``time.perf_counter_ns()`` at which solving stops: each solve gets the
+            time left as its limit (solvers that are :attr:`~QPSolver.time_limited` stop
+            themselves near it, others finish their solve), and no solve starts past it. A
+            stopped solve, or a solution that still violates a left-out row once the time is
+            up, ends with status ``"deadline"`` and no x. None: no deadline.
     """
     all_t = np.arange(qp.torque_rows.size, dtype=np.intp)
     eps = qp.params.eps_margin
@@ -206,6 +214,11 @@ def solve_allocation(
     rounds = iterations = 0
     res = QPResult(None, "failed")
     while True:
+        time_limit = None
+        if deadline_ns is not None:
+            time_limit = (deadline_ns - time.perf_counter_ns()) * 1e-9
+            if time_limit <= 0.0:
+                return _deadline(rounds, t_in.size + n_in.size, iterations, t_in, n_in)
         rounds += 1
         full = rounds > max_rounds
         if full:
@@ -214,8 +227,11 @@ def solve_allocation(
             dense_qp(qp, t_in, n_in),
             x0 if solver.primal_warm_start else None,
             warm=warm or x0 is not None,
+            time_limit=time_limit,
         )
         iterations += res.iterations
+        if res.status == "deadline":
+            return _deadline(rounds, t_in.size + n_in.size, iterations, t_in, n_in)
         if res.x is None or not np.all(np.isfinite(res.x)):
             return AllocationSolution(
                 x=None,
@@ -242,18 +258,6 @@ def solve_allocation(
         add_n = np.flatnonzero((z_over > screen_tol) & ~n_mask)
         if add_t.size == 0 and add_n.size == 0:
             break
-        if deadline_ns is not None and time.perf_counter_ns() > deadline_ns:
-            return AllocationSolution(
-                x=None,
-                status="deadline",
-                rounds=rounds,
-                n_rows=t_in.size + n_in.size,
-                iterations=iterations,
-                violation=np.inf,
-                detail="deadline passed with rows still violated",
-                torque_sel=t_in,
-                null_sel=n_in,
-            )
         t_mask[add_t] = True
         n_mask[add_n] = True
         t_in, n_in = np.flatnonzero(t_mask), np.flatnonzero(n_mask)
@@ -277,6 +281,22 @@ def solve_allocation(
         null_sel=n_in,
         torque_values=t_val,
         null_values=z_val,
+    )
+
+
+def _deadline(
+    rounds: int, n_rows: int, iterations: int, torque_sel: IntArray, null_sel: IntArray
+) -> AllocationSolution:
+    return AllocationSolution(
+        x=None,
+        status="deadline",
+        rounds=rounds,
+        n_rows=n_rows,
+        iterations=iterations,
+        violation=np.inf,
+        detail="deadline passed before the solution was exact",
+        torque_sel=torque_sel,
+        null_sel=null_sel,
     )
 
 

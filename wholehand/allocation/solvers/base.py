@@ -53,7 +53,8 @@ class QPResult:
     x: FloatArray | None
     """(n,) primal solution, None when none was found."""
     status: str
-    """``"optimal"``, ``"infeasible"`` or ``"failed"``."""
+    """``"optimal"``, ``"infeasible"``, ``"failed"`` or ``"deadline"`` (stopped at its time
+    limit)."""
     iterations: int = 0
     """Solver iterations."""
     detail: str = ""
@@ -71,11 +72,19 @@ class QPSolver(abc.ABC):
     """Settings used unless overridden: tight enough for exact-looking allocations."""
     primal_warm_start: ClassVar[bool] = True
     """Whether the solver uses the values of a primal start ``x0``."""
+    time_limited: ClassVar[bool] = False
+    """Whether the solver itself stops at ``time_limit`` (others only finish the solve)."""
 
     def __init__(self, settings: Mapping[str, Any] | None = None) -> None:
         self.settings: dict[str, Any] = {**self.defaults, **(settings or {})}
 
-    def solve(self, qp: DenseQP, x0: FloatArray | None = None, warm: bool = False) -> QPResult:
+    def solve(
+        self,
+        qp: DenseQP,
+        x0: FloatArray | None = None,
+        warm: bool = False,
+        time_limit: float | None = None,
+    ) -> QPResult:
         """Solve ``qp``; never raises (a solver exception becomes status ``"failed"``).
 
         Args:
@@ -83,15 +92,20 @@ class QPSolver(abc.ABC):
             x0: (n,) primal start, used by solvers with :attr:`primal_warm_start`.
             warm: ``qp`` continues the previous solve (next control cycle, or the next screening
                 round): solvers that keep state (DAQP's working set) may start from it.
+            time_limit: Wall time the solve may take [s], > 0; None: no limit. Solvers with
+                :attr:`time_limited` stop near it with status ``"deadline"`` (they check the
+                clock every few iterations); the others ignore it.
         """
         try:
-            return self._solve(qp, x0, warm)
+            return self._solve(qp, x0, warm, time_limit)
         except Exception as err:  # the control loop must not raise on a solver error
             self.reset()
             return QPResult(None, "failed", 0, f"{type(err).__name__}: {err}", err)
 
     @abc.abstractmethod
-    def _solve(self, qp: DenseQP, x0: FloatArray | None, warm: bool) -> QPResult:
+    def _solve(
+        self, qp: DenseQP, x0: FloatArray | None, warm: bool, time_limit: float | None
+    ) -> QPResult:
         """Solver-specific :meth:`solve`; may raise."""
 
     def reset(self) -> None:  # noqa: B027 - optional hook
@@ -113,7 +127,7 @@ class QPSolver(abc.ABC):
             ub=np.full(2, np.inf),
         )
         try:
-            self._solve(qp, None, False)
+            self._solve(qp, None, False, None)
         except Exception as err:
             raise ConfigError(
                 f"{owner}: solver {self.name!r} rejected solver_settings={self.settings!r}: "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from collections.abc import Mapping
 from typing import Any, ClassVar
@@ -9,6 +10,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from wholehand.allocation.solvers.base import BIG, DenseQP, FloatArray, QPResult, QPSolver
+
+_EXIT_TIMELIMIT = -7
+"""DAQP's exit flag for a solve stopped at its time limit."""
 
 
 class DaqpSolver(QPSolver):
@@ -21,6 +25,7 @@ class DaqpSolver(QPSolver):
     """
 
     name = "daqp"
+    time_limited = True
     defaults: ClassVar[Mapping[str, Any]] = {"primal_tol": 1e-9, "iter_limit": 2000}
     primal_warm_start = False
     max_models: ClassVar[int] = 8
@@ -38,7 +43,9 @@ class DaqpSolver(QPSolver):
         self._models.clear()
         self._last_key = None
 
-    def _solve(self, qp: DenseQP, x0: FloatArray | None, warm: bool) -> QPResult:
+    def _solve(
+        self, qp: DenseQP, x0: FloatArray | None, warm: bool, time_limit: float | None
+    ) -> QPResult:
         import daqp
 
         n = qp.p_diag.size
@@ -70,13 +77,24 @@ class DaqpSolver(QPSolver):
         while len(self._models) > self.max_models:
             self._models.popitem(last=False)
         self._last_key = key
+        started = time.perf_counter()
+        _set_time_limit(model, time_limit)
         x, _, flag, info = model.solve()
-        if flag <= 0 and warm:
+        if flag <= 0 and flag != _EXIT_TIMELIMIT and warm:
             model.update(A=qp.A, bupper=bu, blower=bl, sense=sense)
+            if time_limit is not None:
+                _set_time_limit(model, time_limit - (time.perf_counter() - started))
             x, _, flag, info = model.solve()
         it = int(info.get("iterations", 0))
         if flag > 0:
             return QPResult(np.array(x, dtype=np.float64), "optimal", it, f"exitflag {flag}", info)
         self._last_key = None
-        status = "infeasible" if flag == -1 else "failed"
+        status = {-1: "infeasible", _EXIT_TIMELIMIT: "deadline"}.get(flag, "failed")
         return QPResult(None, status, it, f"exitflag {flag}", info)
+
+
+def _set_time_limit(model: Any, seconds: float | None) -> None:
+    """DAQP's own time limit (0: none); a spent budget keeps a token limit, never 'none'."""
+    limit = 0.0 if seconds is None else max(seconds, 1e-9)
+    if model.settings["time_limit"] != limit:
+        model.settings = {"time_limit": limit}

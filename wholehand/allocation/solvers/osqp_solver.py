@@ -14,6 +14,7 @@ class OsqpSolver(QPSolver):
     """OSQP (ADMM, sparse; Stellato et al. 2020, the paper's solver) through its own API."""
 
     name = "osqp"
+    time_limited = True
     defaults: ClassVar[Mapping[str, Any]] = {
         "eps_abs": 1e-7,
         "eps_rel": 1e-7,
@@ -27,7 +28,9 @@ class OsqpSolver(QPSolver):
 
         super().__init__(settings)
 
-    def _solve(self, qp: DenseQP, x0: FloatArray | None, warm: bool) -> QPResult:
+    def _solve(
+        self, qp: DenseQP, x0: FloatArray | None, warm: bool, time_limit: float | None
+    ) -> QPResult:
         import osqp
         import scipy.sparse as spa
 
@@ -37,7 +40,10 @@ class OsqpSolver(QPSolver):
         lo = np.concatenate((qp.lower, qp.lb))
         up = np.concatenate((qp.upper, qp.ub))
         solver = osqp.OSQP()
-        solver.setup(P, np.zeros(n), A, lo, up, **self.settings)
+        settings = dict(self.settings)
+        if time_limit is not None:
+            settings["time_limit"] = time_limit
+        solver.setup(P, np.zeros(n), A, lo, up, **settings)
         if x0 is not None:
             solver.warm_start(x=x0)
         res = solver.solve(raise_error=False)
@@ -45,6 +51,8 @@ class OsqpSolver(QPSolver):
         it = int(res.info.iter)
         if res.info.status_val == st.OSQP_SOLVED:
             return QPResult(np.asarray(res.x), "optimal", it, res.info.status, res)
+        if res.info.status_val == st.OSQP_TIME_LIMIT_REACHED:
+            return QPResult(None, "deadline", it, res.info.status, res)
         if res.info.status_val in (st.OSQP_PRIMAL_INFEASIBLE, st.OSQP_PRIMAL_INFEASIBLE_INACCURATE):
             return QPResult(None, "infeasible", it, res.info.status, res)
         return QPResult(None, "failed", it, res.info.status, res)

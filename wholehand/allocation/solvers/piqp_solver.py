@@ -26,7 +26,9 @@ class PiqpSolver(QPSolver):
 
         super().__init__(settings)
 
-    def _solve(self, qp: DenseQP, x0: FloatArray | None, warm: bool) -> QPResult:
+    def _solve(
+        self, qp: DenseQP, x0: FloatArray | None, warm: bool, time_limit: float | None
+    ) -> QPResult:
         import piqp
         import scipy.sparse as spa
 

@@ -39,7 +39,9 @@ class QpsolversSolver(QPSolver):
         super().__init__({**self.solver_defaults.get(solver, {}), **(settings or {})})
         self.solver = solver
 
-    def _solve(self, qp: DenseQP, x0: FloatArray | None, warm: bool) -> QPResult:
+    def _solve(
+        self, qp: DenseQP, x0: FloatArray | None, warm: bool, time_limit: float | None
+    ) -> QPResult:
         import qpsolvers
         import scipy.sparse as spa
 

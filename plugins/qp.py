@@ -78,6 +78,7 @@ class QPAllocator(Allocator):
         screen_tol: float = SCREEN_TOL,
         match_radius: float = MATCH_RADIUS,
         deadline: float | None = None,
+        screen_edges: bool = False,
     ) -> None:
         """Args:
         mu: Friction coefficient of the 4-sided pyramid [-], >= 0.
@@ -103,6 +104,15 @@ class QPAllocator(Allocator):
             ends as ``DEADLINE`` (no torque: the loop keeps the last feasible one), counted in
             ``counts``. None (default): no deadline, so simulation results do not depend on the
             machine's speed.
+        screen_edges: Screen the pyramid-edge weights too, as the rows are (exact; with solvers
+            that report multipliers, DAQP): each cycle starts with the edges that carried
+            force last cycle plus every edge of a new contact, adds any left-out edge whose
+            multiplier shows it would lower the objective, and starts each screening round from
+            the last round's active set. Near a loss most edge weights are zero, so the
+            problems stay small: a bounded worst case (docs/results.md). Off by default: the
+            solver then takes another path to the same optimum, which moves simulated
+            trajectories at the 1e-8 N*m level, and the committed study rows were made
+            without it. The hardware controller turns it on.
 
         Raises:
             ConfigError: A value is out of range or the solver is not installed.
@@ -144,6 +154,7 @@ class QPAllocator(Allocator):
         self.solver = solver
         self.warm_start = bool(warm_start)
         self.screening = bool(screening)
+        self.screen_edges = bool(screen_edges)
         self.feas_tol = float(feas_tol)
         self.screen_tol = float(screen_tol)
         self._warm = WarmStart(match_radius=float(match_radius))
@@ -256,11 +267,8 @@ class QPAllocator(Allocator):
         self.last_solution = sol
         dt = _since(t0)
         if sol.status == "deadline":
-            # The problem is fine, only slow: keep the warm start, with the rows found binding.
-            same = self._warm.same_links(contacts.link)
-            self._warm.add_rows(
-                qp.dofs[qp.torque_rows[sol.torque_sel]], sol.null_sel if same else sol.null_sel[:0]
-            )
+            # The problem is fine, only slow: the next cycle starts from the progress made.
+            self._remember_progress(qp, contacts, sol)
             return self._result(AllocationStatus.DEADLINE, n, n_v, solve_time=dt)
         if sol.x is None or sol.violation > self.feas_tol:
             self._warm.clear()
@@ -292,16 +300,22 @@ class QPAllocator(Allocator):
         torque_sel = np.flatnonzero(was_binding[qp.dofs[qp.torque_rows]])
         null_sel = warm.null_rows if warm.same_links(contacts.link) else None
         out: dict[str, Any] = {"warm": True, "torque_sel": torque_sel, "null_sel": null_sel}
+        use_edges = self.screen_edges and self.qp_solver.reports_duals
+        if not (self.qp_solver.primal_warm_start or use_edges):
+            return out
+        idx = warm.match(contacts.p_world, contacts.link)
+        if idx.size == warm.lam.shape[0] and (idx == np.arange(idx.size)).all():
+            lam0 = warm.lam
+        else:
+            lam0 = np.full((qp.n_contacts, N_EDGES), np.inf)  # new contacts: every edge
+            hit = idx >= 0
+            lam0[hit] = warm.lam[idx[hit]]
+        if use_edges:
+            # The edges that carried force last cycle, and every edge of a new contact.
+            out["edge_sel"] = np.flatnonzero(lam0.ravel() > 0.0)
         if self.qp_solver.primal_warm_start:
-            idx = warm.match(contacts.p_world, contacts.link)
-            if idx.size == warm.lam.shape[0] and (idx == np.arange(idx.size)).all():
-                lam0 = warm.lam.ravel()
-            else:
-                lam0 = np.full((qp.n_contacts, N_EDGES), self.params.f_n_min / qp.n_lambda)
-                hit = idx >= 0
-                lam0[hit] = warm.lam[idx[hit]]
-                lam0 = lam0.ravel()
-            out["x0"] = np.concatenate((lam0, qp.G_lam @ lam0 + qp.w_ext))
+            lam = np.where(np.isinf(lam0), self.params.f_n_min / qp.n_lambda, lam0).ravel()
+            out["x0"] = np.concatenate((lam, qp.G_lam @ lam + qp.w_ext))
         return out
 
     def _remember(self, qp: AllocationQP, contacts: ContactSet, sol: AllocationSolution) -> None:
@@ -314,6 +328,32 @@ class QPAllocator(Allocator):
         warm.lam = lam.reshape(-1, N_EDGES).copy()
         warm.torque_dofs = qp.dofs[qp.torque_rows[t]]
         warm.null_rows = z
+
+    def _remember_progress(
+        self, qp: AllocationQP, contacts: ContactSet, sol: AllocationSolution
+    ) -> None:
+        """After a deadline: the next cycle starts with every row this one had to add, and
+        from the last finished round's edge weights when there is one."""
+        warm = self._warm
+        same = warm.same_links(contacts.link)
+        if sol.x_relaxed is not None:
+            # The rows at or past their bounds there: the binding ones and those to add.
+            lam = sol.x_relaxed[: qp.n_lambda]
+            lim = qp.tau_max[qp.torque_rows]
+            t = np.flatnonzero(np.abs(qp.T_lam @ lam) >= lim * (1.0 - 1e-6))
+            eps = self.params.eps_margin
+            z = np.zeros(0, dtype=np.intp)
+            if qp.n_null and np.isfinite(eps):
+                z = np.flatnonzero(np.abs(qp.null_values(lam)) >= eps * (1.0 - 1e-6))
+            warm.p_world = contacts.p_world.copy()
+            warm.link = contacts.link.copy()
+            warm.lam = lam.reshape(-1, N_EDGES).copy()
+            warm.torque_dofs = qp.dofs[qp.torque_rows[t]]
+            warm.null_rows = z
+        else:
+            warm.add_rows(
+                qp.dofs[qp.torque_rows[sol.torque_sel]], sol.null_sel if same else sol.null_sel[:0]
+            )
 
 
 class QPNoConsistencyAllocator(QPAllocator):

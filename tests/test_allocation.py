@@ -23,8 +23,9 @@ from wholehand.allocation.problem import (
     friction_edges,
 )
 from wholehand.allocation.reference import direct_problem, solved_problem
-from wholehand.allocation.solve import dense_qp, solve_allocation
+from wholehand.allocation.solve import binding_rows, dense_qp, solve_allocation
 from wholehand.allocation.solvers import NATIVE_SOLVERS, available_solvers, make_solver
+from wholehand.allocation.solvers.base import QPResult
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 
@@ -195,6 +196,106 @@ def test_screening_is_exact(case: tuple[int, int, float]) -> None:
     for sol in (full, screened, capped):
         assert sol.status == "optimal" and sol.violation < 1e-8
         np.testing.assert_allclose(sol.x, full.x, rtol=1e-6, atol=1e-7)
+
+
+def _case_problems() -> list[tuple[str, AllocationQP]]:
+    out = []
+    for n, seed, tmax in CASES:
+        cs, J, com = synthetic_grasp(seed, n).cycle()
+        params = AllocationParams.checked("test", tau_max=tmax)
+        out.append((f"synthetic {n}/{seed}/{tmax}", build_allocation_qp(cs, J, com, params)))
+    cs, J, com = near_loss()
+    out.append(("near loss", build_allocation_qp(cs, J, com, AllocationParams.checked("test"))))
+    return out
+
+
+@pytest.mark.parametrize("start", ["one edge", "every fourth edge", "random half"])
+def test_edge_screening_is_exact(start: str) -> None:
+    """From any starting set of edge weights the screened solve ends at the full problem's
+    optimum: left-out edges are priced with the rows' multipliers and added when they would
+    lower the objective (KKT of the full problem at the end)."""
+    rng = np.random.default_rng(3)
+    for name, qp in _case_problems():
+        solver = make_solver("daqp")
+        full = solve_allocation(qp, solver, screening=False)
+        edges = {
+            "one edge": np.array([0]),
+            "every fourth edge": np.arange(0, qp.n_lambda, 4),
+            "random half": np.flatnonzero(rng.random(qp.n_lambda) < 0.5),
+        }[start]
+        screened = solve_allocation(qp, make_solver("daqp"), edge_sel=edges)
+        assert screened.status == "optimal", name
+        assert screened.violation < 1e-8, name
+        assert full.x is not None and screened.x is not None
+        np.testing.assert_allclose(screened.x, full.x, rtol=1e-6, atol=1e-7, err_msg=name)
+
+
+def test_edge_screening_keeps_the_problems_small_near_a_loss() -> None:
+    cs, J, com = near_loss()
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test"))
+    full = solve_allocation(qp, make_solver("daqp"), screening=False)
+    assert full.x is not None
+    support = np.flatnonzero(full.x[: qp.n_lambda] > 1e-9)
+    assert support.size < qp.n_lambda / 4  # most edge weights are zero at the optimum
+    # Started from the optimum's support and binding rows (a cycle like the last one), one
+    # small solve proves optimality.
+    t, z = binding_rows(qp, full)
+    sol = solve_allocation(qp, make_solver("daqp"), edge_sel=support, torque_sel=t, null_sel=z)
+    assert sol.status == "optimal" and sol.rounds == 1 and sol.n_edges == support.size
+    assert sol.x is not None
+    np.testing.assert_allclose(sol.x, full.x, rtol=1e-6, atol=1e-7)
+
+
+def test_allocator_with_edge_screening_matches_the_full_problem_over_contact_changes() -> None:
+    grasp = synthetic_grasp(0, 30)
+    rng = np.random.default_rng(1)
+    alloc, ref = QPAllocator(screen_edges=True), QPAllocator(warm_start=False, screening=False)
+    for k in range(12):
+        cs, J, com = grasp.cycle(rng, 1e-4)
+        keep = rng.random(len(cs)) > 0.2 if k % 3 else np.ones(len(cs), bool)
+        cs, J = cs.select(keep), J[keep]
+        a, b = alloc.allocate(cs, J, com), ref.allocate(cs, J, com)
+        assert a.status is b.status
+        if a.ok:
+            check_allocation(a, cs, J, com, alloc.params)
+            np.testing.assert_allclose(a.tau, b.tau, rtol=1e-5, atol=1e-7)
+
+
+class _DeadlineOnSecondSolve:
+    """DAQP that runs out of time in the second solve of each allocation."""
+
+    def __init__(self) -> None:
+        self.inner = make_solver("daqp")
+        self.calls = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def solve(self, qp: Any, x0: Any = None, warm: bool = False, time_limit: Any = None) -> Any:
+        self.calls += 1
+        if self.calls % 2 == 0:
+            return QPResult(None, "deadline", 0, "test")
+        return self.inner.solve(qp, x0, warm, time_limit)
+
+
+def test_a_deadline_cycle_hands_its_progress_to_the_next() -> None:
+    cs, J, com = near_loss()
+    alloc = QPAllocator(screen_edges=True, deadline=60.0)
+    alloc.qp_solver = _DeadlineOnSecondSolve()  # type: ignore[assignment]
+    first = alloc.allocate(cs, J, com)
+    assert first.status is AllocationStatus.DEADLINE and first.tau is None
+    sol = alloc.last_solution
+    assert sol is not None and sol.x_relaxed is not None and sol.rounds == 2
+    # The next cycle starts from the first round's forces and the rows it found violated.
+    warm = alloc._warm
+    assert warm.lam is not None
+    np.testing.assert_array_equal(warm.lam.ravel(), sol.x_relaxed[: 4 * len(cs)])
+    assert warm.torque_dofs.size + warm.null_rows.size > 0
+    exact = QPAllocator(screen_edges=True).allocate(cs, J, com)
+    alloc.qp_solver = make_solver("daqp")
+    again = alloc.allocate(cs, J, com)
+    assert again.status is AllocationStatus.OK
+    np.testing.assert_allclose(again.tau, exact.tau, rtol=1e-6, atol=1e-8)
 
 
 def test_warm_start_matches_cold_over_a_control_sequence() -> None:

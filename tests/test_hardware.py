@@ -314,7 +314,8 @@ def test_backend_reads_joints_in_any_order_and_interpolates_q_at_the_pose_stamp(
     order = np.arange(allegro.nq)[::-1]
     names = [allegro.joint_names[i] for i in order]
     q0, q1 = allegro.neutral(), allegro.neutral() + 0.02
-    t0 = time.time() - 0.05
+    _until_connected(robot, backend, names, q0[order], stamp_age=1.0)
+    t0 = time.time() - 0.05  # after the connection's samples
     wMo = pin.SE3(pin.rpy.rpyToMatrix(0.1, 0.2, 0.3), np.array([0.0, 0.05, 0.1])).homogeneous
 
     def publish():
@@ -322,14 +323,14 @@ def test_backend_reads_joints_in_any_order_and_interpolates_q_at_the_pose_stamp(
         robot.joints.put(msgs.encode_joint_state(t0 + 0.02, names, q1[order]))
         robot.poses.put(msgs.encode_pose(t0 + 0.005, "world", wMo))
 
+    joints, poses = backend.received["joint_states"], backend.received["object_pose"]
     publish()
-    deadline = time.monotonic() + 5.0
-    while backend.received["object_pose"] == 0 or backend.received["joint_states"] < 2:
-        assert time.monotonic() < deadline
-        time.sleep(0.05)
-        if backend.received["joint_states"] == 0:  # the session was still connecting
-            t0 = time.time() - 0.05
-            publish()
+    _until(
+        lambda: (
+            backend.received["joint_states"] >= joints + 2
+            and backend.received["object_pose"] >= poses + 1
+        )
+    )
     obs = backend.observe()
     np.testing.assert_allclose(obs.q, q1)
     np.testing.assert_allclose(obs.wMo, wMo, atol=1e-12)
@@ -359,14 +360,15 @@ def test_backend_rejects_bad_messages_and_keeps_the_last_good_sample(allegro, ro
     assert obs.stamp_q == good.stamp_q and obs.stamp_object == good.stamp_object
 
 
-def _until_connected(robot, backend, names, q):
+def _until_connected(robot, backend, names, q, stamp_age=0.0):
+    """Publish until the backend has a joint state and a pose (the session may still be
+    connecting), stamped ``stamp_age`` seconds in the past."""
     deadline = time.monotonic() + 5.0
     while backend.received["joint_states"] == 0 or backend.received["object_pose"] == 0:
         assert time.monotonic() < deadline
-        robot.joints.put(
-            msgs.encode_joint_state(time.time(), names, q, effort=np.full(len(names), 0.1))
-        )
-        robot.poses.put(msgs.encode_pose(time.time(), "world", np.eye(4)))
+        stamp = time.time() - stamp_age
+        robot.joints.put(msgs.encode_joint_state(stamp, names, q, effort=np.full(len(names), 0.1)))
+        robot.poses.put(msgs.encode_pose(stamp, "world", np.eye(4)))
         time.sleep(0.02)
 
 

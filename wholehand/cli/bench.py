@@ -40,7 +40,11 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
     if args.worst:
         from wholehand.loop.worst_case import WORST_OBJECTS, run_worst_case_benchmark
 
-        params = {} if args.qp_deadline is None else {"deadline": args.qp_deadline}
+        params: dict[str, object] = {}
+        if args.qp_deadline is not None:
+            params["deadline"] = args.qp_deadline
+        if args.screen_edges:
+            params["screen_edges"] = True
         worst = run_worst_case_benchmark(
             hand=args.hand,
             grasps=tuple(int(g) for g in (args.grasps or "0,1,2,3,4").split(",")),
@@ -171,6 +175,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--qp-deadline",
         type=float,
         help="with --worst: the QP allocator's deadline [s] (default: none)",
+    )
+    p.add_argument(
+        "--screen-edges",
+        action="store_true",
+        help="with --worst: the QP allocator screens the pyramid-edge weights too",
     )
     p.add_argument("--estimator", default="mesh_sdf")
     p.add_argument("--allocator", default="qp")

@@ -52,6 +52,9 @@ class ControllerSpec:
     qp_deadline: float | None = QP_DEADLINE
     """Time budget of one allocation [s], for allocators that take a ``deadline`` (the ``qp``
     family): past it the loop keeps the last feasible torque and counts a ``deadline`` cycle."""
+    screen_edges: bool = True
+    """Screen the pyramid-edge weights too, for allocators that take ``screen_edges`` (the
+    ``qp`` family): smaller problems near a loss, so fewer deadline cycles."""
 
 
 class _StopWhen(Observer):
@@ -101,6 +104,8 @@ def run_controller(
     takes = inspect.signature(registry.get_class("allocators", spec.allocator)).parameters
     if spec.qp_deadline is not None and "deadline" in takes:
         params.setdefault("deadline", spec.qp_deadline)
+    if "screen_edges" in takes:
+        params.setdefault("screen_edges", spec.screen_edges)
     allocator = load_allocator(spec.allocator, hand, params)
     regulation = ForceRegulation(
         hand,

@@ -18,6 +18,7 @@ import numpy.typing as npt
 from wholehand.errors import ConfigError
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
 
 BIG: float = 1e30
 """Stand-in for infinite bounds in solvers that want finite numbers."""
@@ -44,6 +45,10 @@ class DenseQP:
     """(n,) variable lower bounds."""
     ub: FloatArray
     """(n,) variable upper bounds."""
+    active: IntArray | None = None
+    """(n + m,) guessed active set, variable bounds first, then rows: -1 at the lower bound, +1
+    at the upper one, 0 inactive (equality rows are active anyway); None: no guess. Solvers
+    that :attr:`~QPSolver.reports_duals` start from it."""
 
 
 @dataclass
@@ -61,6 +66,10 @@ class QPResult:
     """Solver-specific status text."""
     raw: Any = None
     """The solver's own result object, for debugging."""
+    duals: FloatArray | None = None
+    """(n + m,) multipliers at the solution, from solvers that :attr:`~QPSolver.reports_duals`:
+    ``z`` of the variable bounds, then ``y`` of the rows, with ``diag(p) x + A^T y + z = 0``;
+    > 0 at an upper bound, < 0 at a lower one, 0 where inactive."""
 
 
 class QPSolver(abc.ABC):
@@ -72,6 +81,9 @@ class QPSolver(abc.ABC):
     """Settings used unless overridden: tight enough for exact-looking allocations."""
     primal_warm_start: ClassVar[bool] = True
     """Whether the solver uses the values of a primal start ``x0``."""
+    reports_duals: ClassVar[bool] = False
+    """Whether results carry exact :attr:`QPResult.duals` and solves start from
+    :attr:`DenseQP.active` (the allocation then screens the edge weights too)."""
     time_limited: ClassVar[bool] = False
     """Whether the solver itself stops at ``time_limit`` (others only finish the solve)."""
 

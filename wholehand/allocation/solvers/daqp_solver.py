@@ -13,6 +13,10 @@ from wholehand.allocation.solvers.base import BIG, DenseQP, FloatArray, QPResult
 
 _EXIT_TIMELIMIT = -7
 """DAQP's exit flag for a solve stopped at its time limit."""
+# DAQP's constraint flags (its include/constants.h).
+_ACTIVE = 1
+_LOWER = 2
+_IMMUTABLE = 4
 
 
 class DaqpSolver(QPSolver):
@@ -20,12 +24,14 @@ class DaqpSolver(QPSolver):
 
     One ``daqp.Model`` is kept per problem shape ``(n, m)``, so the Hessian is processed once
     and each cycle only updates ``A`` and the bounds. A warm solve (``warm``, same shape as the
-    previous solve) starts from the previous solve's working set; if it fails, the problem is
-    solved again from scratch. The values of ``x0`` are not used.
+    previous solve) starts from the previous solve's working set, any other from the guessed
+    active set :attr:`DenseQP.active` when there is one; if a warm solve fails, the problem is
+    solved again from an empty working set. The values of ``x0`` are not used.
     """
 
     name = "daqp"
     time_limited = True
+    reports_duals = True
     defaults: ClassVar[Mapping[str, Any]] = {"primal_tol": 1e-9, "iter_limit": 2000}
     primal_warm_start = False
     max_models: ClassVar[int] = 8
@@ -53,9 +59,16 @@ class DaqpSolver(QPSolver):
         bu = np.minimum(np.concatenate((qp.ub, qp.upper)), BIG)
         bl = np.maximum(np.concatenate((qp.lb, qp.lower)), -BIG)
         sense = np.zeros(bu.size, dtype=np.intc)
-        sense[n : n + qp.n_eq] = 5  # active + immutable: equality
+        sense[n : n + qp.n_eq] = _ACTIVE | _IMMUTABLE  # equality
         entry = self._models.get(key)
-        warm = warm and key == self._last_key and entry is not None
+        own = warm and key == self._last_key and entry is not None
+        start = sense
+        if qp.active is not None and not own:
+            start = sense.copy()
+            start[qp.active > 0] = _ACTIVE
+            start[qp.active < 0] = _ACTIVE | _LOWER
+            start[n : n + qp.n_eq] = _ACTIVE | _IMMUTABLE
+        warm = own or start is not sense
         if entry is None or not np.array_equal(entry[1], qp.p_diag):
             model = daqp.Model()
             unknown = set(self.settings) - set(model.settings)
@@ -64,16 +77,16 @@ class DaqpSolver(QPSolver):
                     f"unknown DAQP settings {sorted(unknown)}; known: {sorted(model.settings)}"
                 )
             model.settings = dict(self.settings)
-            model.setup(np.diag(qp.p_diag), np.zeros(n), qp.A, bu, bl, sense)
+            model.setup(np.diag(qp.p_diag), np.zeros(n), qp.A, bu, bl, start)
             self._models[key] = (model, qp.p_diag.copy())
-            warm = False
+            warm = start is not sense
         else:
             model = entry[0]
             self._models.move_to_end(key)
-            if warm:
+            if own:
                 model.update(A=qp.A, bupper=bu, blower=bl)
             else:
-                model.update(A=qp.A, bupper=bu, blower=bl, sense=sense)
+                model.update(A=qp.A, bupper=bu, blower=bl, sense=start)
         while len(self._models) > self.max_models:
             self._models.popitem(last=False)
         self._last_key = key
@@ -87,7 +100,9 @@ class DaqpSolver(QPSolver):
             x, _, flag, info = model.solve()
         it = int(info.get("iterations", 0))
         if flag > 0:
-            return QPResult(np.array(x, dtype=np.float64), "optimal", it, f"exitflag {flag}", info)
+            x = np.array(x, dtype=np.float64)
+            duals = np.array(info["lam"], dtype=np.float64)
+            return QPResult(x, "optimal", it, f"exitflag {flag}", info, duals)
         self._last_key = None
         status = {-1: "infeasible", _EXIT_TIMELIMIT: "deadline"}.get(flag, "failed")
         return QPResult(None, status, it, f"exitflag {flag}", info)

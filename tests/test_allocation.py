@@ -695,13 +695,26 @@ def test_shape_mismatches_raise() -> None:
 
 def test_benchmark_runs_and_writes_plot(tmp_path: Any) -> None:
     report = run_allocation_benchmark(
-        contact_counts=(6, 12), solvers=["daqp"], cycles=3, warmup=1, out_dir=tmp_path
+        contact_counts=(6, 12),
+        solvers=["daqp"],
+        cycles=3,
+        warmup=1,
+        out_dir=tmp_path,
+        direct_solvers=("daqp", "no-such-solver"),
     )
     assert (tmp_path / "allocate.png").stat().st_size > 0
     assert (tmp_path / "allocate.json").exists()
     assert {r["mode"] for r in report["results"]} == {"warm", "no_warm_start", "cold"}
     assert set(report["best"]) == {"6", "12"}
     assert all(r["n"] == 3 for r in report["results"])
+    # The yardstick: the direct form, installed solvers only, and the ratio of the p50s.
+    assert [(r["solver"], r["n_contacts"], r["found"]) for r in report["direct"]] == [
+        ("daqp", 6, 3),
+        ("daqp", 12, 3),
+    ]
+    for n, row in report["speedup"].items():
+        direct = next(r for r in report["direct"] if r["n_contacts"] == int(n))
+        assert row["ratio"] == round(direct["p50_us"] / report["best"][n]["p50_us"], 2)
     assert N_EDGES == 4
 
 

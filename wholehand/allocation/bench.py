@@ -17,7 +17,15 @@ Per solver and contact count, two modes are timed with ``perf_counter_ns`` aroun
 - ``cold``: the same sequence with ``reset()`` before every call (no warm start, no kept solver
   object).
 
-DAQP is also timed without constraint screening (``screening: false``) for the A/B.
+DAQP is also timed with the edge weights screened (``screen_edges: true``) and without
+constraint screening (``screening: false``) for the A/B.
+
+The yardstick (``direct``): the paper's QP posed directly on the local forces
+(:func:`~wholehand.allocation.reference.direct_problem`: dense Hessian ``G^T G``, four friction
+rows per contact, every torque and consistency row) and solved by each installed ``qpsolvers``
+solver, timed over the same warm sequence from the contacts to the solution (building the
+problem included, as for the allocator). ``speedup`` gives, per N, the best direct time over the
+best allocator time (p50).
 """
 
 from __future__ import annotations
@@ -227,6 +235,41 @@ def _time_mode(
     return stats
 
 
+def _time_direct(
+    grasp: SyntheticGrasp,
+    solver: str,
+    params: Any,
+    cycles: int,
+    warmup: int,
+    seed: int,
+) -> dict[str, Any]:
+    import warnings
+
+    import qpsolvers
+
+    from wholehand.allocation.problem import build_allocation_qp
+    from wholehand.allocation.reference import direct_problem
+    from wholehand.allocation.solvers.qpsolvers_solver import QpsolversSolver
+    from wholehand.timing import percentiles_us
+
+    settings = dict(QpsolversSolver.solver_defaults.get(solver, {}))
+    rng = np.random.default_rng(seed + 1)
+    inputs = [grasp.cycle(rng, 1e-4) for _ in range(warmup + cycles)]
+    samples = np.empty(cycles, dtype=np.int64)
+    found = 0
+    for i, (contacts, J, com) in enumerate(inputs):
+        t0 = time.perf_counter_ns()
+        problem = direct_problem(build_allocation_qp(contacts, J, com, params))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sol = qpsolvers.solve_problem(problem, solver=solver, **settings)
+        dt = time.perf_counter_ns() - t0
+        if i >= warmup:
+            samples[i - warmup] = dt
+            found += bool(sol.found)
+    return {**percentiles_us(samples), "found": found}
+
+
 def run_allocation_benchmark(
     contact_counts: Sequence[int] = (14, 45, 90),
     solvers: Sequence[str] | None = None,
@@ -236,6 +279,7 @@ def run_allocation_benchmark(
     out_dir: str | Path | None = None,
     unscreened: bool = True,
     allocator_kwargs: dict[str, Any] | None = None,
+    direct_solvers: Sequence[str] = ("daqp", "osqp", "piqp", "proxqp", "clarabel", "quadprog"),
 ) -> dict[str, Any]:
     """Time ``QPAllocator.allocate`` per solver, contact count and mode (see :data:`MODES`).
 
@@ -248,13 +292,17 @@ def run_allocation_benchmark(
         out_dir: Folder for ``allocate.json`` and ``allocate.png``; None writes nothing.
         unscreened: Also time DAQP without constraint screening (A/B).
         allocator_kwargs: Extra ``QPAllocator`` keyword arguments (e.g. ``tau_max``).
+        direct_solvers: ``qpsolvers`` solvers for the direct form (the installed ones are
+            timed); empty: no yardstick.
 
     Returns:
         JSON-able dict: ``config``, ``environment``, ``results`` (one entry per solver, mode
         of :data:`MODES`, screening and N with p50/p95/p99/mean/max [us] of the whole
         ``allocate()`` call, ``solve_p50_us`` from ``Allocation.solve_time``, status counts,
         mean screening rounds, largest accepted constraint violation and median residual-wrench
-        norm), ``best`` (per N, the fastest warm configuration) and ``plot`` (PNG path or None).
+        norm), ``best`` (per N, the fastest warm configuration), ``direct`` (the direct form
+        per solver and N), ``speedup`` (per N: best direct p50 / best allocator p50, counting
+        only solvers that solved every cycle) and ``plot`` (PNG path or None).
     """
     from wholehand.allocation.solvers import NATIVE_SOLVERS
 
@@ -262,34 +310,68 @@ def run_allocation_benchmark(
 
     names = list(solvers) if solvers is not None else list(NATIVE_SOLVERS)
     extra = dict(allocator_kwargs or {})
-    configs: list[tuple[str, bool]] = [(s, True) for s in names]
-    if unscreened and "daqp" in names:
-        configs.append(("daqp", False))
+    configs: list[tuple[str, bool, bool]] = [(s, True, False) for s in names]
+    if "daqp" in names:
+        configs.append(("daqp", True, True))
+        if unscreened:
+            configs.append(("daqp", False, False))
     results: list[dict[str, Any]] = []
     for n in contact_counts:
         grasp = synthetic_grasp(seed, int(n))
-        for solver, screening in configs:
+        for solver, screening, edges in configs:
             qp_allocator(solver=solver, **extra)  # fail early on a bad name
 
             def make(
-                warm_start: bool, solver: str = solver, screening: bool = screening
+                warm_start: bool,
+                solver: str = solver,
+                screening: bool = screening,
+                edges: bool = edges,
             ) -> Allocator:
                 return qp_allocator(
-                    solver=solver, screening=screening, warm_start=warm_start, **extra
+                    solver=solver,
+                    screening=screening,
+                    screen_edges=edges,
+                    warm_start=warm_start,
+                    **extra,
                 )
 
             for mode in MODES:
                 stats = _time_mode(grasp, make, cycles, warmup, seed, mode)
-                results.append(
-                    {"solver": solver, "screening": screening, "mode": mode, "n_contacts": int(n)}
-                    | stats
-                )
+                config = {"solver": solver, "screening": screening, "screen_edges": edges}
+                results.append(config | {"mode": mode, "n_contacts": int(n)} | stats)
     best: dict[str, Any] = {}
     for n in contact_counts:
         rows = [r for r in results if r["n_contacts"] == n and r["mode"] == "warm"]
         if rows:
             b = min(rows, key=lambda r: r["p50_us"])
-            best[str(n)] = {k: b[k] for k in ("solver", "screening", "p50_us", "p99_us")}
+            keys = ("solver", "screening", "screen_edges", "p50_us", "p99_us")
+            best[str(n)] = {k: b[k] for k in keys}
+    direct: list[dict[str, Any]] = []
+    speedup: dict[str, Any] = {}
+    if direct_solvers:
+        import qpsolvers
+
+        from wholehand.allocation.problem import AllocationParams
+
+        fields = set(AllocationParams.__dataclass_fields__)
+        params = AllocationParams.checked(
+            "bench allocate", **{k: v for k, v in extra.items() if k in fields}
+        )
+        chosen = [s for s in direct_solvers if s in qpsolvers.available_solvers]
+        for n in contact_counts:
+            grasp = synthetic_grasp(seed, int(n))
+            for solver in chosen:
+                stats = _time_direct(grasp, solver, params, cycles, warmup, seed)
+                direct.append({"solver": solver, "n_contacts": int(n)} | stats)
+            rows = [r for r in direct if r["n_contacts"] == n and r["found"] == cycles]
+            if rows and str(n) in best:
+                d = min(rows, key=lambda r: r["p50_us"])
+                speedup[str(n)] = {
+                    "allocator_p50_us": best[str(n)]["p50_us"],
+                    "direct_solver": d["solver"],
+                    "direct_p50_us": d["p50_us"],
+                    "ratio": round(d["p50_us"] / best[str(n)]["p50_us"], 2),
+                }
     report: dict[str, Any] = {
         "config": {
             "contact_counts": [int(n) for n in contact_counts],
@@ -303,6 +385,8 @@ def run_allocation_benchmark(
         "environment": _versions(),
         "results": results,
         "best": best,
+        "direct": direct,
+        "speedup": speedup,
         "plot": None,
     }
     if out_dir is not None:
@@ -322,17 +406,19 @@ def _plot(results: list[dict[str, Any]], path: Path) -> Path:
     fig = Figure(figsize=(10.5, 4.2))
 
     (ax50, ax99) = fig.subplots(1, 2, sharey=True)
-    keys = sorted({(r["solver"], r["screening"]) for r in results})
+    keys = sorted({(r["solver"], r["screening"], r["screen_edges"]) for r in results})
     colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     styles = {"warm": "-", "no_warm_start": ":", "cold": "--"}
-    for i, (solver, screening) in enumerate(keys):
+    for i, key in enumerate(keys):
+        solver, screening, edges = key
         label = solver if screening else f"{solver} (no screening)"
+        label += ", edges screened" if edges else ""
         for mode, style in styles.items():
             rows = sorted(
                 (
                     r
                     for r in results
-                    if (r["solver"], r["screening"], r["mode"]) == (solver, screening, mode)
+                    if (r["solver"], r["screening"], r["screen_edges"]) == key and r["mode"] == mode
                 ),
                 key=lambda r: r["n_contacts"],
             )

@@ -357,7 +357,7 @@ def test_a_second_sigterm_while_stopping_does_not_break_off_the_writes(tmp_path,
     assert (tmp_path / "summary.json").is_file()
 
 
-OLDER_COLUMNS = ("kind", "pose_error", "grasp_type")
+OLDER_COLUMNS = ("kind", "pose_error", "grasp_type", "balance_weight")
 """Columns that rows of older versions lack."""
 
 
@@ -599,3 +599,35 @@ def test_a_study_runs_a_users_hand_and_a_third_party_allocator(tmp_path, monkeyp
     shutil.copy(shipped_hands_dir() / "allegro_right" / "hand.toml", empty)
     with pytest.raises(ConfigError, match="no trial for hand.*generate them"):
         run_study(get_study("perturbation"), size="tiny", out=tmp_path / "o2", hand=str(empty))
+
+
+def test_gravity_study_pairs_its_trials_with_the_perturbation_study():
+    """Gravity on in every trial, the weight balanced by qp+weight only, and the perturbation
+    study's seeds for the same (object, grasp, angle, repeat): the same pull axes."""
+    gravity = get_study("gravity").jobs("full", seed=0)
+    assert len(gravity) == 50 * 2 * (1 + 3 * 5)
+    assert {j.labels["method"] for j in gravity} == {"qp", "qp+weight"}
+    assert all(j.spec.gravity and j.spec.allocator == "qp" for j in gravity)
+    assert all(j.spec.balance_weight == (j.labels["method"] == "qp+weight") for j in gravity)
+    seeds = {
+        (j.spec.object, j.spec.grasp, j.spec.theta_deg, j.labels["repeat"]): j.spec.seed
+        for j in get_study("perturbation").jobs("full", seed=0)
+    }
+    for j in gravity:
+        assert (
+            j.spec.seed
+            == seeds[(j.spec.object, j.spec.grasp, j.spec.theta_deg, j.labels["repeat"])]
+        )
+
+
+def test_balancing_the_weight_needs_gravity(allegro):
+    from wholehand.loop.trial import TrialSpec, set_up_trial
+
+    with pytest.raises(ConfigError, match="balance_weight=True needs gravity=True"):
+        set_up_trial(TrialSpec(balance_weight=True), allegro)
+    trial = set_up_trial(TrialSpec(balance_weight=True, gravity=True), allegro)
+    mass = trial.obj.mass
+    np.testing.assert_allclose(
+        trial.regulation._extra["external_wrench"], [0.0, 0.0, -9.81 * mass, 0.0, 0.0, 0.0]
+    )
+    assert "external_wrench" not in set_up_trial(TrialSpec(gravity=True), allegro).regulation._extra

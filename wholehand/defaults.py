@@ -59,3 +59,8 @@ PREGRASP_SWITCH_DISTANCE: float = 0.02
 
 PREGRASP_CLEARANCE: float = 0.03
 """Clearance a pre-grasp keeps from the object [m]."""
+
+# --- Simulation --------------------------------------------------------------------------------
+GRAVITY_VECTOR: tuple[float, float, float] = (0.0, 0.0, -9.81)
+"""Gravity in the world frame when a scene enables it [m/s^2]; the paper's simulation studies
+run without it (Sec. IV-A)."""

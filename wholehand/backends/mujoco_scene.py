@@ -50,6 +50,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from wholehand import defaults
 from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
 from wholehand.backends.mujoco_poses import mujoco_quat
 from wholehand.backends.table import Table
@@ -68,9 +69,6 @@ BoolArray = npt.NDArray[np.bool_]
 
 DEFAULT_TIMESTEP: float = 1e-3
 """Simulation timestep [s]. Stable for the Allegro hand at 0.2 N*m with 0.05-1 kg objects."""
-
-GRAVITY_VECTOR: tuple[float, float, float] = (0.0, 0.0, -9.81)
-"""Gravity when enabled [m/s^2]; the paper's simulation studies run without it (Sec. IV-A)."""
 
 OBJECT_BODY = "object"
 """Name of the object's body."""
@@ -536,7 +534,7 @@ def build_scene(
 
     o = spec.option
     o.timestep = float(opts.timestep)
-    o.gravity = list(GRAVITY_VECTOR) if opts.gravity else [0.0, 0.0, 0.0]
+    o.gravity = list(defaults.GRAVITY_VECTOR) if opts.gravity else [0.0, 0.0, 0.0]
     o.cone = CONES[opts.cone]
     o.impratio = float(opts.impratio)
     o.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST

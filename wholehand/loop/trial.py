@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from wholehand import registry
+from wholehand import defaults, registry
 from wholehand.allocation.base import hand_keywords
 from wholehand.backends.base import Backend, HasGroundTruth, ReportsWarnings
 from wholehand.errors import ConfigError
@@ -65,6 +65,10 @@ class TrialSpec:
     seed: int = 0
     control_rate: float = CONTROL_RATE
     gravity: bool = False
+    balance_weight: bool = False
+    """Force regulation balances the object's known weight (``ForceRegulation(weight=...)``,
+    the allocator then needs ``supports_external_wrench``); only with ``gravity``. False: the
+    paper's quasi-static balance of no external wrench."""
     backend: str | type = "mujoco"
     """Backend plug-in: a registered name or a class."""
     estimator_params: dict[str, Any] = field(default_factory=dict)
@@ -218,6 +222,11 @@ def set_up_trial(
             f"(0..{len(grasps) - 1})"
         )
     grasp = grasps[spec.grasp]
+    if spec.balance_weight and not spec.gravity:
+        raise ConfigError(
+            "balance_weight=True needs gravity=True: without gravity the object has no weight "
+            "to balance, and the hand would push it with the weight's force"
+        )
     filters: list[ObservationFilter] = []
     offset = pose_error_offset(spec.pose_error, obj.com)
     if offset is not None:
@@ -242,8 +251,9 @@ def set_up_trial(
             f"allocator {type(allocator).__name__} needs ground-truth contacts at "
             f"initialisation; backend {type(backend).__name__} has no ground_truth_contacts()"
         )
+    weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if spec.balance_weight else None
     regulation = ForceRegulation(
-        hand, obj, estimator, allocator, cast(EstimateAt, spec.estimate_at)
+        hand, obj, estimator, allocator, cast(EstimateAt, spec.estimate_at), weight=weight
     )
     n_gt = len(backend.ground_truth_contacts()) if isinstance(backend, HasGroundTruth) else None
     return TrialSetup(hand, obj, backend, regulation, grasp, filters, n_gt)

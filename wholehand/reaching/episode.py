@@ -30,8 +30,7 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from wholehand import registry
-from wholehand.backends.mujoco_scene import GRAVITY_VECTOR
+from wholehand import defaults, registry
 from wholehand.backends.table import Table
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
@@ -290,7 +289,7 @@ def run_episode(
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
     planner = ReachPlanner(plans, usable)
     closing = style_arrays(grasp_hand, grasp_hand.config.grasp_styles["power"])[1]
-    weight = obj.mass * np.asarray(GRAVITY_VECTOR) if spec.balance_weight else None
+    weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if spec.balance_weight else None
     allocator = load_allocator(spec.allocator, hand, {})
     regulation = ForceRegulation(hand, obj, estimator, allocator, weight=weight)
     reaching = (

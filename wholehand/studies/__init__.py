@@ -9,6 +9,7 @@ from wholehand.errors import ConfigError
 from wholehand.studies.base import SIZES, Study, TrialJob
 from wholehand.studies.consistency import ConsistencyStudy
 from wholehand.studies.contacts import ContactsStudy
+from wholehand.studies.gravity import GravityStudy
 from wholehand.studies.k_sweep import KSweepStudy
 from wholehand.studies.perturbation import PerturbationStudy
 from wholehand.studies.pose_error import PoseErrorStudy
@@ -25,6 +26,7 @@ STUDIES: dict[str, type[Study]] = {
         ConsistencyStudy,
         ContactsStudy,
         ReachStudy,
+        GravityStudy,
     )
 }
 """Study name -> class, in the paper's priority order."""

@@ -104,5 +104,5 @@ class PerturbationStudy(Study):
             ax.plot(theta, rate, marker="o", label=method)
             ax.fill_between(theta, rate - se, rate + se, alpha=0.2)
         ax.set_xlabel("rotation of the pull [deg]")
-        title = f"perturbation ({trials_label(summary)})"
+        title = f"{self.name} ({trials_label(summary)})"
         save_success_figure(fig, ax, path, title)

@@ -36,14 +36,13 @@ from wholehand.allocation.problem import (
 )
 from wholehand.allocation.solve import (
     FEAS_TOL,
-    MATCH_RADIUS,
     SCREEN_TOL,
     AllocationSolution,
-    WarmStart,
     binding_rows,
     solve_allocation,
 )
 from wholehand.allocation.solvers import DEFAULT_SOLVER, make_solver
+from wholehand.allocation.warm_start import MATCH_RADIUS, WarmStart
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 

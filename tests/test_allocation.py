@@ -14,9 +14,9 @@ from wholehand_plugins.qp import QPAllocator, QPNoConsistencyAllocator
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus
 from wholehand.allocation.bench import run_allocation_benchmark, synthetic_grasp
+from wholehand.allocation.null_space import ActuationNullSpace
 from wholehand.allocation.problem import (
     N_EDGES,
-    ActuationNullSpace,
     AllocationParams,
     AllocationQP,
     build_allocation_qp,

@@ -38,6 +38,9 @@ LIN_STIFFNESS = 100.0
 """Translational spring holding the object's centre at its initial place during the pull [N/m]."""
 LIN_DAMPING_RATIO = 1.0
 """Damping ratio of the translational spring on the free object."""
+SUPPORT_SAG = 1e-3
+"""Sag of the object's centre under its weight on the support of a supported settle [m]: the
+support's translational stiffness is ``m g / SUPPORT_SAG``."""
 
 DIRECTIONS = {
     "+x": (1.0, 0.0, 0.0),
@@ -82,6 +85,10 @@ class PerturbationProtocol:
     rot_damping_ratio: float = ROT_DAMPING_RATIO
     lin_stiffness: float = LIN_STIFFNESS
     lin_damping_ratio: float = LIN_DAMPING_RATIO
+    supported_settle: bool = False
+    """Hold the object at its initial pose with the pull's springs during the settle phase, so
+    that the grasp closes before it bears anything (with gravity on: the object's weight from
+    the end of the settle, as when a support is taken away)."""
     axis: FloatArray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -127,7 +134,12 @@ class PerturbationProtocol:
         return pin.exp3(np.deg2rad(self.theta_deg) * self.axis) @ wRo_initial
 
     def spring(
-        self, mass: float, inertia: FloatArray, com: FloatArray, wMo_initial: FloatArray
+        self,
+        mass: float,
+        inertia: FloatArray,
+        com: FloatArray,
+        wMo_initial: FloatArray,
+        rotate: bool = True,
     ) -> tuple[FloatArray, tuple[float, float], tuple[float, float]]:
         """Target pose (4, 4), stiffness and damping of the rotational pull (see
         :meth:`~wholehand.backends.base.PushesObject.set_object_spring`).
@@ -136,18 +148,22 @@ class PerturbationProtocol:
             mass: object mass [kg]; inertia: (3, 3) about its centre of mass [kg*m^2].
             com: (3,) centre of mass in the object frame [m].
             wMo_initial: (4, 4) the object pose at the start of the protocol.
+            rotate: False: springs holding the initial pose (a supported settle), the
+                translational one stiff enough that the weight sags it by ``SUPPORT_SAG``.
         """
         # Rotate about the centre of mass, which the translational spring holds in place.
         target = np.eye(4)
-        target[:3, :3] = self.target_rotation(wMo_initial[:3, :3])
+        R0 = wMo_initial[:3, :3]
+        target[:3, :3] = self.target_rotation(R0) if rotate else R0
         p_com = wMo_initial[:3, :3] @ com + wMo_initial[:3, 3]
         target[:3, 3] = p_com - target[:3, :3] @ com
         i_min = float(np.linalg.eigvalsh(inertia).min())
+        k_lin = self.lin_stiffness if rotate else mass * defaults.GRAVITY / SUPPORT_SAG
         damping = (
-            2.0 * self.lin_damping_ratio * np.sqrt(self.lin_stiffness * mass),
+            2.0 * self.lin_damping_ratio * np.sqrt(k_lin * mass),
             2.0 * self.rot_damping_ratio * np.sqrt(self.rot_stiffness * i_min),
         )
-        return target, (self.lin_stiffness, self.rot_stiffness), damping
+        return target, (k_lin, self.rot_stiffness), damping
 
     def load_force(self, phase: Phase, mass: float) -> FloatArray:
         """(3,) external force on the centre of mass in a load phase, else zero [N], world axes."""
@@ -178,7 +194,8 @@ class ProtocolDriver(Observer):
         """Phase of the latest cycle."""
         self._backend: PushesObject | None = None
         self._t0 = 0.0
-        self._spring_on = False
+        self._spring: str | None = None
+        """The spring set on the object: ``"rotate"`` (the pull), ``"hold"`` or None."""
         self._wMo0 = np.eye(4)
 
     @property
@@ -210,14 +227,17 @@ class ProtocolDriver(Observer):
         self.phase_index = self.phase_at(cycle.t)
         phase = self.phases[self.phase_index]
         rotating = phase.kind == "rotate"
-        if rotating and not self._spring_on:
-            obj = self.obj
-            backend.set_object_spring(
-                *self.protocol.spring(obj.mass, obj.inertia, obj.com, self._wMo0)
-            )
-        elif self._spring_on and not rotating:
-            backend.set_object_spring(None)
-        self._spring_on = rotating
+        holding = phase.kind == "settle" and self.protocol.supported_settle
+        spring = "rotate" if rotating else "hold" if holding else None
+        if spring != self._spring:
+            if spring is None:
+                backend.set_object_spring(None)
+            else:
+                obj = self.obj
+                backend.set_object_spring(
+                    *self.protocol.spring(obj.mass, obj.inertia, obj.com, self._wMo0, rotating)
+                )
+        self._spring = spring
         backend.apply_object_wrench(self.protocol.load_force(phase, self.obj.mass), _NO_TORQUE)
         return None
 
@@ -225,7 +245,7 @@ class ProtocolDriver(Observer):
         if self._backend is not None:
             self._backend.set_object_spring(None)
             self._backend.apply_object_wrench(np.zeros(3), np.zeros(3))
-        self._spring_on = False
+        self._spring = None
 
 
 _NO_TORQUE = np.zeros(3)

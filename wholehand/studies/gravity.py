@@ -1,12 +1,14 @@
-"""Gravity study (the paper's open question, issue 20): the perturbation protocol with gravity on.
+"""Gravity study (an open question of the paper): the perturbation protocol with gravity on.
 
 The paper runs its studies without gravity and allocates quasi-statically, balancing no external
-wrench. Here the object has its weight during the whole protocol (it adds to every load), and
-two variants of the paper's method meet the same trials: ``qp`` as in the paper, and
-``qp+weight``, whose allocator balances the object's known weight (``G f + m g = 0``,
-:class:`~wholehand.loop.regulation.ForceRegulation` ``weight``). Does the quasi-static squeeze
-hold the weight, and does compensating it help? Grasps, angles and pull axes are those of the
-perturbation study (same seeds), so its gravity-free rows are the third column of the comparison.
+wrench. Here gravity is on. The grasp settles with the object held at its initial pose by springs
+(``supported_settle``: a grasp made on a supported object); when the settle ends the support goes
+and the object's weight adds to every load of the protocol. Two variants of the paper's method meet
+the same trials: ``qp`` as in the paper, and ``qp+weight``, whose allocator balances the object's
+known weight (``G f + m g = 0``, :class:`~wholehand.loop.regulation.ForceRegulation` ``weight``).
+Does the quasi-static squeeze hold the weight, and does compensating it help? Grasps, angles and
+pull axes are those of the perturbation study (same seeds), so its gravity-free rows are the third
+column of the comparison.
 """
 
 from __future__ import annotations
@@ -51,7 +53,8 @@ class GravityStudy(PerturbationStudy):
 
     def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
-        protocol = protocol_for(size)
+        # The grasp closes on the object held in place; its weight comes when the settle ends.
+        protocol = {**protocol_for(size), "supported_settle": True}
         jobs: list[TrialJob] = []
         for oi, obj in enumerate(cfg.objects):
             for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):

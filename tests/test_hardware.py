@@ -486,3 +486,17 @@ def test_arm_targets_go_to_the_position_command_in_model_order():
             assert not set(backend.command_dofs.tolist()) & set(arm.tolist())
     finally:
         session.close()
+
+
+def test_the_controller_allocator_gets_the_deadline_and_edge_screening(allegro):
+    from wholehand.hardware.controller import QP_DEADLINE, ControllerSpec, controller_allocator
+
+    qp = controller_allocator(ControllerSpec(), allegro)
+    assert qp.deadline == QP_DEADLINE and qp.screen_edges
+    mine = ControllerSpec(allocator_params={"screen_edges": False, "deadline": 0.004})
+    qp = controller_allocator(mine, allegro)
+    assert qp.deadline == 0.004 and not qp.screen_edges  # the user's parameters win
+    tips = controller_allocator(ControllerSpec(allocator="fingertip_only"), allegro)
+    assert tips.screen_edges  # a QP allocator too
+    feedforward = controller_allocator(ControllerSpec(allocator="feedforward"), allegro)
+    assert not hasattr(feedforward, "screen_edges")  # parameters it does not take: not passed

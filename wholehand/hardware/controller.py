@@ -20,6 +20,7 @@ from typing import Any, cast
 import numpy as np
 
 from wholehand import registry
+from wholehand.allocation.base import Allocator
 from wholehand.hardware.config import HardwareConfig
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.gate import ObservationGate
@@ -55,6 +56,18 @@ class ControllerSpec:
     screen_edges: bool = True
     """Screen the pyramid-edge weights too, for allocators that take ``screen_edges`` (the
     ``qp`` family): smaller problems near a loss, so fewer deadline cycles."""
+
+
+def controller_allocator(spec: ControllerSpec, hand: HandModel) -> Allocator:
+    """The spec's allocator, with the controller's ``qp_deadline`` and ``screen_edges`` for
+    allocators that take them (the user's ``allocator_params`` win)."""
+    params = dict(spec.allocator_params)
+    takes = inspect.signature(registry.get_class("allocators", spec.allocator)).parameters
+    if spec.qp_deadline is not None and "deadline" in takes:
+        params.setdefault("deadline", spec.qp_deadline)
+    if "screen_edges" in takes:
+        params.setdefault("screen_edges", spec.screen_edges)
+    return cast(Allocator, load_allocator(spec.allocator, hand, params))
 
 
 class _StopWhen(Observer):
@@ -100,13 +113,7 @@ def run_controller(
     estimator = registry.load(
         "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params
     )
-    params = dict(spec.allocator_params)
-    takes = inspect.signature(registry.get_class("allocators", spec.allocator)).parameters
-    if spec.qp_deadline is not None and "deadline" in takes:
-        params.setdefault("deadline", spec.qp_deadline)
-    if "screen_edges" in takes:
-        params.setdefault("screen_edges", spec.screen_edges)
-    allocator = load_allocator(spec.allocator, hand, params)
+    allocator = controller_allocator(spec, hand)
     regulation = ForceRegulation(
         hand,
         obj,

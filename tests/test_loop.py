@@ -736,3 +736,19 @@ def test_a_supported_settle_holds_the_object_until_the_loads(allegro):
     protocol = PerturbationProtocol(supported_settle=True)
     _, (k_lin, _), _ = protocol.spring(0.6, np.eye(3) * 1e-4, np.zeros(3), np.eye(4), rotate=False)
     assert 0.6 * 9.81 / k_lin == pytest.approx(1e-3)  # the support's sag
+
+
+def test_recorded_contact_benchmark_times_each_phase_of_the_loops_states():
+    from wholehand.loop.estimate_bench import PHASES, run_recorded_contact_benchmark
+
+    out = run_recorded_contact_benchmark(
+        obj=OBJECT, grasp=0, theta_deg=0.0, protocol_params=TINY, repeats=2
+    )
+    protocol = PerturbationProtocol(theta_deg=0.0, **TINY)
+    assert out["held"] and out["states"] == round(protocol.duration * 200)
+    assert set(out["phases"]) == set(PHASES)
+    assert all(out["phases"][p]["n"] == 2 * out["states"] for p in PHASES)
+    assert out["kept_contacts_mean"] > 0
+    # The total is the phases' sum cycle by cycle, so its mean is the sum of their means.
+    means = sum(out["phases"][p]["mean_us"] for p in PHASES)
+    assert out["total"]["mean_us"] == pytest.approx(means, abs=0.02)

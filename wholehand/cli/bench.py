@@ -10,6 +10,20 @@ from pathlib import Path
 def _cmd_contacts(args: argparse.Namespace) -> int:
     from wholehand.contacts.bench import run_contact_benchmark
 
+    params = {k: v for k, v in {"d_thresh": args.d_thresh, "k": args.k}.items() if v is not None}
+    if args.recorded:
+        from wholehand.loop.estimate_bench import run_recorded_contact_benchmark
+
+        recorded = run_recorded_contact_benchmark(
+            hand=args.hand,
+            obj=args.object,
+            grasp=args.grasp,
+            theta_deg=args.theta,
+            estimator=args.estimator,
+            estimator_params=params,
+        )
+        print(json.dumps(recorded, indent=2))
+        return 0
     result = run_contact_benchmark(
         hand=args.hand,
         obj=args.object,
@@ -148,6 +162,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--d-thresh", type=float, default=None, help="[m], default: paper's 0.01")
     p.add_argument("--k", type=int, default=None, help="contacts per link, default: paper's 5")
+    p.add_argument(
+        "--recorded",
+        action="store_true",
+        help="time kinematics, estimate and Jacobians on the states of a trial the loop ran "
+        "(--grasp through the protocol at --theta) instead of seeded states",
+    )
+    p.add_argument("--grasp", type=int, default=0, help="with --recorded: stored grasp index")
+    p.add_argument("--theta", type=float, default=60.0, help="with --recorded: pull [deg]")
     p.set_defaults(func=_cmd_contacts)
 
     p = bsub.add_parser("allocate", help="force-allocation QP solve time vs contact count")

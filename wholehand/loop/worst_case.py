@@ -49,6 +49,15 @@ def _pose(p: np.ndarray, r: np.ndarray) -> np.ndarray:
     return M
 
 
+def record_poses(record: RunRecord) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, 4, 4) hand-base and object poses in the world of every row of ``record``."""
+    a = record.arrays()
+    rows = a["q"].shape[0]
+    wMb = np.array([_pose(a["p_base"][i], a["r_base"][i]) for i in range(rows)])
+    wMo = np.array([_pose(a["p_object"][i], a["r_object"][i]) for i in range(rows)])
+    return wMb.reshape(rows, 4, 4), wMo.reshape(rows, 4, 4)
+
+
 def replay(
     record: RunRecord, hand: HandModel, obj: ObjectModel, stage: ForceRegulation
 ) -> tuple[dict[str, np.ndarray], Counter[str]]:
@@ -58,6 +67,7 @@ def replay(
     stage's statuses."""
     a = record.arrays()
     rows = a["q"].shape[0]
+    poses_b, poses_o = record_poses(record)
     history = JointHistory(hand.nq, 4)
     now, then = HandKinematics(hand), HandKinematics(hand)
     out = {key: np.zeros(rows, dtype=np.int64) for key in ("step", "estimate", "qp")}
@@ -66,7 +76,7 @@ def replay(
     dt = 1.0 / float(record.meta.get("control_rate", 200.0))
     for i in range(rows):
         q = a["q"][i]
-        wMb, wMo = _pose(a["p_base"][i], a["r_base"][i]), _pose(a["p_object"][i], a["r_object"][i])
+        wMb, wMo = poses_b[i], poses_o[i]
         t = float(a["t"][i])
         history.push(t, q, wMb)
         obs = Observation(q, np.zeros(hand.nv), wMb, t, wMo, t, history)

@@ -60,10 +60,10 @@ class HandKinematics:
         self.q = q.copy()
         self.q.setflags(write=False)
         pin.forwardKinematics(self.model, self.data, self.q)
-        for j in range(self.model.njoints):
-            oMi = self.data.oMi[j]
-            self.bRj[j] = oMi.rotation
-            self.bp_j[j] = oMi.translation
+        # One 4x4 per joint out of Pinocchio (each access crosses into Python), then split.
+        placements = np.array([oMi.homogeneous for oMi in self.data.oMi])
+        self.bRj[:] = placements[:, :3, :3]
+        self.bp_j[:] = placements[:, :3, 3]
         self._jacobians_fresh = False
 
     def joint_poses_in(self, fMw: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -109,9 +109,10 @@ class QPAllocator(Allocator):
             multiplier shows it would lower the objective, and starts each screening round from
             the last round's active set. Near a loss most edge weights are zero, so the
             problems stay small: a bounded worst case (docs/results.md). Off by default: the
-            solver then takes another path to the same optimum, which moves simulated
-            trajectories at the 1e-8 N*m level, and the committed study rows were made
-            without it. The hardware controller turns it on.
+            solver then takes another path to the same optimum, which moves the torques by up
+            to about 1e-4 N*m (the 1e-6 ridge that fixes the optimum magnifies the solver's
+            tolerances), enough to change simulated trajectories near a loss, and the
+            committed study rows were made without it. The hardware controller turns it on.
 
         Raises:
             ConfigError: A value is out of range or the solver is not installed.

@@ -308,29 +308,37 @@ def test_live_page_renders_in_chromium(tmp_path, hand, obj, record):
         exe = _chromium()
         if exe is None:
             pytest.skip("Chromium is not installed (apt-get install -y chromium; see .ci/chromium)")
-        out = tmp_path / "live.png"
-        cmd = [
-            exe,
-            *CHROMIUM_FLAGS,
-            f"--user-data-dir={tmp_path / 'profile'}",
-            f"--screenshot={out}",
-            f"--window-size={WINDOW[0]},{WINDOW[1]}",
-            "--virtual-time-budget=8000",
-            viewer.url,
-        ]
-        try:
-            subprocess.run(cmd, capture_output=True, text=True, timeout=60)
-        except (OSError, subprocess.TimeoutExpired) as err:
-            pytest.skip(f"Chromium cannot start: {err}")
-        if not out.is_file():
-            pytest.skip("Chromium wrote no screenshot of the live page")
         from PIL import Image
 
-        img = np.asarray(Image.open(out).convert("RGB")).astype(int)
-        scene = np.ones(img.shape[:2], dtype=bool)
-        scene[:30, :] = False
-        grey = (img.max(axis=2) - img.min(axis=2) < 20) & (img.max(axis=2) < 120)
-        assert (grey & scene).sum() > 300, "no hand pixels on the live page"
+        # The meshes reach the page over the viewer's websocket in real time, which Chromium's
+        # virtual time does not wait for: on a busy machine a screenshot can come first, so up
+        # to three page loads are tried.
+        hand_pixels = []
+        for attempt in range(3):
+            out = tmp_path / f"live{attempt}.png"
+            cmd = [
+                exe,
+                *CHROMIUM_FLAGS,
+                f"--user-data-dir={tmp_path / f'profile{attempt}'}",
+                f"--screenshot={out}",
+                f"--window-size={WINDOW[0]},{WINDOW[1]}",
+                "--virtual-time-budget=8000",
+                viewer.url,
+            ]
+            try:
+                subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+            except (OSError, subprocess.TimeoutExpired) as err:
+                pytest.skip(f"Chromium cannot start: {err}")
+            if not out.is_file():
+                pytest.skip("Chromium wrote no screenshot of the live page")
+            img = np.asarray(Image.open(out).convert("RGB")).astype(int)
+            scene = np.ones(img.shape[:2], dtype=bool)
+            scene[:30, :] = False
+            grey = (img.max(axis=2) - img.min(axis=2) < 20) & (img.max(axis=2) < 120)
+            hand_pixels.append(int((grey & scene).sum()))
+            if hand_pixels[-1] > 300:
+                break
+        assert hand_pixels[-1] > 300, f"no hand pixels on the live page: {hand_pixels}"
     finally:
         viewer.vis.window.server_proc.kill()
 

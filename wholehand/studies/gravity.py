@@ -13,34 +13,24 @@ column of the comparison.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Any
 
-from wholehand.grasps.store import stored_grasp_indices
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
-from wholehand.studies.base import DEFAULT_HAND, TrialJob, derive_seed, protocol_for
-from wholehand.studies.perturbation import PerturbationStudy
+from wholehand.studies.base import DEFAULT_HAND, TrialJob, protocol_for
+from wholehand.studies.perturbation import PerturbationConfig, PerturbationStudy, pull_jobs
 
 METHODS = {"qp": False, "qp+weight": True}
 """Method label -> whether force regulation balances the object's weight."""
 
 
-@dataclass(frozen=True)
-class GravityConfig:
-    """Design of one size of the gravity study."""
-
-    objects: tuple[str, ...]
-    grasps: tuple[int, ...]
-    thetas: tuple[float, ...]
-    repeats: int
-    """Random axes per grasp at each theta > 0 (theta = 0 runs once)."""
-    methods: tuple[str, ...] = tuple(METHODS)
-
-
 CONFIGS = {
-    "full": GravityConfig(PAPER_OBJECTS, tuple(range(10)), (0.0, 30.0, 60.0, 90.0), 5),
-    "quick": GravityConfig(("077_rubiks_cube", "065-f_cups"), (0, 1), (0.0, 60.0), 1),
-    "tiny": GravityConfig(("077_rubiks_cube",), (0,), (0.0,), 1),
+    "full": PerturbationConfig(
+        PAPER_OBJECTS, tuple(range(10)), (0.0, 30.0, 60.0, 90.0), 5, tuple(METHODS)
+    ),
+    "quick": PerturbationConfig(
+        ("077_rubiks_cube", "065-f_cups"), (0, 1), (0.0, 60.0), 1, tuple(METHODS)
+    ),
+    "tiny": PerturbationConfig(("077_rubiks_cube",), (0,), (0.0,), 1, tuple(METHODS)),
 }
 
 
@@ -55,25 +45,9 @@ class GravityStudy(PerturbationStudy):
         cfg = CONFIGS[self.check_size(size)]
         # The grasp closes on the object held in place; its weight comes when the settle ends.
         protocol = {**protocol_for(size), "supported_settle": True}
-        jobs: list[TrialJob] = []
-        for oi, obj in enumerate(cfg.objects):
-            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
-                for theta in cfg.thetas:
-                    for repeat in range(1 if theta == 0.0 else cfg.repeats):
-                        # The perturbation study's seed for these keys: the same pull axes.
-                        trial_seed = derive_seed(seed, oi, grasp, repeat)
-                        for method in cfg.methods:
-                            spec = TrialSpec(
-                                hand=hand,
-                                object=obj,
-                                grasp=grasp,
-                                allocator="qp",
-                                theta_deg=theta,
-                                seed=trial_seed,
-                                gravity=True,
-                                balance_weight=METHODS[method],
-                                protocol_params=protocol,
-                            )
-                            labels = {"method": method, "repeat": repeat}
-                            jobs.append(TrialJob(len(jobs), spec, labels))
-        return jobs
+
+        def spec_for(method: str) -> dict[str, Any]:
+            return {"allocator": "qp", "gravity": True, "balance_weight": METHODS[method]}
+
+        # The perturbation study's design and seeds: the same pull axes.
+        return pull_jobs(cfg, seed, hand, protocol, spec_for)

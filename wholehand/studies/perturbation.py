@@ -8,6 +8,7 @@ grasp-level success rates, +- 1 standard error across them.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,32 +51,44 @@ CONFIGS = {
 }
 
 
+def pull_jobs(
+    cfg: PerturbationConfig,
+    seed: int,
+    hand: str,
+    protocol: dict[str, Any],
+    spec_for: Callable[[str], dict[str, Any]],
+) -> list[TrialJob]:
+    """The jobs of a pull design: per object, stored power grasp, angle and repeat (theta = 0
+    once), one trial per method with the spec fields ``spec_for(method)``. Methods share the
+    seed of (object, grasp, repeat): the same random pull axis."""
+    jobs: list[TrialJob] = []
+    for oi, obj in enumerate(cfg.objects):
+        for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
+            for theta in cfg.thetas:
+                for repeat in range(1 if theta == 0.0 else cfg.repeats):
+                    trial_seed = derive_seed(seed, oi, grasp, repeat)
+                    for method in cfg.methods:
+                        spec = TrialSpec(
+                            hand=hand,
+                            object=obj,
+                            grasp=grasp,
+                            theta_deg=theta,
+                            seed=trial_seed,
+                            protocol_params=protocol,
+                            **spec_for(method),
+                        )
+                        labels = {"method": method, "repeat": repeat}
+                        jobs.append(TrialJob(len(jobs), spec, labels))
+    return jobs
+
+
 class PerturbationStudy(Study):
     name = "perturbation"
     description = "success vs rotational-pull angle per method (paper Fig. 4)"
 
     def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
-        protocol = protocol_for(size)
-        jobs: list[TrialJob] = []
-        for oi, obj in enumerate(cfg.objects):
-            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
-                for theta in cfg.thetas:
-                    for repeat in range(1 if theta == 0.0 else cfg.repeats):
-                        trial_seed = derive_seed(seed, oi, grasp, repeat)
-                        for method in cfg.methods:
-                            spec = TrialSpec(
-                                hand=hand,
-                                object=obj,
-                                grasp=grasp,
-                                allocator=method,
-                                theta_deg=theta,
-                                seed=trial_seed,
-                                protocol_params=protocol,
-                            )
-                            labels = {"method": method, "repeat": repeat}
-                            jobs.append(TrialJob(len(jobs), spec, labels))
-        return jobs
+        return pull_jobs(cfg, seed, hand, protocol_for(size), lambda method: {"allocator": method})
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         groups = []

@@ -39,6 +39,7 @@ from wholehand.allocation.solve import (
     SCREEN_TOL,
     AllocationSolution,
     binding_rows,
+    rows_at_bounds,
     solve_allocation,
 )
 from wholehand.allocation.solvers import DEFAULT_SOLVER, make_solver
@@ -339,12 +340,9 @@ class QPAllocator(Allocator):
         if sol.x_relaxed is not None:
             # The rows at or past their bounds there: the binding ones and those to add.
             lam = sol.x_relaxed[: qp.n_lambda]
-            lim = qp.tau_max[qp.torque_rows]
-            t = np.flatnonzero(np.abs(qp.T_lam @ lam) >= lim * (1.0 - 1e-6))
-            eps = self.params.eps_margin
-            z = np.zeros(0, dtype=np.intp)
-            if qp.n_null and np.isfinite(eps):
-                z = np.flatnonzero(np.abs(qp.null_values(lam)) >= eps * (1.0 - 1e-6))
+            with_null = qp.n_null and np.isfinite(self.params.eps_margin)
+            null_values = qp.null_values(lam) if with_null else np.zeros(0)
+            t, z = rows_at_bounds(qp, qp.T_lam @ lam, null_values)
             warm.p_world = contacts.p_world.copy()
             warm.link = contacts.link.copy()
             warm.lam = lam.reshape(-1, N_EDGES).copy()

@@ -388,10 +388,22 @@ def binding_rows(
     qp: AllocationQP, sol: AllocationSolution, rel: float = 1e-6, abs_tol: float = 1e-9
 ) -> tuple[IntArray, IntArray]:
     """(positions in ``qp.torque_rows``, consistency-row indices) at their bounds in ``sol``."""
+    return rows_at_bounds(qp, sol.torque_values, sol.null_values, rel, abs_tol)
+
+
+def rows_at_bounds(
+    qp: AllocationQP,
+    torque_values: FloatArray,
+    null_values: FloatArray,
+    rel: float = 1e-6,
+    abs_tol: float = 1e-9,
+) -> tuple[IntArray, IntArray]:
+    """(positions in ``qp.torque_rows``, consistency-row indices) whose values (every torque
+    row's [N*m], every consistency row's [N]) are at or past their bounds."""
     lim = qp.tau_max[qp.torque_rows]
-    t = np.flatnonzero(np.abs(sol.torque_values) >= lim * (1.0 - rel) - abs_tol)
+    t = np.flatnonzero(np.abs(torque_values) >= lim * (1.0 - rel) - abs_tol)
     eps = qp.params.eps_margin
-    z = np.flatnonzero(np.abs(sol.null_values) >= eps * (1.0 - rel) - abs_tol)
+    z = np.flatnonzero(np.abs(null_values) >= eps * (1.0 - rel) - abs_tol)
     return t, z
 
 
@@ -401,6 +413,7 @@ __all__ = [
     "SCREEN_TOL",
     "AllocationSolution",
     "binding_rows",
+    "rows_at_bounds",
     "dense_qp",
     "solve_allocation",
 ]

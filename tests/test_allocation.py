@@ -246,21 +246,6 @@ def test_edge_screening_keeps_the_problems_small_near_a_loss() -> None:
     np.testing.assert_allclose(sol.x, full.x, rtol=1e-6, atol=1e-7)
 
 
-def test_allocator_with_edge_screening_matches_the_full_problem_over_contact_changes() -> None:
-    grasp = synthetic_grasp(0, 30)
-    rng = np.random.default_rng(1)
-    alloc, ref = QPAllocator(screen_edges=True), QPAllocator(warm_start=False, screening=False)
-    for k in range(12):
-        cs, J, com = grasp.cycle(rng, 1e-4)
-        keep = rng.random(len(cs)) > 0.2 if k % 3 else np.ones(len(cs), bool)
-        cs, J = cs.select(keep), J[keep]
-        a, b = alloc.allocate(cs, J, com), ref.allocate(cs, J, com)
-        assert a.status is b.status
-        if a.ok:
-            check_allocation(a, cs, J, com, alloc.params)
-            np.testing.assert_allclose(a.tau, b.tau, rtol=1e-5, atol=1e-7)
-
-
 class _DeadlineOnSecondSolve:
     """DAQP that runs out of time in the second solve of each allocation."""
 
@@ -311,15 +296,23 @@ def test_warm_start_matches_cold_over_a_control_sequence() -> None:
     assert warm.counts[AllocationStatus.OK] == 15
 
 
-def test_warm_start_survives_contact_changes() -> None:
+@pytest.mark.parametrize(
+    ("warm", "ref"),
+    [
+        ({}, {"warm_start": False}),
+        # With the edge weights screened too, against the unscreened full problem.
+        ({"screen_edges": True}, {"warm_start": False, "screening": False}),
+    ],
+)
+def test_warm_start_survives_contact_changes(warm: dict[str, Any], ref: dict[str, Any]) -> None:
     grasp = synthetic_grasp(0, 30)
     rng = np.random.default_rng(1)
-    alloc, ref = QPAllocator(), QPAllocator(warm_start=False)
+    alloc, reference = QPAllocator(**warm), QPAllocator(**ref)
     for k in range(12):
         cs, J, com = grasp.cycle(rng, 1e-4)
         keep = rng.random(len(cs)) > 0.2 if k % 3 else np.ones(len(cs), bool)
         cs, J = cs.select(keep), J[keep]
-        a, b = alloc.allocate(cs, J, com), ref.allocate(cs, J, com)
+        a, b = alloc.allocate(cs, J, com), reference.allocate(cs, J, com)
         assert a.status is b.status
         if a.ok:
             check_allocation(a, cs, J, com, alloc.params)

@@ -28,12 +28,14 @@ from wholehand.backends.mujoco_contacts import SimContacts, hand_object_contacts
 from wholehand.backends.mujoco_poses import mujoco_quat, pose_from_mujoco
 from wholehand.backends.mujoco_scene import (
     DEFAULT_TIMESTEP,
+    HAND_BIT,
     WRIST_JOINT,
     WRIST_TARGET,
     HandObjectScene,
     SceneOptions,
     build_scene,
 )
+from wholehand.backends.step_guard import StepGuard
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command
 from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
@@ -46,6 +48,15 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
+
+_WARNING_MEANING = {
+    "bad_qacc": "the simulation diverged and MuJoCo reset it; lower the timestep or stiffen "
+    "the contacts",
+    "step_retries": "a step's contact solve failed and was taken again with frictionless "
+    "hand-hand contacts (wholehand.backends.step_guard)",
+    "step_retries_failed": "a retried step still ended too fast; the simulation may diverge",
+}
+"""What a warning of :meth:`MujocoBackend.warnings` means, for the log."""
 
 _STEP_EPS = 1e-9
 """Relative slack so that e.g. a 5 ms duration at 1 ms is 5 steps, not 6 (float rounding)."""
@@ -142,6 +153,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         self.scene: HandObjectScene = build_scene(hand, obj, wMo_init, opts, wMb)
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
+        self._guard = StepGuard(self.model, self.model.geom_contype == HAND_BIT)
         self._warned: set[str] = set()
         self.history = JointHistory(hand.nq, history)
         self._wrist_q = -1
@@ -218,22 +230,21 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         return tau
 
     def step(self, duration: float) -> None:
-        """Advance the simulation by ``ceil(duration / timestep)`` steps (0 for duration 0)."""
+        """Advance the simulation by ``ceil(duration / timestep)`` steps (0 for duration 0).
+        Each step goes through :class:`~wholehand.backends.step_guard.StepGuard`: one whose
+        contact solve failed is taken again (counted in :meth:`warnings`)."""
         if not (math.isfinite(duration) and duration >= 0.0):
             raise ConfigError(f"MujocoBackend.step: duration must be >= 0 [s], got {duration!r}")
         n = math.ceil(duration / self.model.opt.timestep - _STEP_EPS)
         t_before = float(self.data.time)
-        if n > 0 and self._spring is None and self._targets is None:
-            mujoco.mj_step(self.model, self.data, nstep=n)
-        else:
-            body = self.scene.object_body
-            for _ in range(n):
-                if self._spring is not None:
-                    self.data.xfrc_applied[body] = self._wrench + self._spring_wrench()
-                if self._targets is not None:
-                    self._set_ctrl(self._pd_torque())
-                mujoco.mj_step(self.model, self.data)
-            self.data.xfrc_applied[body] = self._wrench
+        body = self.scene.object_body
+        for _ in range(n):
+            if self._spring is not None:
+                self.data.xfrc_applied[body] = self._wrench + self._spring_wrench()
+            if self._targets is not None:
+                self._set_ctrl(self._pd_torque())
+            self._guard.step(self.data)
+        self.data.xfrc_applied[body] = self._wrench
         if n > 0:
             if self.data.time < t_before:  # MuJoCo diverged and reset its data, time included
                 self._time_offset += t_before + n * self.model.opt.timestep - self.data.time
@@ -320,6 +331,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
             self.set_base_pose(wMb)
         mujoco.mj_forward(self.model, d)
         self._warned.clear()
+        self._guard.clear()
 
     def set_kinematic_hand(self, q: FloatArray) -> None:
         """Set joint positions ``q`` (n_q,) (Pinocchio order) with zero joint velocities, keep the
@@ -384,20 +396,25 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         return hand_object_contacts(self.scene, self.data)
 
     def warnings(self) -> dict[str, int]:
-        """MuJoCo warning counts since the last reset (all zero in a healthy simulation)."""
-        return warning_counts(self.data)
+        """MuJoCo warning counts since the last reset, and the steps whose failed contact solve
+        was taken again (``step_retries``, ``step_retries_failed``; see
+        :mod:`wholehand.backends.step_guard`). All zero in a healthy simulation."""
+        return {
+            **warning_counts(self.data),
+            "step_retries": self._guard.retries,
+            "step_retries_failed": self._guard.failed_retries,
+        }
 
     def _check_warnings(self) -> None:
-        for name, count in warning_counts(self.data).items():
+        for name, count in self.warnings().items():
             if count and name not in self._warned:
                 self._warned.add(name)
                 log.warning(
-                    "MuJoCo warning %r at t = %.4f s (%d so far) for hand %s with object %s; "
-                    "bad_qacc means the simulation diverged and MuJoCo reset it: lower the "
-                    "timestep or stiffen the contacts",
+                    "MuJoCo warning %r at t = %.4f s (%d so far) for hand %s with object %s: %s",
                     name,
                     self.time,
                     count,
                     self.hand.name,
                     self.obj.name,
+                    _WARNING_MEANING.get(name, "see MuJoCo's mjtWarning"),
                 )

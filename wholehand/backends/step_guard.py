@@ -1,0 +1,81 @@
+"""A MuJoCo step that takes a failed contact solve again instead of diverging.
+
+MuJoCo's Newton solver with elliptic friction cones can fail on deep frictional contacts between
+a hand's own collision shapes (the Allegro's finger boxes overlap where the fingers splay): the
+solve ends at its iteration cap, or converges to forces of 1e5-1e10 N, and the step leaves joint
+speeds of 1e3-1e7 rad/s. A few steps later MuJoCo reports ``bad_qacc`` and resets the simulation
+to its initial state, which ends the trial as "diverged".
+
+:class:`StepGuard` keeps the state before every step. A step that ends faster than
+:data:`MAX_SPEED` (or raises ``bad_qacc``) is taken again from that state with frictionless
+hand-hand contacts (``condim`` 1 on the hand's geoms, for that one step). Hand-object and
+hand-table contacts keep their friction: the object's geoms have the higher ``priority``, so
+their contact model wins, and the table's ``condim`` is the larger one. A step that passes the
+check is never changed, so a simulation without failed solves is bit-identical with or without
+the guard.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+MAX_SPEED = 100.0
+"""Fastest joint or object speed [rad/s or m/s] a step may end with. The Allegro's joints move
+at most a few rad/s and an object shaken loose at a few m/s; a failed solve leaves 1e3-1e7."""
+
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+_BAD_QACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
+
+
+class StepGuard:
+    """Steps one ``MjData`` of ``model``; a step whose contact solve failed is taken again with
+    frictionless contacts between the geoms of ``hand_geoms``.
+
+    Args:
+        model: the compiled scene.
+        hand_geoms: (ngeom,) bool mask of the hand's (and arm's) collision geoms.
+
+    Attributes:
+        retries: steps taken again since the last :meth:`clear`.
+        failed_retries: retried steps that failed too (too fast, or MuJoCo's ``bad_qacc``: it
+            then resets the simulation, as without the guard).
+    """
+
+    def __init__(self, model: mujoco.MjModel, hand_geoms: npt.NDArray[np.bool_]) -> None:
+        self.model = model
+        self._geoms = np.flatnonzero(hand_geoms)
+        self._condim = model.geom_condim[self._geoms].copy()
+        self._saved = np.empty(mujoco.mj_stateSize(model, _STATE))
+        self.retries = 0
+        self.failed_retries = 0
+
+    def clear(self) -> None:
+        """Zero the counts (at a simulation reset)."""
+        self.retries = 0
+        self.failed_retries = 0
+
+    def step(self, data: mujoco.MjData) -> None:
+        """One ``mj_step``, retried once as described in the module docstring."""
+        m = self.model
+        mujoco.mj_getState(m, data, self._saved, _STATE)
+        bad_before = data.warning[_BAD_QACC].number
+        mujoco.mj_step(m, data)
+        if data.warning[_BAD_QACC].number == bad_before and _speed(data) <= MAX_SPEED:
+            return
+        mujoco.mj_setState(m, data, self._saved, _STATE)
+        data.warning[_BAD_QACC].number = bad_before
+        m.geom_condim[self._geoms] = 1
+        try:
+            mujoco.mj_step(m, data)
+        finally:
+            m.geom_condim[self._geoms] = self._condim
+        self.retries += 1
+        if data.warning[_BAD_QACC].number != bad_before or not _speed(data) <= MAX_SPEED:
+            self.failed_retries += 1
+
+
+def _speed(data: mujoco.MjData) -> float:
+    """Largest joint speed [rad/s or m/s]; NaN if any speed is NaN (``np.max`` propagates it)."""
+    return float(np.abs(data.qvel).max()) if data.qvel.size else 0.0

@@ -26,6 +26,58 @@ def toy(tmp_path_factory):
     return load_hand(write_toy_hand(tmp_path_factory.mktemp("hands") / "toy", mimic=True))
 
 
+@pytest.fixture(scope="module")
+def toml_toy(tmp_path_factory):
+    """The toy hand with a URDF without <mimic> tags and the couplings in hand.toml."""
+    folder = tmp_path_factory.mktemp("hands") / "toml_toy"
+    return load_hand(write_toy_hand(folder, toml_coupling=True))
+
+
+def test_hand_toml_couplings_are_the_urdf_mimic_tags(toy, toml_toy):
+    assert "<mimic" not in toml_toy.config.model_path.read_text()
+    assert toml_toy.mimics == toy.mimics
+    np.testing.assert_array_equal(toml_toy.coupling, toy.coupling)
+    np.testing.assert_array_equal(toml_toy.coupling_offset, toy.coupling_offset)
+    np.testing.assert_array_equal(toml_toy.actuated_dofs, toy.actuated_dofs)
+    scenes = [MujocoBackend(h, ObjectModel.sphere(0.01, mass=0.01)).model for h in (toy, toml_toy)]
+    for model in scenes:
+        assert model.neq == 2 and model.nu == 3
+    # The same equalities as MuJoCo's URDF importer makes of the <mimic> tags: a0, a1.
+    np.testing.assert_allclose(scenes[1].eq_data[:, :5], scenes[0].eq_data[:, :5], atol=1e-12)
+    np.testing.assert_allclose(scenes[1].eq_data[:, :2], [[OFFSET, M], [OFFSET, M]])
+
+
+@pytest.mark.parametrize(
+    ("toml", "message"),
+    [
+        ('coupled = { f1_j2 = { leader = "nope" } }', "'nope' is not a moving joint"),
+        ("coupled = { f1_j2 = { multiplier = 2.0 } }", "must name its leader joint"),
+        ('coupled = { f1_j2 = { leader = "f1_j1", gain = 2 } }', "unknown keys \\['gain'\\]"),
+        ('coupled = { f1_j2 = { leader = "f1_j1", multiplier = "x" } }', "must be a number"),
+        ('coupled = { f1_j2 = { leader = "f1_j1", offset = nan } }', "must be finite"),
+        ('coupled = ["f1_j2"]', "must be a table"),
+    ],
+)
+def test_bad_hand_toml_couplings_are_named(tmp_path, toml, message):
+    folder = write_toy_hand(tmp_path / "toy", tables=f"[joints]\n{toml}\n", coupled_close=True)
+    with pytest.raises(ConfigError, match=message):
+        load_hand(folder)
+
+
+def test_a_hand_toml_follower_named_as_a_motor_is_refused_with_its_declaration(tmp_path):
+    tables = '[joints]\nactuated = ["f1_j2"]\ncoupled = { f1_j2 = { leader = "f1_j1" } }\n'
+    folder = write_toy_hand(tmp_path / "toy", tables=tables, coupled_close=True)
+    with pytest.raises(ConfigError, match="'f1_j2' follows 'f1_j1' \\(\\[joints\\] coupled\\)"):
+        load_hand(folder)
+
+
+def test_a_hand_toml_coupling_of_a_mimic_follower_is_refused(tmp_path):
+    tables = '[joints]\ncoupled = { f1_j2 = { leader = "t_j1" } }\n'
+    folder = write_toy_hand(tmp_path / "toy", tables=tables, mimic=True)
+    with pytest.raises(ConfigError, match="'f1_j2' is already coupled in toy.urdf"):
+        load_hand(folder)
+
+
 def test_followers_have_no_motor_and_c_maps_actuators_to_joints(toy):
     assert toy.joint_names == ["f1_j1", "f1_j2", "f2_j1", "f2_j2", "t_j1"]
     assert toy.coupled and toy.n_actuation == 3
@@ -73,10 +125,12 @@ def test_actuator_jacobian_is_the_hand_computed_one(toy):
     assert J.T @ f == pytest.approx([expected @ f, 0.0, 0.0])
 
 
-def test_mujoco_keeps_the_coupling_and_c_transpose_balances_a_tip_force(toy):
+@pytest.mark.parametrize("declared_in", ["toy", "toml_toy"])
+def test_mujoco_keeps_the_coupling_and_c_transpose_balances_a_tip_force(request, declared_in):
     """A force F pushes the tip of finger 1; the actuator torque -(J C)^T F holds the finger
-    still in MuJoCo (with the URDF <mimic> as a joint equality), while the torque that ignores
-    the coupling (the leader's own Jacobian column only) lets it move."""
+    still in MuJoCo (with the URDF <mimic>, or hand.toml's coupling, as a joint equality), while
+    the torque that ignores the coupling (the leader's own Jacobian column only) lets it move."""
+    toy = request.getfixturevalue(declared_in)
     q = toy.couple(np.array([0.3, 0.0, 0.3, 0.0, 0.2]))
     F = np.array([-1.5, 0.0, 0.5])  # on the finger, world = base frame
     drift = {}

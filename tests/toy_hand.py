@@ -183,8 +183,21 @@ def write_toy_hand(
     if needed); return it.
 
     ``top`` adds top-level keys to hand.toml, ``tables`` adds tables at its end; ``urdf``
-    keywords go to :func:`toy_urdf` (or :func:`toy_mjcf`).
+    keywords go to :func:`toy_urdf` (or :func:`toy_mjcf`), except ``toml_coupling=True``: the
+    couplings of ``mimic=True`` declared in hand.toml's ``[joints] coupled`` instead.
     """
+    if urdf.pop("toml_coupling", False):
+        m, offset = MIMIC
+        tables += (
+            "\n[joints]\ncoupled = { "
+            + ", ".join(
+                f'f{k}_j2 = {{ leader = "f{k}_j1", multiplier = {m}, offset = {offset} }}'
+                for k in "12"
+            )
+            + " }\n"
+        )
+        urdf["coupled_close"] = True
+    coupled_close = urdf.pop("coupled_close", False) or urdf.get("mimic")
     folder.mkdir(parents=True, exist_ok=True)
     if mjcf:
         (folder / "toy.xml").write_text(toy_mjcf(**urdf))  # type: ignore[arg-type]
@@ -192,7 +205,7 @@ def write_toy_hand(
         (folder / "toy.urdf").write_text(toy_urdf(**urdf))  # type: ignore[arg-type]
     model = 'mjcf = "toy.xml"' if mjcf else 'urdf = "toy.urdf"'
     close = "f1_j1 = 0.1, f2_j1 = 0.1, t_j1 = 0.1"
-    if not urdf.get("mimic"):  # the second joints close too when they have motors of their own
+    if not coupled_close:  # the second joints close too when they have motors of their own
         close += ", f1_j2 = 0.05, f2_j2 = 0.05"
     (folder / "hand.toml").write_text(
         TOML.format(

@@ -89,6 +89,32 @@ def load_hand_spec(hand: HandModel) -> mujoco.MjSpec:
     return spec
 
 
+def add_declared_couplings(spec: mujoco.MjSpec, hand: HandModel) -> None:
+    """A joint equality for each coupling of hand.toml's ``[joints] coupled`` (the model file's
+    own are in the spec already): MuJoCo's ``q_f - ref_f = a0 + a1 (q_l - ref_l)`` with
+    ``a1 = multiplier`` and ``a0 = offset + multiplier ref_l - ref_f``. Couplings between two
+    locked joints are dropped: both are welded."""
+    for follower, m in hand.config.coupled_joints.items():
+        if follower in hand.config.locked_joints:
+            continue
+        joints = [spec.joint(name) for name in (follower, m.leader)]
+        if any(j is None for j in joints):
+            raise AssetError(
+                f"{hand.config.model_path}: coupled joints {follower!r} and {m.leader!r} of "
+                f"{hand.config.path.name} have no MuJoCo joint"
+            )
+        ref_f, ref_l = (float(j.ref) for j in joints)
+        equality = spec.add_equality(
+            type=mujoco.mjtEq.mjEQ_JOINT,
+            objtype=mujoco.mjtObj.mjOBJ_JOINT,
+            name1=follower,
+            name2=m.leader,
+        )
+        data = np.zeros_like(np.asarray(equality.data, dtype=float))  # mjNEQDATA values
+        data[:2] = (m.offset + m.multiplier * ref_l - ref_f, m.multiplier)
+        equality.data = data
+
+
 def weld_locked_joints(spec: mujoco.MjSpec, hand: HandModel) -> None:
     """Replace each locked joint by a fixed offset of its body at the locked value, as the
     hand model does: rotate the body about a hinge's axis, or shift it along a slide's."""

@@ -10,9 +10,10 @@ spec:
   ``<dynamics>`` damping and friction are dropped) and keeps its URDF position limits;
 - every actuated joint, and every arm joint of an assembly, gets a ``motor`` actuator,
   ctrl = force = torque [N*m], with ``ctrlrange`` and ``forcerange`` +-``hand.tau_max``;
-- URDF ``<mimic>`` couplings are joint equality constraints (MuJoCo's URDF importer makes them),
-  as stiff as the contacts (``solref``); the followers have no actuator, so an actuator torque
-  drives the leader and its followers together;
+- URDF ``<mimic>`` couplings are joint equality constraints (MuJoCo's URDF importer makes them;
+  hand.toml's ``[joints] coupled`` adds its own the same way), as stiff as the contacts
+  (``solref``); the followers have no actuator, so an actuator torque drives the leader and its
+  followers together;
 - locked joints of hand.toml are removed and their bodies fixed at the locked value.
 
 The object is a body named ``"object"`` with a free joint. Its body frame IS the object frame of
@@ -51,7 +52,11 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand import defaults
-from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
+from wholehand.backends.hand_spec import (
+    add_declared_couplings,
+    load_hand_spec,
+    weld_locked_joints,
+)
 from wholehand.backends.mujoco_poses import mujoco_quat
 from wholehand.backends.table import Table
 from wholehand.errors import AssetError, ConfigError
@@ -233,6 +238,7 @@ def _edit_hand(
         _set_pose(target, wMb)
         target.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
     weld_locked_joints(spec, hand)
+    add_declared_couplings(spec, hand)
     for joint in spec.joints:
         joint.damping = [hand.config.damping, 0.0, 0.0]  # linear viscous damping only
         joint.armature = hand.config.armature

@@ -249,10 +249,24 @@ class HandModel:
         self.link_finger = [finger_of.get(n, "") for n in self.link_names]
 
     def _couplings(self, moving: list[str]) -> dict[str, Mimic]:
-        """The model file's couplings (URDF ``<mimic>``, MJCF joint equalities) among the
-        model's joints, chains resolved."""
+        """The couplings among the model's joints, chains resolved: the model file's (URDF
+        ``<mimic>``, MJCF joint equalities) and hand.toml's ``[joints] coupled``."""
         cfg = self.config
         mimics = (mjcf_mimics if cfg.model_format == "mjcf" else urdf_mimics)(cfg.model_path)
+        for follower, m in cfg.coupled_joints.items():
+            for name in (follower, m.leader):
+                if name not in moving and name not in cfg.locked_joints:
+                    raise ConfigError(
+                        f"{cfg.path}: [joints] coupled.{follower}: {name!r} is not a moving joint "
+                        f"of {cfg.model_path.name}; valid joints: {moving}"
+                    )
+            if follower in mimics:
+                raise ConfigError(
+                    f"{cfg.path}: joint {follower!r} is already coupled in "
+                    f"{cfg.model_path.name} (to {mimics[follower].leader!r}); remove it from "
+                    "[joints] coupled"
+                )
+            mimics[follower] = m
         locked = cfg.locked_joints
         for follower, m in list(mimics.items()):
             if (follower in locked) != (m.leader in locked):
@@ -288,10 +302,11 @@ class HandModel:
                     f"{cfg.model_path.name}; valid joints: {moving}"
                 )
         motored = [*actuated, *cfg.torque_limits, *(j for st in styles for j in st.close_torque)]
-        declared = "URDF <mimic>" if cfg.model_format == "urdf" else "MJCF joint equality"
+        in_file = "URDF <mimic>" if cfg.model_format == "urdf" else "MJCF joint equality"
         for name in motored:
             if name in self.mimics:
                 leader = self.mimics[name].leader
+                declared = "[joints] coupled" if name in cfg.coupled_joints else in_file
                 raise ConfigError(
                     f"{cfg.path}: joint {name!r} follows {leader!r} ({declared}): it has no "
                     f"motor of its own; name {leader!r} instead (in [joints] actuated, "

@@ -18,6 +18,7 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     [joints]
     actuated = ["j1", ...]                      # default: every moving joint
     locked = { wrist = 0.0 }                    # held at this value [rad or m]: not in the model
+    coupled = { j2 = { leader = "j1", multiplier = 0.8, offset = 0.0 } }   # q_j2 = 0.8 q_j1 + 0
     torque_limit = { default = 0.2, j1 = 0.5 }
     [simulation]
     damping = 0.05                              # N*m*s/rad
@@ -51,6 +52,7 @@ from typing import Any
 
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
+from wholehand.models.coupling import Mimic
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -112,6 +114,9 @@ class HandConfig:
     locked_joints: dict[str, float] = field(default_factory=dict)
     """Joints held at a fixed value [rad or m] (e.g. a wrist): the hand model treats them as
     fixed joints at that value, and the MuJoCo scene welds them there."""
+    coupled_joints: dict[str, Mimic] = field(default_factory=dict)
+    """Couplings declared in hand.toml (``[joints] coupled``), follower -> leader, for a model
+    file without them (a URDF without ``<mimic>`` tags); the model file's own come on top."""
     excluded_links: tuple[str, ...] = ()
     """Links that are never contact candidates (e.g. a forearm); they are still simulated."""
     outer_surface_only: bool = False
@@ -245,7 +250,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         raise ConfigError(f"{path}: thumb = {thumb!r} is not a key of [fingers] {sorted(fingers)}")
 
     sub_keys = {
-        "joints": {"actuated", "locked", "torque_limit"},
+        "joints": {"actuated", "locked", "torque_limit", "coupled"},
         "simulation": {"damping", "armature"},
         "mount": {"xyz", "rpy"},
         "grasping": {"preshape", "close_torque", *_GRASP_SUBSTYLES},
@@ -274,6 +279,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     }
     grasp_styles = _grasp_styles(raw.get("grasping", {}), fingers, thumb, path)
     locked = _joint_numbers(joints.get("locked", {}), "[joints] locked", path)
+    coupled = _couplings(joints.get("coupled", {}), path)
     outer = raw.get("outer_surface_only", False)
     if not isinstance(outer, bool):
         raise ConfigError(f"{path}: outer_surface_only must be true or false, got {outer!r}")
@@ -294,6 +300,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         fingertip_links=_str_list(raw, "fingertip_links", path, []),
         actuated_joints=_str_list(joints, "actuated", path),
         locked_joints=locked,
+        coupled_joints=coupled,
         excluded_links=_str_list(raw, "excluded_links", path, []),
         outer_surface_only=outer,
         torque_limit_set="torque_limit" in joints,
@@ -336,7 +343,9 @@ def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
     actuated = hand.actuated_joints
     if actuated is None:  # "every moving joint" of the hand, not of the arm
         hand_joints = moving_joints(ET.parse(hand.model_path).getroot())
-        actuated = tuple(j for j in hand_joints if j not in hand.locked_joints)
+        actuated = tuple(
+            j for j in hand_joints if j not in hand.locked_joints and j not in hand.coupled_joints
+        )
     mount = raw.get("mount", {})
     if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
         raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
@@ -385,6 +394,31 @@ def _joint_numbers(table: Any, what: str, where: Path) -> dict[str, float]:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: {what}.{joint} must be a number, got {value!r}")
         out[joint] = float(value)
+    return out
+
+
+def _couplings(table: Any, where: Path) -> dict[str, Mimic]:
+    """``[joints] coupled``: follower -> { leader = "j", multiplier = 1.0, offset = 0.0 }."""
+    example = 'coupled = { j2 = { leader = "j1", multiplier = 0.8, offset = 0.0 } }'
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: [joints] coupled must be a table, e.g. {example}")
+    out = {}
+    for follower, spec in table.items():
+        what = f"[joints] coupled.{follower}"
+        if not isinstance(spec, dict) or not isinstance(spec.get("leader"), str):
+            raise ConfigError(f"{where}: {what} must name its leader joint, e.g. {example}")
+        unknown = sorted(set(spec) - {"leader", "multiplier", "offset"})
+        if unknown:
+            raise ConfigError(
+                f"{where}: unknown keys {unknown} in {what}; valid keys are leader, multiplier "
+                "and offset"
+            )
+        numbers = _joint_numbers(
+            {k: spec.get(k, d) for k, d in (("multiplier", 1.0), ("offset", 0.0))}, what, where
+        )
+        if not all(math.isfinite(v) for v in numbers.values()):
+            raise ConfigError(f"{where}: {what}: multiplier and offset must be finite")
+        out[follower] = Mimic(spec["leader"], numbers["multiplier"], numbers["offset"])
     return out
 
 

@@ -110,3 +110,29 @@ def test_hand_check_reads_an_mjcf_hand(tmp_path, capsys):
     xml.write_text(xml.read_text().replace(limited, 'name="t_j1" axis="0 -1 0" limited="false"'))
     assert main(["hand", "check", str(folder)]) == 1
     assert "joints without a range in toy.xml: ['t_j1']" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("base", ["mocap", "floating"])
+def test_an_mjcf_hand_on_a_moving_base_follows_it(pair, base):
+    """The base of an MJCF hand moved by ``Command.base``: kinematically (``mocap``) or through
+    the soft weld of a free base (``floating``); the links stay where Pinocchio puts them."""
+    _, mjcf = pair
+    backend = MujocoBackend(mjcf, ObjectModel.sphere(0.01, mass=0.01), base=base)
+    assert backend.model.nmocap == 1
+    np.testing.assert_allclose(backend.observe().wMb, mjcf.wMb, atol=1e-9)
+    moved = mjcf.wMb.copy()
+    moved[:3, 3] += [0.05, -0.03, 0.02]
+    moved[:3, :3] = moved[:3, :3] @ pin.rpy.rpyToMatrix(0.0, 0.0, 0.3)
+    q = mjcf.couple(np.array([0.3, 0.0, 0.6, 0.0, 0.4]))
+    backend.set_kinematic_hand(q)
+    backend.apply(Command(np.zeros(mjcf.nv), base=moved))
+    backend.step(0.5)
+    obs = backend.observe()
+    np.testing.assert_allclose(obs.wMb, moved, atol=1e-3)
+    data = mjcf.model.createData()
+    pin.framesForwardKinematics(mjcf.model, data, obs.q)
+    for i, frame in enumerate(mjcf.link_frame):
+        wMl = obs.wMb @ data.oMf[int(frame)].homogeneous
+        np.testing.assert_allclose(
+            backend.data.xpos[backend.scene.link_body[i]], wMl[:3, 3], atol=1e-6
+        )

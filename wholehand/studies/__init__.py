@@ -16,6 +16,7 @@ from wholehand.studies.pose_error import PoseErrorStudy
 from wholehand.studies.reach import ReachStudy
 from wholehand.studies.runner import StudyResult, run_study
 from wholehand.studies.study_files import TIMING_COLUMNS
+from wholehand.studies.tracking import TrackingStudy
 
 STUDIES: dict[str, type[Study]] = {
     cls.name: cls
@@ -27,6 +28,7 @@ STUDIES: dict[str, type[Study]] = {
         ContactsStudy,
         ReachStudy,
         GravityStudy,
+        TrackingStudy,
     )
 }
 """Study name -> class, in the paper's priority order."""

@@ -1,9 +1,9 @@
 """A MuJoCo step that takes a failed contact solve again instead of diverging.
 
-MuJoCo's Newton solver with elliptic friction cones can fail on deep frictional contacts between
-a hand's own collision shapes (the Allegro's finger boxes overlap where the fingers splay): the
+MuJoCo's Newton solver with elliptic friction cones can fail on a frictional contact between a
+hand's own collision shapes (the Allegro's finger boxes overlap where the fingers splay): the
 solve ends at its iteration cap, or converges to forces of 1e5-1e10 N, and the step leaves joint
-speeds of 1e3-1e7 rad/s. A few steps later MuJoCo reports ``bad_qacc`` and resets the simulation
+speeds of 1e3-1e7 rad/s (docs/results.md, "Why MuJoCo diverged"). A few steps later MuJoCo reports ``bad_qacc`` and resets the simulation
 to its initial state, which ends the trial as "diverged".
 
 :class:`StepGuard` keeps the state before every step. A step that ends faster than

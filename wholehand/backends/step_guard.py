@@ -3,8 +3,9 @@
 MuJoCo's Newton solver with elliptic friction cones can fail on a frictional contact between a
 hand's own collision shapes (the Allegro's finger boxes overlap where the fingers splay): the
 solve ends at its iteration cap, or converges to forces of 1e5-1e10 N, and the step leaves joint
-speeds of 1e3-1e7 rad/s (docs/results.md, "Why MuJoCo diverged"). A few steps later MuJoCo reports ``bad_qacc`` and resets the simulation
-to its initial state, which ends the trial as "diverged".
+speeds of 1e3-1e7 rad/s (docs/results.md, "Why MuJoCo diverged"). A few steps later MuJoCo
+reports ``bad_qacc`` and resets the simulation to its initial state, which ends the trial as
+"diverged".
 
 :class:`StepGuard` keeps the state before every step. A step that ends faster than
 :data:`MAX_SPEED` (or raises ``bad_qacc``) is taken again from that state with frictionless

@@ -15,6 +15,7 @@ import numpy as np
 
 from wholehand.errors import AssetError
 from wholehand.models.mesh_files import resolve_mesh_uri
+from wholehand.models.mjcf_file import mjcf_for_parsers
 
 if TYPE_CHECKING:
     from wholehand.models.hand import HandModel
@@ -55,11 +56,12 @@ def _urdf_for_mujoco(hand: HandModel) -> str:
 
 
 def _mjcf_hand_spec(hand: HandModel) -> mujoco.MjSpec:
-    """An MJCF hand as the scene needs it (its one root body is the hand base, as a URDF's root
-    link): its actuators, keyframes and sensors removed (the scene adds its own motors and an
-    object), static world geoms (a floor) removed, and its visual-only geoms (contype =
-    conaffinity = 0, as Pinocchio reads them) removed."""
-    path = hand.config.model_path
+    """An MJCF hand as the scene needs it (its one root body, or ``root_body``, is the hand
+    base, as a URDF's root link; :mod:`wholehand.models.mjcf_file`): its actuators, keyframes
+    and sensors removed (the scene adds its own motors and an object), static world geoms (a
+    floor) removed, and its visual-only geoms (contype = conaffinity = 0, as Pinocchio reads
+    them) removed."""
+    path = mjcf_for_parsers(hand.config)
     try:
         spec = mujoco.MjSpec.from_file(str(path))
     except ValueError as err:
@@ -115,9 +117,26 @@ def add_declared_couplings(spec: mujoco.MjSpec, hand: HandModel) -> None:
         equality.data = data
 
 
+def _drop_tendons_of(spec: mujoco.MjSpec, joints: set[str]) -> None:
+    """Delete the tendons of ``spec`` that wrap one of ``joints``."""
+    if not joints or not spec.tendons:
+        return
+    model = spec.copy().compile()  # the spec keeps no list of a tendon's wraps; the model does
+    tendons = list(spec.tendons)
+    for t in range(model.ntendon):
+        start = int(model.tendon_adr[t])
+        for w in range(start, start + int(model.tendon_num[t])):
+            is_joint = model.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT
+            if is_joint and model.joint(int(model.wrap_objid[w])).name in joints:
+                spec.delete(tendons[t])
+                break
+
+
 def weld_locked_joints(spec: mujoco.MjSpec, hand: HandModel) -> None:
     """Replace each locked joint by a fixed offset of its body at the locked value, as the
-    hand model does: rotate the body about a hinge's axis, or shift it along a slide's."""
+    hand model does: rotate the body about a hinge's axis, or shift it along a slide's. Tendons
+    that wrap a locked joint go with it (their actuators go with the file's others)."""
+    _drop_tendons_of(spec, set(hand.config.locked_joints))
     for name, value in hand.config.locked_joints.items():
         joint = spec.joint(name)
         if joint is None:

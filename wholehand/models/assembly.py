@@ -22,7 +22,6 @@ the URDF's effort limits, and its links are never contact candidates.
 from __future__ import annotations
 
 import math
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -179,17 +178,6 @@ def merged_urdf(
 
 def write_merged(text: str) -> Path:
     """The merged URDF written under its content hash (cache folder, else a temporary one)."""
-    from wholehand.models.cache import cache_dir, content_hash
+    from wholehand.models.cache import text_file
 
-    name = f"assembly-{content_hash(text)[:16]}.urdf"
-    try:
-        folder = cache_dir() / "assemblies"
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        folder = Path(tempfile.gettempdir())
-    path = folder / name
-    if not path.is_file() or path.read_text() != text:
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
-    return path
+    return text_file("assemblies", "assembly", text, "urdf")

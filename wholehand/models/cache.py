@@ -53,6 +53,24 @@ def content_hash(*parts: bytes | str | Path | dict[str, Any] | float | int) -> s
     return h.hexdigest()
 
 
+def text_file(kind: str, stem: str, text: str, suffix: str) -> Path:
+    """``text`` written once as ``<cache>/<kind>/<stem>-<hash>.<suffix>`` (in the temporary
+    folder if the cache folder is unusable), for parsers that read a file (a merged URDF, a
+    self-contained MJCF); its path."""
+    name = f"{stem}-{content_hash(text)[:16]}.{suffix}"
+    try:
+        folder = cache_dir() / kind
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        folder = Path(tempfile.gettempdir())
+    path = folder / name
+    if not path.is_file() or path.read_text() != text:
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(text)
+        tmp.replace(path)
+    return path
+
+
 _UNREADABLE = (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError)
 """What reading a damaged ``.npz`` raises (numpy, zipfile and the file system)."""
 

@@ -30,6 +30,7 @@ from wholehand.models.coupling import (
 )
 from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
 from wholehand.models.mesh_files import check_meshes
+from wholehand.models.mjcf_file import mjcf_for_parsers
 from wholehand.models.outer_surface import find_buried_samples
 from wholehand.models.poses import pose_from_xyz_rpy
 from wholehand.models.surface import link_mesh_in_joint_frame, sample_link_surface
@@ -121,9 +122,10 @@ class HandModel:
     def _build_model(self) -> pin.Model:
         cfg = self.config
         mjcf = cfg.model_format == "mjcf"
+        source = mjcf_for_parsers(cfg) if mjcf else cfg.model_path
         try:
             if mjcf:
-                return pin.buildModelFromMJCF(str(cfg.model_path))
+                return pin.buildModelFromMJCF(str(source))
             return pin.buildModelFromUrdf(str(cfg.model_path))
         except Exception as err:
             raise AssetError(
@@ -149,7 +151,7 @@ class HandModel:
         check_meshes(cfg, surface)
         try:
             if cfg.model_format == "mjcf":  # collision: geoms with contype or conaffinity set
-                geometry = pin.buildGeomFromMJCF(model, str(cfg.model_path), kind)
+                geometry = pin.buildGeomFromMJCF(model, str(mjcf_for_parsers(cfg)), kind)
                 for obj in list(geometry.geometryObjects):  # the world's own (a floor)
                     if model.frames[obj.parentFrame].type != pin.FrameType.BODY:
                         geometry.removeGeometryObject(obj.name)

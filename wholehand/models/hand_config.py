@@ -6,6 +6,7 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     urdf = "my_hand.urdf"                      # relative to the hand.toml folder, or
     urdf = { distribution = "pkg", path = "share/.../hand.urdf" }   # inside an installed package
     mjcf = "my_hand.xml"                       # instead of urdf: a MuJoCo MJCF file
+    root_body = "hand_mount"                   # MJCF only: the hand's body in a scene file
     palm_link = "palm"
     passive_links = ["palm"]                    # default: [palm_link]
     sample_surface = "collision"                # or "visual"
@@ -123,6 +124,9 @@ class HandConfig:
     """Drop surface samples buried inside another collision shape of the hand."""
     model_format: str = "urdf"
     """``urdf`` or ``mjcf``: which key of hand.toml named :attr:`model_path`."""
+    root_body: str | None = None
+    """MJCF only: the body that is the hand's base when the file is a scene with other bodies
+    (:mod:`wholehand.models.mjcf_file`); None: the file's one root body."""
     torque_limit_set: bool = False
     """True when hand.toml sets ``[joints] torque_limit`` (False: the paper's default)."""
     arm_joints: tuple[str, ...] = ()
@@ -194,6 +198,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         "name",
         "urdf",
         "mjcf",
+        "root_body",
         "palm_link",
         "passive_links",
         "sample_surface",
@@ -232,6 +237,12 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         raise ConfigError(
             f"{path}: '{key}' must be a path or {{ distribution = ..., path = ... }}, "
             f"got {source!r}"
+        )
+    root_body = raw.get("root_body")
+    if root_body is not None and (model_format != "mjcf" or not isinstance(root_body, str)):
+        raise ConfigError(
+            f"{path}: root_body names the hand's body in an MJCF scene file (a string, with "
+            f"mjcf = ...); got {root_body!r} with {key} = ..."
         )
     # package://name/... URIs resolve against every ancestor of the URDF and the hand folder.
     package_dirs = (path.parent.resolve(), *model_path.parents)
@@ -305,6 +316,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         outer_surface_only=outer,
         torque_limit_set="torque_limit" in joints,
         model_format=model_format,
+        root_body=root_body,
         torque_limit_default=default_limit,
         torque_limits=limits,
         damping=_number(sim.get("damping", 0.05), "simulation.damping", path),

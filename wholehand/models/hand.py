@@ -372,7 +372,9 @@ class HandModel:
             "locked": cfg.locked_joints,
             "outer_surface_only": cfg.outer_surface_only,
         }
-        return cache.content_hash(cfg.model_path, *meshes, self.sample_params, shape)
+        # An MJCF's self-contained copy holds its <include>d files too.
+        source = mjcf_for_parsers(cfg) if cfg.model_format == "mjcf" else cfg.model_path
+        return cache.content_hash(source, *meshes, self.sample_params, shape)
 
     def _load_or_sample(self) -> SurfaceSamples:
         key = self._cache_key()

@@ -81,29 +81,39 @@ def test_it_grasps_and_holds_a_cube(shadow, tmp_path):
     assert record.arrays()["n_contacts"].min() >= 10  # fingers and palm, not only the tips
 
 
-def test_an_included_scene_file_gives_the_plain_files_kinematics(tmp_path):
-    plain = load_hand(write_toy_hand(tmp_path / "plain", mjcf=True, palm_rpy=(0.3, -0.5, 1.2)))
-    folder = write_toy_hand(tmp_path / "scene", mjcf=True, palm_rpy=(0.3, -0.5, 1.2))
+def _split_toy(folder: Path, floor_body: bool) -> Path:
+    """The toy MJCF with its hand body moved to an ``<include>``d file, after a floor body
+    (``floor_body``: a scene) or alone."""
     text = (folder / "toy.xml").read_text()
     start, end = text.index('<body name="palm"'), text.index("</worldbody>")
     (folder / "hand_body.xml").write_text(f"<mujoco>{text[start:end]}</mujoco>")
-    scene = text[:start] + '<body name="floor_body"><site name="target"/></body>'
-    scene += '<include file="hand_body.xml"/>' + text[end:]
-    (folder / "toy.xml").write_text(scene)
-    with pytest.raises(ConfigError, match="2 root bodies \\['floor_body', 'palm'\\]"):
-        load_hand(folder)
-    toml = folder / "hand.toml"
-    toml.write_text(toml.read_text().replace("palm_link", 'root_body = "palm"\npalm_link', 1))
-    included = load_hand(folder)
-    assert included.joint_names == plain.joint_names and included.link_names == plain.link_names
+    floor = '<body name="floor_body"><site name="target"/></body>' if floor_body else ""
+    (folder / "toy.xml").write_text(
+        text[:start] + floor + '<include file="hand_body.xml"/>' + text[end:]
+    )
+    return folder
+
+
+@pytest.mark.parametrize("floor_body", [False, True], ids=["include", "scene"])
+def test_an_included_or_scene_file_gives_the_plain_files_kinematics(tmp_path, floor_body):
+    rpy = (0.3, -0.5, 1.2)
+    plain = load_hand(write_toy_hand(tmp_path / "plain", mjcf=True, palm_rpy=rpy))
+    folder = _split_toy(write_toy_hand(tmp_path / "split", mjcf=True, palm_rpy=rpy), floor_body)
+    if floor_body:
+        with pytest.raises(ConfigError, match="2 root bodies \\['floor_body', 'palm'\\]"):
+            load_hand(folder)
+        toml = folder / "hand.toml"
+        toml.write_text(toml.read_text().replace("palm_link", 'root_body = "palm"\npalm_link', 1))
+    split = load_hand(folder)
+    assert split.joint_names == plain.joint_names and split.link_names == plain.link_names
     q = plain.couple(np.array([0.3, 0.2, 0.6, 0.1, 0.4]))
     poses = []
-    for hand in (plain, included):
+    for hand in (plain, split):
         data = hand.model.createData()
         pin.framesForwardKinematics(hand.model, data, q)
         poses.append([data.oMf[int(f)].homogeneous for f in hand.link_frame])
     np.testing.assert_allclose(poses[0], poses[1], atol=1e-5)  # MuJoCo writes 6 digits
-    MujocoBackend(included, ObjectModel.sphere(0.01, mass=0.01))  # the scene builds from it too
+    MujocoBackend(split, ObjectModel.sphere(0.01, mass=0.01))  # the scene builds from it too
 
 
 @pytest.mark.parametrize(

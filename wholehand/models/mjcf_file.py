@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import mujoco
 
 from wholehand.errors import AssetError, ConfigError
+from wholehand.models.cache import text_file
 
 if TYPE_CHECKING:
     from wholehand.models.hand_config import HandConfig
@@ -56,12 +57,11 @@ def mjcf_for_parsers(cfg: HandConfig) -> Path:
             f"{cfg.path}: root_body = {keep!r} is not a root body of {path.name}; its root "
             f"bodies are {roots}"
         )
-    for body in list(spec.worldbody.bodies):
-        if body.name != keep and keep is not None:
-            spec.delete(body)
+    if keep is not None:
+        for body in list(spec.worldbody.bodies):
+            if body.name != keep:
+                spec.delete(body)
     folder = path.parent
     spec.meshdir = str((folder / spec.meshdir).resolve())
     spec.texturedir = str((folder / spec.texturedir).resolve())
-    from wholehand.models.cache import text_file
-
     return text_file("mjcf", path.stem, spec.to_xml(), "xml")

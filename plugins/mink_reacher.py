@@ -33,7 +33,8 @@ import numpy.typing as npt
 
 from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
 from wholehand.backends.mujoco_poses import mujoco_quat, pose_from_mujoco
-from wholehand.backends.mujoco_scene import SceneOptions, add_object_geoms
+from wholehand.backends.object_spec import add_object_geoms
+from wholehand.backends.scene_options import SceneOptions
 from wholehand.backends.table import TABLE_GEOM, Table
 from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel

@@ -26,14 +26,13 @@ from wholehand.backends.base import (
 )
 from wholehand.backends.mujoco_contacts import SimContacts, hand_object_contacts, warning_counts
 from wholehand.backends.mujoco_poses import mujoco_quat, pose_from_mujoco
-from wholehand.backends.mujoco_scene import (
+from wholehand.backends.mujoco_scene import HandObjectScene, build_scene
+from wholehand.backends.scene_options import (
     DEFAULT_TIMESTEP,
     HAND_BIT,
     WRIST_JOINT,
     WRIST_TARGET,
-    HandObjectScene,
     SceneOptions,
-    build_scene,
 )
 from wholehand.backends.step_guard import StepGuard
 from wholehand.errors import ConfigError
@@ -112,7 +111,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         timestep: simulation step [s] (default 1 ms).
         history: joint samples kept for :meth:`Observation.q_at` (one per :meth:`observe`).
         wMb: (4, 4) pose of the hand base in the world; default: the mount pose ``hand.wMb``.
-        **options: further :class:`~wholehand.backends.mujoco_scene.SceneOptions` fields
+        **options: further :class:`~wholehand.backends.scene_options.SceneOptions` fields
             (``cone``, ``impratio``, ``condim``, ``friction``, ``solref``, ``solimp``, ``base``,
             ``self_collision``, ``collision``, ``coacd``, ``iterations``, ``visual_mesh``).
 

@@ -15,12 +15,8 @@ import trimesh
 from wholehand_plugins.mujoco_backend import MujocoBackend
 
 from wholehand.backends.convex import convex_decomposition, shipped_decomposition_file
-from wholehand.backends.mujoco_scene import (
-    HAND_BIT,
-    OBJECT_BIT,
-    SceneOptions,
-    build_scene,
-)
+from wholehand.backends.mujoco_scene import build_scene
+from wholehand.backends.scene_options import HAND_BIT, OBJECT_BIT, SceneOptions
 from wholehand.errors import AssetError, ConfigError, WholehandError
 from wholehand.grasps.store import objects_with_grasps
 from wholehand.loop.command import Command

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from wholehand_plugins.mujoco_backend import MujocoBackend
 
-from wholehand.backends.mujoco_scene import HAND_BIT
+from wholehand.backends.scene_options import HAND_BIT
 from wholehand.backends.step_guard import MAX_SPEED
 from wholehand.loop.command import Command
 from wholehand.models.object_catalogue import load_object

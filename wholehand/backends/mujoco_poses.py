@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import mujoco
 import numpy as np
 import numpy.typing as npt
@@ -24,3 +26,9 @@ def pose_from_mujoco(pos: npt.ArrayLike, quat: npt.ArrayLike) -> FloatArray:
     M[:3, :3] = R.reshape(3, 3)
     M[:3, 3] = pos
     return M
+
+
+def set_spec_pose(element: Any, M: FloatArray) -> None:
+    """Set an MjSpec body's (or frame's) ``pos`` and ``quat`` from the pose ``M`` (4, 4)."""
+    element.pos = M[:3, 3].tolist()
+    element.quat = mujoco_quat(M).tolist()

@@ -16,24 +16,10 @@ spec:
   followers together;
 - locked joints of hand.toml are removed and their bodies fixed at the locked value.
 
-The object is a body named ``"object"`` with a free joint. Its body frame IS the object frame of
-:class:`~wholehand.models.objects.ObjectModel` (the canonical mesh frame): mass, centre of mass and
-inertia are set explicitly from the ObjectModel (never inferred from geoms), so MuJoCo does not
-move the body frame to the centre of mass. Primitives collide as MuJoCo primitives of exact size;
-meshes as the convex parts of a CoACD decomposition (:mod:`wholehand.backends.convex`), because
-MuJoCo would collide a single mesh geom as its convex hull and fill cavities (``collision="hull"``
-keeps that behaviour for comparison).
+The object is a body named ``"object"`` with a free joint whose body frame is the object frame
+(:mod:`wholehand.backends.object_spec`).
 
-Contact model (stated once, see :class:`SceneOptions`):
-
-- friction: object geoms have ``priority=1``, so every hand-object contact uses the object's
-  friction coefficient exactly (MuJoCo's default would take the element-wise maximum of the two
-  geoms); hand geoms carry the same coefficient, used only for hand-hand contacts;
-- ``condim=3``: point contacts with sliding friction only, as in the paper's contact model;
-- elliptic friction cones with ``impratio=10`` (stiffer tangential response, less creep when holding
-  an object by friction), Newton solver, ``implicitfast`` integration (joint damping implicit);
-- timestep 1 ms and contact ``solref=(0.005, 1)``: a 5 ms time constant, 5 timesteps, stiffer
-  than MuJoCo's 20 ms default so that fingertips squeezing with ~10 N penetrate by less than 1 mm.
+The contact model and the scene options: :mod:`wholehand.backends.scene_options`.
 
 Indexing: MuJoCo's joint order differs from Pinocchio's, so positions, velocities and controls are
 mapped by joint NAME (:attr:`HandObjectScene.qpos_index` etc.), never by position.
@@ -44,8 +30,8 @@ from __future__ import annotations
 import functools
 import logging
 import math
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -57,8 +43,19 @@ from wholehand.backends.hand_spec import (
     load_hand_spec,
     weld_locked_joints,
 )
-from wholehand.backends.mujoco_poses import mujoco_quat
-from wholehand.backends.table import Table
+from wholehand.backends.mujoco_poses import set_spec_pose
+from wholehand.backends.object_spec import add_object
+from wholehand.backends.scene_options import (
+    CONES,
+    HAND_BIT,
+    OBJECT_BIT,
+    OBJECT_BODY,
+    OBJECT_JOINT,
+    TABLE_BIT,
+    WRIST_JOINT,
+    WRIST_TARGET,
+    SceneOptions,
+)
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models.poses import check_pose
 
@@ -71,89 +68,6 @@ log = logging.getLogger(__name__)
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
-
-DEFAULT_TIMESTEP: float = 1e-3
-"""Simulation timestep [s]. Stable for the Allegro hand at 0.2 N*m with 0.05-1 kg objects."""
-
-OBJECT_BODY = "object"
-"""Name of the object's body."""
-OBJECT_JOINT = "object_free"
-"""Name of the object's free joint."""
-
-HAND_BIT = 1
-"""contype bit of hand geoms."""
-OBJECT_BIT = 2
-"""contype bit of object geoms."""
-TABLE_BIT = 4
-"""contype bit of the table (it collides with the hand and the object)."""
-
-CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
-BASES = ("fixed", "mocap", "floating")
-WRIST_TARGET = "wrist_target"
-"""Name of the mocap body a ``floating`` base is welded to."""
-WRIST_JOINT = "wrist_free"
-"""Name of a ``floating`` base's free joint."""
-COLLISIONS = ("decomposition", "hull")
-
-
-@dataclass(frozen=True)
-class SceneOptions:
-    """Physics settings of a hand-object scene (defaults justified in the module docstring)."""
-
-    timestep: float = DEFAULT_TIMESTEP
-    """Integration step [s]."""
-    gravity: bool = False
-    """Gravity (0, 0, -9.81) m/s^2 when True, none when False (the paper's setting)."""
-    cone: Literal["elliptic", "pyramidal"] = "elliptic"
-    """Friction cone of MuJoCo's contact solver."""
-    impratio: float = 10.0
-    """Ratio of frictional to normal constraint impedance (elliptic cones)."""
-    condim: int = 3
-    """Contact dimensionality: 3 = sliding friction (point contact), 4 adds torsion, 6 rolling."""
-    friction: float | None = None
-    """Sliding friction coefficient of hand-object contacts [-]; None: the object's own."""
-    solref: tuple[float, float] = (0.005, 1.0)
-    """Contact (time constant [s], damping ratio)."""
-    solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
-    """Contact impedance (MuJoCo's default)."""
-    base: Literal["fixed", "mocap", "floating"] = "fixed"
-    """Hand base welded at ``hand.wMb`` ("fixed"), moved kinematically ("mocap"), or free and
-    held by a soft weld to a moved target ("floating": a wrist of finite stiffness, so a hand
-    pressed onto an object lying on the table yields instead of crushing it)."""
-    wrist_solref: tuple[float, float] = (0.01, 1.0)
-    """(time constant [s], damping ratio) of a floating base's weld to its target."""
-    self_collision: bool = True
-    """Collide hand links with each other. Excluded always: parent-child pairs, the base with
-    its children, and pairs already touching in the neutral or zero configuration."""
-    collision: Literal["decomposition", "hull"] = "decomposition"
-    """Mesh objects: convex parts of a CoACD decomposition, or one convex hull."""
-    coacd: dict[str, Any] = field(default_factory=dict)
-    """CoACD parameters overriding :data:`wholehand.backends.convex.DEFAULT_PARAMS`."""
-    iterations: int = 100
-    """Newton solver iterations per step (upper bound)."""
-    visual_mesh: bool = False
-    """Also add the original object mesh as a visual-only geom (group 2), for viewers."""
-    table: Table | None = None
-    """A table under the object (:class:`~wholehand.backends.table.Table`); None: none."""
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.timestep, (int, float)) and 0.0 < self.timestep <= 0.01):
-            raise ConfigError(f"timestep must be in (0, 0.01] s, got {self.timestep!r}")
-        if self.cone not in CONES:
-            raise ConfigError(f"cone must be one of {sorted(CONES)}, got {self.cone!r}")
-        if self.condim not in (1, 3, 4, 6):
-            raise ConfigError(f"condim must be 1, 3, 4 or 6, got {self.condim!r}")
-        if self.base not in BASES:
-            raise ConfigError(f"base must be one of {BASES}, got {self.base!r}")
-        if self.collision not in COLLISIONS:
-            raise ConfigError(f"collision must be one of {COLLISIONS}, got {self.collision!r}")
-        if self.friction is not None and not (math.isfinite(self.friction) and self.friction >= 0):
-            raise ConfigError(f"friction must be a finite number >= 0, got {self.friction!r}")
-        if not self.solref[0] >= 2.0 * self.timestep:
-            raise ConfigError(
-                f"solref time constant {self.solref[0]} s must be at least twice the timestep "
-                f"{self.timestep} s, else contacts are unstable; raise it or lower the timestep"
-            )
 
 
 @dataclass
@@ -196,11 +110,6 @@ class HandObjectScene:
 
 
 # --- hand ---------------------------------------------------------------------------------------
-def _set_pose(element: Any, M: FloatArray) -> None:
-    element.pos = M[:3, 3].tolist()
-    element.quat = mujoco_quat(M).tolist()
-
-
 def _check_hand(hand: HandModel) -> None:
     tau = np.asarray(hand.tau_max, dtype=float)
     act = np.asarray(hand.actuated_dofs, dtype=bool)
@@ -229,13 +138,13 @@ def _edit_hand(
             f"{[b.name for b in roots]}"
         )
     base = roots[0]  # the base frame b; an MJCF root body's own pose is dropped, as Pinocchio does
-    _set_pose(base, wMb)
+    set_spec_pose(base, wMb)
     base.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # the quaternion just set
     if opts.base == "mocap":
         base.mocap = True
     elif opts.base == "floating":
         target = spec.worldbody.add_body(name=WRIST_TARGET, mocap=True)
-        _set_pose(target, wMb)
+        set_spec_pose(target, wMb)
         target.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
     weld_locked_joints(spec, hand)
     add_declared_couplings(spec, hand)
@@ -282,126 +191,6 @@ def _edit_hand(
         act.ctrlrange = [-tau, tau]
         act.forcelimited = True
         act.forcerange = [-tau, tau]
-
-
-# --- object -------------------------------------------------------------------------------------
-def _principal_inertia(obj: ObjectModel) -> tuple[FloatArray, FloatArray]:
-    """Principal moments (3,) [kg*m^2] and the (4,) quaternion of the principal axes."""
-    inertia = np.asarray(obj.inertia, dtype=float)
-    if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
-        raise ConfigError(f"object {obj.name!r}: inertia must be a finite (3, 3) matrix")
-    moments, axes = np.linalg.eigh(0.5 * (inertia + inertia.T))
-    if moments.min() <= 0:
-        raise ConfigError(
-            f"object {obj.name!r}: inertia about the centre of mass is not positive definite "
-            f"(principal moments {moments.tolist()}); fix the object's mass properties"
-        )
-    if np.linalg.det(axes) < 0:
-        axes[:, 2] *= -1.0
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(axes).ravel())
-    return moments, quat
-
-
-def add_object_geoms(
-    spec: mujoco.MjSpec, body: Any, obj: ObjectModel, opts: SceneOptions, mu: float
-) -> int:
-    """Add the collision geoms of the object to ``body``; return the number of convex parts
-    (0: a primitive). Geoms are named ``object_geom`` or ``object_part_<i>``."""
-    common = {
-        "contype": OBJECT_BIT,
-        "conaffinity": HAND_BIT,
-        "condim": opts.condim,
-        "friction": [mu, 0.005, 0.0001],
-        "solref": list(opts.solref),
-        "solimp": list(opts.solimp),
-        "priority": 1,
-        "rgba": [0.85, 0.55, 0.2, 1.0],
-    }
-    dims = obj.dimensions
-    G = mujoco.mjtGeom
-    primitives = {  # MuJoCo sizes: radius, half-lengths
-        "box": (G.mjGEOM_BOX, lambda: (0.5 * np.asarray(dims["size"], dtype=float)).tolist()),
-        "sphere": (G.mjGEOM_SPHERE, lambda: [float(dims["radius"]), 0.0, 0.0]),
-        "cylinder": (
-            G.mjGEOM_CYLINDER,
-            lambda: [float(dims["radius"]), 0.5 * float(dims["height"]), 0.0],
-        ),
-        "capsule": (
-            G.mjGEOM_CAPSULE,
-            lambda: [float(dims["radius"]), 0.5 * float(dims["length"]), 0.0],
-        ),
-    }
-    if obj.kind in primitives:
-        geom_type, size = primitives[obj.kind]
-        try:
-            body.add_geom(name="object_geom", type=geom_type, size=size(), **common)
-        except KeyError as err:
-            raise ConfigError(
-                f"object {obj.name!r} of kind {obj.kind!r} lacks dimension {err} "
-                f"(has {sorted(dims)})"
-            ) from err
-        return 0
-    if obj.kind != "mesh":
-        raise ConfigError(
-            f"object {obj.name!r} has kind {obj.kind!r}; expected mesh, box, sphere, cylinder or "
-            "capsule"
-        )
-    if opts.collision == "hull":
-        hull = obj.mesh.convex_hull
-        parts = [(np.asarray(hull.vertices), np.asarray(hull.faces))]
-    else:
-        from wholehand.backends.convex import convex_decomposition
-
-        parts = convex_decomposition(obj.mesh, name=obj.name, **opts.coacd).parts()
-    for i, (vertices, faces) in enumerate(parts):
-        mesh = spec.add_mesh(name=f"object_part_{i}")
-        mesh.uservert = np.asarray(vertices, dtype=np.float32).ravel().tolist()
-        mesh.userface = np.asarray(faces, dtype=np.int32).ravel().tolist()
-        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
-        body.add_geom(name=f"object_part_{i}", type=G.mjGEOM_MESH, meshname=mesh.name, **common)
-    return len(parts)
-
-
-def _add_visual_mesh(spec: mujoco.MjSpec, body: Any, obj: ObjectModel) -> None:
-    mesh = spec.add_mesh(name="object_visual")
-    mesh.uservert = np.asarray(obj.mesh.vertices, dtype=np.float32).ravel().tolist()
-    mesh.userface = np.asarray(obj.mesh.faces, dtype=np.int32).ravel().tolist()
-    mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
-    body.add_geom(
-        name="object_visual",
-        type=mujoco.mjtGeom.mjGEOM_MESH,
-        meshname="object_visual",
-        contype=0,
-        conaffinity=0,
-        group=2,
-        density=0,
-        rgba=[0.85, 0.55, 0.2, 0.5],
-    )
-
-
-def _add_object(
-    spec: mujoco.MjSpec, obj: ObjectModel, wMo: FloatArray, opts: SceneOptions, mu: float
-) -> int:
-    mass = float(obj.mass)
-    if not (math.isfinite(mass) and mass > 0):
-        raise ConfigError(f"object {obj.name!r}: mass must be a positive number [kg], got {mass!r}")
-    com = np.asarray(obj.com, dtype=float)
-    if com.shape != (3,) or not np.all(np.isfinite(com)):
-        raise ConfigError(f"object {obj.name!r}: com must be a finite (3,) point, got {com!r}")
-    moments, iquat = _principal_inertia(obj)
-    body = spec.worldbody.add_body(name=OBJECT_BODY)
-    _set_pose(body, wMo)
-    body.add_freejoint(name=OBJECT_JOINT)
-    body.explicitinertial = True
-    body.mass = mass
-    body.ipos = com.tolist()
-    body.iquat = iquat.tolist()
-    body.inertia = moments.tolist()
-    parts = add_object_geoms(spec, body, obj, opts, mu)
-    if opts.visual_mesh:
-        _add_visual_mesh(spec, body, obj)
-    return parts
 
 
 # --- index maps ---------------------------------------------------------------------------------
@@ -527,7 +316,7 @@ def build_scene(
     spec = load_hand_spec(hand)
     spec.modelname = f"{hand.name}_{obj.name}".replace(":", "_")
     _edit_hand(spec, hand, wMb, opts, mu)
-    parts = _add_object(spec, obj, wMo, opts, mu)
+    parts = add_object(spec, obj, wMo, opts, mu)
     if opts.table is not None:
         opts.table.add_to(
             spec.worldbody,

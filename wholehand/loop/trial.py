@@ -75,7 +75,7 @@ class TrialSpec:
     allocator_params: dict[str, Any] = field(default_factory=dict)
     backend_params: dict[str, Any] = field(default_factory=dict)
     """Keyword options of the backend, e.g. ``{"self_collision": False}`` for ``mujoco``
-    (:class:`~wholehand.backends.mujoco_scene.SceneOptions`)."""
+    (:class:`~wholehand.backends.scene_options.SceneOptions`)."""
     protocol_params: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`PerturbationProtocol` fields (e.g. shorter stages for tests)."""
     pose_error: dict[str, Any] = field(default_factory=dict)

@@ -152,32 +152,40 @@ class TrackingStudy(Study):
         cfg = CONFIGS[self.check_size(size)]
         protocol = protocol_for(size)
         start = pull_start(protocol, cfg.theta_deg)
+        grasps = {obj: stored_grasp_indices(hand, obj, "power", cfg.grasps) for obj in cfg.objects}
+        # Grasp rank outermost: a run cut short (the runner goes in index order) has the same
+        # grasps of every object under every condition and method.
+        order = [
+            (oi, obj, grasps[obj][rank])
+            for rank in range(max(map(len, grasps.values()), default=0))
+            for oi, obj in enumerate(cfg.objects)
+            if rank < len(grasps[obj])
+        ]
         jobs: list[TrialJob] = []
-        for oi, obj in enumerate(cfg.objects):
-            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
-                trial_seed = derive_seed(seed, oi, grasp, 0)
-                for name in cfg.conditions:
-                    cond = condition(name)
-                    for method in cfg.methods:
-                        allocator, estimate_at = METHODS[method]
-                        spec = TrialSpec(
-                            hand=hand,
-                            object=obj,
-                            grasp=grasp,
-                            allocator=allocator,
-                            estimate_at=estimate_at,
-                            theta_deg=cfg.theta_deg,
-                            seed=trial_seed,
-                            protocol_params=protocol,
-                            tracking=cond.tracking(start, trial_seed),
-                        )
-                        labels = {
-                            "method": method,
-                            "condition": cond.name,
-                            "factor": cond.factor,
-                            "level": cond.level(),
-                        }
-                        jobs.append(TrialJob(len(jobs), spec, labels))
+        for oi, obj, grasp in order:
+            trial_seed = derive_seed(seed, oi, grasp, 0)
+            for name in cfg.conditions:
+                cond = condition(name)
+                for method in cfg.methods:
+                    allocator, estimate_at = METHODS[method]
+                    spec = TrialSpec(
+                        hand=hand,
+                        object=obj,
+                        grasp=grasp,
+                        allocator=allocator,
+                        estimate_at=estimate_at,
+                        theta_deg=cfg.theta_deg,
+                        seed=trial_seed,
+                        protocol_params=protocol,
+                        tracking=cond.tracking(start, trial_seed),
+                    )
+                    labels = {
+                        "method": method,
+                        "condition": cond.name,
+                        "factor": cond.factor,
+                        "level": cond.level(),
+                    }
+                    jobs.append(TrialJob(len(jobs), spec, labels))
         return jobs
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:

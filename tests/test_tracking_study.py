@@ -61,7 +61,7 @@ def test_the_full_design_pairs_methods_and_conditions_on_each_grasp():
         else:
             assert s.estimate_at == "object_stamp"
     assert all(len(seeds) == 1 for seeds in by_grasp.values())  # one pull axis per grasp
-    # Grasp rank outermost: the first quarter of a run has each object's first grasps.
+    # Grasp rank outermost: the first tenth of a run has every object's first grasp.
     first = jobs[: 5 * len(CONDITIONS) * 4]
     assert {(j.spec.object, j.spec.grasp) for j in first} == {(o, 0) for o, _ in by_grasp}
 

@@ -21,6 +21,7 @@ the URDF's effort limits, and its links are never contact candidates.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -181,3 +182,54 @@ def write_merged(text: str) -> Path:
     from wholehand.models.cache import text_file
 
     return text_file("assemblies", "assembly", text, "urdf")
+
+
+def assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
+    """The config of an arm-hand assembly: the hand.toml ``raw`` (``name``, ``[assembly]``,
+    ``[mount]``) at ``path``, as :func:`~wholehand.models.hand_config.parse_hand_config` returns
+    it for an assembly."""
+    from wholehand.models.hand_config import parse_hand_config, three_numbers
+
+    unknown = sorted(set(raw) - {"name", "assembly", "mount"})
+    if unknown:
+        raise ConfigError(
+            f"{path}: an assembly's hand.toml takes name, [assembly] and [mount]; the hand's own "
+            f"settings belong in the hand's hand.toml, not here: {unknown}"
+        )
+    assembly = parse_assembly(raw["assembly"], path)
+    hand = parse_hand_config(assembly.hand_toml)
+    if hand.model_format != "urdf" or hand.arm_joints:
+        raise ConfigError(f"{path}: [assembly] hand must be a URDF hand, not {hand.path}")
+    name = str(raw.get("name", path.parent.name))
+    text, arm_joints, arm_links = merged_urdf(assembly, hand, name)
+    if assembly.home and len(assembly.home) != len(arm_joints):
+        raise ConfigError(
+            f"{path}: [assembly] home has {len(assembly.home)} angles; the arm has "
+            f"{len(arm_joints)} moving joints {arm_joints}"
+        )
+    model_path = write_merged(text)
+    actuated = hand.actuated_joints
+    if actuated is None:  # "every moving joint" of the hand, not of the arm
+        hand_joints = moving_joints(ET.parse(hand.model_path).getroot())
+        actuated = tuple(
+            j for j in hand_joints if j not in hand.locked_joints and j not in hand.coupled_joints
+        )
+    mount = raw.get("mount", {})
+    if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
+        raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
+    xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
+    return dataclasses.replace(
+        hand,
+        path=path.resolve(),
+        name=name,
+        model_path=model_path,
+        package_dirs=(model_path.parent, *hand.package_dirs),
+        actuated_joints=actuated,
+        excluded_links=(*hand.excluded_links, *arm_links),
+        mount_xyz=xyz,
+        mount_rpy=rpy,
+        arm_joints=tuple(arm_joints),
+        arm_gains=(assembly.kp, assembly.kd),
+        hand_toml=assembly.hand_toml,
+        arm_home=assembly.home or tuple(0.0 for _ in arm_joints),
+    )

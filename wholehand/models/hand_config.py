@@ -192,7 +192,9 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from err
     if "assembly" in raw:
-        return _assembly_config(raw, path)
+        from wholehand.models.assembly import assembly_config
+
+        return assembly_config(raw, path)
 
     known = {
         "name",
@@ -324,58 +326,6 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         grasp_styles=grasp_styles,
         mount_xyz=xyz,
         mount_rpy=rpy,
-    )
-
-
-def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
-    """The config of an arm-hand assembly (:mod:`wholehand.models.assembly`)."""
-    import dataclasses
-    import xml.etree.ElementTree as ET
-
-    from wholehand.models.assembly import merged_urdf, moving_joints, parse_assembly, write_merged
-
-    unknown = sorted(set(raw) - {"name", "assembly", "mount"})
-    if unknown:
-        raise ConfigError(
-            f"{path}: an assembly's hand.toml takes name, [assembly] and [mount]; the hand's own "
-            f"settings belong in the hand's hand.toml, not here: {unknown}"
-        )
-    assembly = parse_assembly(raw["assembly"], path)
-    hand = parse_hand_config(assembly.hand_toml)
-    if hand.model_format != "urdf" or hand.arm_joints:
-        raise ConfigError(f"{path}: [assembly] hand must be a URDF hand, not {hand.path}")
-    name = str(raw.get("name", path.parent.name))
-    text, arm_joints, arm_links = merged_urdf(assembly, hand, name)
-    if assembly.home and len(assembly.home) != len(arm_joints):
-        raise ConfigError(
-            f"{path}: [assembly] home has {len(assembly.home)} angles; the arm has "
-            f"{len(arm_joints)} moving joints {arm_joints}"
-        )
-    model_path = write_merged(text)
-    actuated = hand.actuated_joints
-    if actuated is None:  # "every moving joint" of the hand, not of the arm
-        hand_joints = moving_joints(ET.parse(hand.model_path).getroot())
-        actuated = tuple(
-            j for j in hand_joints if j not in hand.locked_joints and j not in hand.coupled_joints
-        )
-    mount = raw.get("mount", {})
-    if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
-        raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
-    xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
-    return dataclasses.replace(
-        hand,
-        path=path.resolve(),
-        name=name,
-        model_path=model_path,
-        package_dirs=(model_path.parent, *hand.package_dirs),
-        actuated_joints=actuated,
-        excluded_links=(*hand.excluded_links, *arm_links),
-        mount_xyz=xyz,
-        mount_rpy=rpy,
-        arm_joints=tuple(arm_joints),
-        arm_gains=(assembly.kp, assembly.kd),
-        hand_toml=assembly.hand_toml,
-        arm_home=assembly.home or tuple(0.0 for _ in arm_joints),
     )
 
 

@@ -29,6 +29,7 @@ def test_every_example_is_tested():
         "tracking_noise_estimator.py",
         "contacts_per_link.py",
         "tracking_latency.py",
+        "feedforward_pose_error.py",
     }
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
 
@@ -59,3 +60,12 @@ def test_tracking_latency_compares_three_conditions():
     rows = {line.split()[0]: line.split() for line in out.splitlines()[2:] if line.strip()}
     assert set(rows) == {"exact", "object_stamp", "current"}
     assert all(0.0 <= float(r[1]) <= 100.0 for r in rows.values())
+
+
+def test_feedforward_pose_error_compares_the_torques_with_and_without_the_error():
+    out = _run("feedforward_pose_error.py")
+    row = out.splitlines()[1].split()
+    assert row[:2] == ["077_rubiks_cube", "0"]
+    cosine, change, flips = float(row[2]), float(row[3]), int(row[4])
+    assert -1.0 <= cosine < 1.0 and change > 0.0 and flips >= 0  # the error moves the torques
+    assert "cosine median" in out.splitlines()[-1]

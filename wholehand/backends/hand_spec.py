@@ -15,7 +15,6 @@ import numpy as np
 
 from wholehand.errors import AssetError
 from wholehand.models.mesh_files import resolve_mesh_uri
-from wholehand.models.mjcf_file import mjcf_for_parsers
 
 if TYPE_CHECKING:
     from wholehand.models.hand import HandModel
@@ -61,7 +60,7 @@ def _mjcf_hand_spec(hand: HandModel) -> mujoco.MjSpec:
     and sensors removed (the scene adds its own motors and an object), static world geoms (a
     floor) removed, and its visual-only geoms (contype = conaffinity = 0, as Pinocchio reads
     them) removed."""
-    path = mjcf_for_parsers(hand.config)
+    path = hand.parsed_model_path
     try:
         spec = mujoco.MjSpec.from_file(str(path))
     except ValueError as err:

@@ -99,6 +99,11 @@ class HandModel:
         seed: int = 0,
     ) -> None:
         self.config = config
+        self.parsed_model_path = (
+            mjcf_for_parsers(config) if config.model_format == "mjcf" else config.model_path
+        )
+        """The model file Pinocchio and the MuJoCo scene read: ``config.model_path``, or an
+        MJCF's self-contained copy (:mod:`wholehand.models.mjcf_file`), made once here."""
         full = self._build_model()
         self._check_joint_types(full)
         collision = self._build_geometry(full, pin.GeometryType.COLLISION, "collision")
@@ -122,10 +127,9 @@ class HandModel:
     def _build_model(self) -> pin.Model:
         cfg = self.config
         mjcf = cfg.model_format == "mjcf"
-        source = mjcf_for_parsers(cfg) if mjcf else cfg.model_path
         try:
             if mjcf:
-                return pin.buildModelFromMJCF(str(source))
+                return pin.buildModelFromMJCF(str(self.parsed_model_path))
             return pin.buildModelFromUrdf(str(cfg.model_path))
         except Exception as err:
             raise AssetError(
@@ -151,7 +155,7 @@ class HandModel:
         check_meshes(cfg, surface)
         try:
             if cfg.model_format == "mjcf":  # collision: geoms with contype or conaffinity set
-                geometry = pin.buildGeomFromMJCF(model, str(mjcf_for_parsers(cfg)), kind)
+                geometry = pin.buildGeomFromMJCF(model, str(self.parsed_model_path), kind)
                 for obj in list(geometry.geometryObjects):  # the world's own (a floor)
                     if model.frames[obj.parentFrame].type != pin.FrameType.BODY:
                         geometry.removeGeometryObject(obj.name)
@@ -373,8 +377,7 @@ class HandModel:
             "outer_surface_only": cfg.outer_surface_only,
         }
         # An MJCF's self-contained copy holds its <include>d files too.
-        source = mjcf_for_parsers(cfg) if cfg.model_format == "mjcf" else cfg.model_path
-        return cache.content_hash(source, *meshes, self.sample_params, shape)
+        return cache.content_hash(self.parsed_model_path, *meshes, self.sample_params, shape)
 
     def _load_or_sample(self) -> SurfaceSamples:
         key = self._cache_key()

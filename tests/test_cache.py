@@ -61,3 +61,21 @@ def test_an_unusable_cache_folder_is_skipped_with_the_fix_named(tmp_path, monkey
     assert "set WHOLEHAND_CACHE to a writable folder" in caplog.text
     assert cache.save_arrays("sdf", "k", {"a": np.zeros(1)}) is None
     assert cache.load_arrays("sdf", "k") is None
+
+
+def test_text_files_written_at_once_by_two_workers_do_not_share_a_temporary_file(
+    tmp_path, monkeypatch
+):
+    # Study workers load the same assembly at once. Writing through one fixed temporary name
+    # let one worker move the other's file away before its rename (FileNotFoundError). A folder
+    # in the place of that fixed name stands in for the other worker's file deterministically.
+    monkeypatch.setenv("WHOLEHAND_CACHE", str(tmp_path))
+    text = "<robot name='r'/>"
+    first = cache.text_file("assemblies", "r", text, "urdf")
+    first.unlink()
+    first.with_suffix(".tmp").mkdir()
+    again = cache.text_file("assemblies", "r", text, "urdf")
+    assert again == first and again.read_text() == text
+    assert not list(again.parent.glob("*.tmp.*")) and not list(
+        again.parent.glob(f"{again.name}*.tmp")
+    )

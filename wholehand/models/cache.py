@@ -65,9 +65,11 @@ def text_file(kind: str, stem: str, text: str, suffix: str) -> Path:
         folder = Path(tempfile.gettempdir())
     path = folder / name
     if not path.is_file() or path.read_text() != text:
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
+        # A temporary file of its own: study workers may write the same file at once.
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=name, suffix=".tmp")
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
     return path
 
 

@@ -81,6 +81,29 @@ _PDTerms = tuple[
 """Target dofs, their q indices, q targets, dq targets, kp, kd (all groups concatenated)."""
 
 
+ARM_SERVO_STEP_LIMIT = 1.0
+"""Largest ``kd * timestep / armature`` accepted for an arm joint's servo: its damping is applied
+once per step, so the joint's velocity changes by that fraction of itself per step from the
+damping alone (past 1 it changes sign every step, past 2 it grows)."""
+
+
+def _check_arm_servo(hand: HandModel, timestep: float) -> None:
+    """Refuse an assembly whose arm servo's damping would overshoot within one step."""
+    cfg = hand.config
+    if not cfg.arm_joints:
+        return
+    kd = cfg.arm_gains[1]
+    ratio = kd * timestep / cfg.arm_armature
+    if ratio > ARM_SERVO_STEP_LIMIT:
+        raise ConfigError(
+            f"{cfg.path}: the arm servo's kd = {kd} N*m*s/rad with arm_armature = "
+            f"{cfg.arm_armature} kg*m^2 at a {timestep} s step gives kd * dt / armature = "
+            f"{ratio:.2f} > {ARM_SERVO_STEP_LIMIT}: the arm would shake. Raise [assembly] "
+            f"arm_armature to at least {kd * timestep / ARM_SERVO_STEP_LIMIT:g}, lower "
+            "arm_gains.kd, or the timestep"
+        )
+
+
 def _pd_terms(command: Command) -> _PDTerms:
     """The command's target groups as flat arrays (hand joints have one dof each: nq = nv)."""
     dofs, q_ref, dq_ref, kp, kd = [], [], [], [], []
@@ -149,6 +172,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         self.hand = hand
         self.obj = obj
         opts = SceneOptions(gravity=bool(gravity), timestep=timestep, **options)
+        _check_arm_servo(hand, opts.timestep)
         self.scene: HandObjectScene = build_scene(hand, obj, wMo_init, opts, wMb)
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)

@@ -110,10 +110,73 @@ def test_a_gravity_compensated_arm_holds_still_and_an_uncompensated_one_sags(rig
             backend.apply(Command(tau, (servo,)))
             backend.step(0.005)
         drift[feedforward] = np.abs(backend.observe().q[arm] - q0[arm])
-    # Joints 1-6 carry the arm; joint 7 turns with the unheld fingers' reactions.
-    assert drift[True][:6].max() < 1e-3
+    assert drift[True].max() < 1e-3
     assert drift[False][1] > 0.1  # the shoulder sags under the arm's own weight
     assert not any(backend.warnings().values())
+
+
+def _wrist_speed_while_holding_still(rig, armature: float) -> float:
+    """Largest speed [rad/s] of the last arm joint over the second 0.5 s of holding the home
+    posture with the fingers pressing on a box fixed in the palm's way, ``armature`` on the arm
+    joints of the compiled model."""
+    q0 = rig.neutral().copy()
+    arm = np.flatnonzero(rig.arm_dofs)
+    q0[arm] = rig.config.arm_home
+    far = np.eye(4)
+    far[:3, 3] = [2.0, 2.0, 0.1]
+    backend = registry.load(
+        "backends",
+        "mujoco",
+        hand=rig,
+        obj=ObjectModel.box((0.05, 0.05, 0.05)),
+        q_init=q0,
+        wMo_init=far,
+        gravity=True,
+    )
+    model = backend.model
+    for name in rig.config.arm_joints:
+        model.dof_armature[model.joint(name).dofadr[0]] = armature
+    comp = GravityCompensation(rig)
+    kp, kd = rig.config.arm_gains
+    hand = np.flatnonzero(rig.actuated_dofs)
+    wrist = arm[-1]
+    speeds = []
+    for k in range(200):
+        obs = backend.observe()
+        tau = np.zeros(rig.nv)
+        tau[arm] = comp.torques(obs.q, obs.wMb)[arm]
+        tau[hand] = 0.1  # fingers closing hard into a fist: reactions on the wrist
+        backend.apply(Command(tau, (JointTargets(arm, q0[arm], None, kp, kd, name="arm"),)))
+        backend.step(0.005)
+        if k >= 100:
+            speeds.append(abs(backend.observe().dq[wrist]))
+    return float(max(speeds))
+
+
+def test_arm_armature_keeps_the_servo_damping_stable_on_the_light_wrist_joint(rig) -> None:
+    # The Rizon 4's last joint with a hand has ~0.004 kg*m^2 about its axis: with kd = 20 the
+    # explicit damping overshoots each 1 ms step (kd dt / I = 4.4) and the wrist shakes.
+    model_armature = 0.001  # the hand's [simulation] armature, which the arm joints had before
+    assert _wrist_speed_while_holding_still(rig, model_armature) > 1.0
+    assert _wrist_speed_while_holding_still(rig, rig.config.arm_armature) < 0.05
+
+
+def test_scene_gives_arm_joints_the_arm_armature_and_hand_joints_their_own(rig) -> None:
+    backend = registry.load("backends", "mujoco", hand=rig, obj=ObjectModel.sphere(0.03))
+    model = backend.model
+    for name in rig.config.arm_joints:
+        assert model.dof_armature[model.joint(name).dofadr[0]] == 0.1
+    for name in rig.joint_names:
+        if name not in rig.config.arm_joints:
+            assert model.dof_armature[model.joint(name).dofadr[0]] == rig.config.armature
+
+
+def test_backend_refuses_an_arm_servo_that_overshoots_and_names_the_fix(tmp_path) -> None:
+    folder = write_assembly(tmp_path / "rig", GOOD + "\narm_armature = 0.001")
+    rig = load_hand(folder)
+    assert rig.config.arm_armature == 0.001
+    with pytest.raises(ConfigError, match=r"kd \* dt / armature = 20.00 > 1.*at least 0.02"):
+        registry.load("backends", "mujoco", hand=rig, obj=ObjectModel.sphere(0.03))
 
 
 def test_rizon4_build_reproduces_the_shipped_urdf(tmp_path: Path) -> None:
@@ -160,6 +223,8 @@ GOOD = 'arm = "arm/rizon4.urdf"\nhand = "allegro_right"\nflange = "flange"'
         ),
         (GOOD + "\nhome = [0.0, 1.0]", "", ConfigError, "home has 2 angles; the arm has 7"),
         (GOOD + '\nhome = ["up"]', "", ConfigError, "home must be a list of angles"),
+        (GOOD + "\narm_armature = 0", "", ConfigError, "arm_armature must be a rotor inertia"),
+        (GOOD + "\narm_armature = true", "", ConfigError, "arm_armature must be a rotor"),
     ],
 )
 def test_bad_assembly_tables_are_named(tmp_path, assembly, extra, error, message) -> None:
@@ -174,7 +239,7 @@ def test_an_arm_reaches_grasps_loses_and_regrasps() -> None:
     summary = run_episode(EpisodeSpec(hand="flexiv_rizon4_allegro_right", seed=0), record=True)
     record = summary.pop("record")
     stages = [(t["source"], t["target"]) for t in summary["transitions"]]
-    assert stages[:2] == [("reach_pregrasp", "reach_grasp"), ("reach_grasp", "regulate")]
+    assert stages[0] == ("reach_pregrasp", "reach_grasp") and ("reach_grasp", "regulate") in stages
     assert summary["mount"] == "arm"
     assert summary["losses"] >= 1 and summary["recovered"] >= 1 and summary["complete"]
     assert summary["loop"]["n_errors"] == 0 and not any(summary["mujoco_warnings"].values())

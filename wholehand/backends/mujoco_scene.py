@@ -7,7 +7,8 @@ spec:
 - its root link (the Pinocchio base ``b``) is welded to the world at ``hand.wMb`` (``base="fixed"``)
   or is a mocap body that can be moved kinematically (``base="mocap"``);
 - every joint gets the damping and armature of ``[simulation]`` in hand.toml (the URDF's own
-  ``<dynamics>`` damping and friction are dropped) and keeps its URDF position limits;
+  ``<dynamics>`` damping and friction are dropped) and keeps its URDF position limits; an
+  assembly's arm joints get ``[assembly] arm_armature`` instead;
 - every actuated joint, and every arm joint of an assembly, gets a ``motor`` actuator,
   ctrl = force = torque [N*m], with ``ctrlrange`` and ``forcerange`` +-``hand.tau_max``;
 - URDF ``<mimic>`` couplings are joint equality constraints (MuJoCo's URDF importer makes them;
@@ -148,9 +149,11 @@ def _edit_hand(
         target.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
     weld_locked_joints(spec, hand)
     add_declared_couplings(spec, hand)
+    arm_joints = set(hand.config.arm_joints)
     for joint in spec.joints:
         joint.damping = [hand.config.damping, 0.0, 0.0]  # linear viscous damping only
-        joint.armature = hand.config.armature
+        arm = joint.name in arm_joints
+        joint.armature = hand.config.arm_armature if arm else hand.config.armature
         joint.frictionloss = 0.0
     for body in spec.bodies:  # URDF geoms are nameless: name them after their link
         for k, geom in enumerate(body.geoms):

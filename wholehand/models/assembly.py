@@ -7,6 +7,7 @@
     flange = "flange"                         # the arm link the hand hangs from
     mount = { xyz = [0, 0, 0], rpy = [0, 0, 0] }   # the hand's root link in the flange frame
     arm_gains = { kp = 300.0, kd = 20.0 }     # position servo of every arm joint
+    arm_armature = 0.1                        # reflected rotor inertia of each arm joint
     home = [0.0, -0.7, 0.0, 1.57, 0.0, 0.7, 0.0]   # the arm's start posture [rad], URDF order
     [mount]                                   # the arm's root in the world
     xyz = [0, 0, 0]
@@ -17,6 +18,12 @@ MuJoCo scene and the viewers load the assembly as they load any hand. Everything
 (palm, fingers, fingertips, torque limits, grasp styles, stored grasps) comes from the hand's
 own hand.toml; the arm's moving joints are position-controlled (``HandConfig.arm_joints``), with
 the URDF's effort limits, and its links are never contact candidates.
+
+An arm's joints carry the reflected inertia of their motors and gears (``arm_armature``), which a
+URDF does not describe. Without it the last wrist joint of the Rizon 4 with a hand on it has
+about 0.004 kg*m^2 about its axis, and the servo's damping, applied once per 1 ms simulation step,
+overshoots (``kd * dt / I`` = 4.4 > 2): the wrist shakes at several rad/s while the hand holds
+an object. The MuJoCo backend refuses a servo whose ``kd * dt / arm_armature`` exceeds 1.
 """
 
 from __future__ import annotations
@@ -34,10 +41,13 @@ from wholehand.models.mesh_files import resolve_mesh_uri
 if TYPE_CHECKING:
     from wholehand.models.hand_config import HandConfig
 
-ASSEMBLY_KEYS = {"arm", "hand", "flange", "mount", "arm_gains", "home"}
+ASSEMBLY_KEYS = {"arm", "hand", "flange", "mount", "arm_gains", "arm_armature", "home"}
 """Keys of the ``[assembly]`` table."""
 DEFAULT_ARM_GAINS = (300.0, 20.0)
 """Position gain [N*m/rad] and velocity gain [N*m*s/rad] of the arm's joint servo."""
+DEFAULT_ARM_ARMATURE = 0.1
+"""Reflected rotor inertia of each arm joint [kg*m^2] when ``[assembly]`` does not give one:
+the value MuJoCo Menagerie gives the Franka arms' joints (the Rizon 4's is not published)."""
 
 
 @dataclass(frozen=True)
@@ -53,6 +63,8 @@ class Assembly:
     kd: float
     home: tuple[float, ...] = ()
     """The arm's start posture [rad], its moving joints in URDF order (empty: zeros)."""
+    armature: float = DEFAULT_ARM_ARMATURE
+    """Reflected rotor inertia of each arm joint [kg*m^2]."""
 
 
 def parse_assembly(table: Any, where: Path) -> Assembly:
@@ -67,7 +79,7 @@ def parse_assembly(table: Any, where: Path) -> Assembly:
         raise ConfigError(
             f"{where}: [assembly] "
             + (f"has unknown keys {unknown}" if unknown else f"lacks {missing}")
-            + "; its keys are arm, hand, flange (required), mount, arm_gains, home"
+            + "; its keys are arm, hand, flange (required), mount, arm_gains, arm_armature, home"
         )
     arm = (where.parent / str(table["arm"])).resolve()
     if not arm.is_file():
@@ -90,6 +102,16 @@ def parse_assembly(table: Any, where: Path) -> Assembly:
     for name, value in (("kp", kp), ("kd", kd)):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
             raise ConfigError(f"{where}: [assembly] arm_gains.{name} must be > 0, got {value!r}")
+    armature = table.get("arm_armature", DEFAULT_ARM_ARMATURE)
+    if (
+        isinstance(armature, bool)
+        or not isinstance(armature, (int, float))
+        or not 0.0 < armature < math.inf
+    ):
+        raise ConfigError(
+            f"{where}: [assembly] arm_armature must be a rotor inertia > 0 [kg*m^2], got "
+            f"{armature!r}"
+        )
     home = table.get("home", [])
     if not isinstance(home, list) or not all(
         isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in home
@@ -104,6 +126,7 @@ def parse_assembly(table: Any, where: Path) -> Assembly:
         float(kp),
         float(kd),
         tuple(float(v) for v in home),
+        float(armature),
     )
 
 
@@ -230,6 +253,7 @@ def assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
         mount_rpy=rpy,
         arm_joints=tuple(arm_joints),
         arm_gains=(assembly.kp, assembly.kd),
+        arm_armature=assembly.armature,
         hand_toml=assembly.hand_toml,
         arm_home=assembly.home or tuple(0.0 for _ in arm_joints),
     )

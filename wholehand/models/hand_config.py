@@ -134,6 +134,8 @@ class HandConfig:
     the URDF's effort limits; empty for a hand alone."""
     arm_gains: tuple[float, float] = (0.0, 0.0)
     """Position [N*m/rad] and velocity [N*m*s/rad] gains of the arm joints' servo."""
+    arm_armature: float = 0.0
+    """Reflected rotor inertia of each arm joint [kg*m^2] (simulation)."""
     hand_toml: Path | None = None
     """An assembly's hand alone (its hand.toml): grasps and grasp targets are the hand's."""
     arm_home: tuple[float, ...] = ()

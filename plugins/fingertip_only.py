@@ -28,6 +28,9 @@ class FingertipOnlyAllocator(QPAllocator):
         J_world: FloatArray,
         p_com_world: FloatArray,
         kinematics: HandKinematics | None = None,
+        *,
+        external_wrench: FloatArray | None = None,
+        tau_bias: FloatArray | None = None,
     ) -> Allocation:
         """Allocate over ``contacts.select(contacts.fingertip)``; see :meth:`QPAllocator.allocate`.
 
@@ -41,9 +44,10 @@ class FingertipOnlyAllocator(QPAllocator):
                 f"({n}, 3, n_v) for the {n} contacts of the set"
             )
         mask = contacts.fingertip
+        extra = {"external_wrench": external_wrench, "tau_bias": tau_bias}
         if mask.all():
-            return super().allocate(contacts, J_world, p_com_world)
-        sub = super().allocate(contacts.select(mask), J_world[mask], p_com_world)
+            return super().allocate(contacts, J_world, p_com_world, **extra)
+        sub = super().allocate(contacts.select(mask), J_world[mask], p_com_world, **extra)
         f_local = np.zeros((n, 3))
         f_world = np.zeros((n, 3))
         f_local[mask] = sub.f_local

@@ -58,6 +58,7 @@ class QPAllocator(Allocator):
 
     consistency_default: ClassVar[bool] = True
     supports_external_wrench: ClassVar[bool] = True
+    supports_tau_bias: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -204,6 +205,7 @@ class QPAllocator(Allocator):
         kinematics: HandKinematics | None = None,
         *,
         external_wrench: FloatArray | None = None,
+        tau_bias: FloatArray | None = None,
     ) -> Allocation:
         """Contact forces and joint torques for the current contacts.
 
@@ -214,6 +216,10 @@ class QPAllocator(Allocator):
             kinematics: unused (the QP needs only the Jacobians).
             external_wrench: (6,) known wrench on the object about its COM, world axes
                 [N, N*m] (its weight, say): the QP balances ``G f + w``; None: zero (paper).
+            tau_bias: (n_v,) torque the joints command besides the contact forces [N*m] (the
+                hand links' weight, :class:`~wholehand.models.gravity.GravityCompensation`):
+                the torque rows limit ``tau_bias + J_act^T f``; the returned ``tau`` is the
+                contact part ``J_act^T f`` alone. None: zero (paper).
 
         Returns:
             The allocation. ``EMPTY`` / ``NO_ACTUATED_CONTACT``: zero forces and torque (zero
@@ -251,10 +257,13 @@ class QPAllocator(Allocator):
             and np.isfinite(contacts.n_world).all()
             and np.isfinite(J_world).all()
             and np.isfinite(p_com).all()
+            and (tau_bias is None or np.isfinite(tau_bias).all())
         ):
             self._warm.clear()
             return self._result(AllocationStatus.SOLVER_FAILED, n, n_v, solve_time=_since(t0))
-        qp = build_allocation_qp(contacts, J_world, p_com, self.params, owner, external_wrench)
+        qp = build_allocation_qp(
+            contacts, J_world, p_com, self.params, owner, external_wrench, tau_bias
+        )
         kwargs = self._warm_kwargs(qp, contacts) if self.warm_start else {}
         deadline_ns = None if self.deadline is None else t0 + int(self.deadline * 1e9)
         sol = solve_allocation(

@@ -292,12 +292,24 @@ def test_the_paper_balance_drops_the_cube_that_balancing_its_weight_holds() -> N
     # person lets go (the quasi-static allocation resists gravity only by the squeeze).
     from wholehand.reaching.episode import EpisodeSpec, run_episode
 
-    paper = run_episode(EpisodeSpec(seed=0, balance_weight=False, duration=3.0))
+    # The fingers' own weight is left to the grip here (the paper's tau = J^T f), as in the
+    # paper; with it compensated the paper's balance holds this cube too (next test).
+    paper = run_episode(
+        EpisodeSpec(seed=0, balance_weight=False, gravity_compensation=False, duration=3.0)
+    )
     lets_go = next(e["t"] for e in paper["events"] if e["what"] == "person lets go")
     lost = [t["t"] for t in paper["transitions"] if t["source"] == REGULATE]
     assert lost and lost[0] > lets_go
-    balanced = run_episode(EpisodeSpec(seed=0, duration=3.0))
+    balanced = run_episode(EpisodeSpec(seed=0, gravity_compensation=False, duration=3.0))
     assert not [t for t in balanced["transitions"] if t["source"] == REGULATE]
+
+
+def test_compensating_the_fingers_weight_keeps_the_cube_the_paper_balance_dropped() -> None:
+    from wholehand.reaching.episode import EpisodeSpec, run_episode
+
+    held = run_episode(EpisodeSpec(seed=0, balance_weight=False, duration=3.0))
+    assert held["spec"]["gravity_compensation"]  # the episode's default
+    assert held["grasps"] == 1 and held["losses"] == 0
 
 
 def test_reach_study_rows_and_summary(tmp_path) -> None:

@@ -121,12 +121,18 @@ class Allocator(abc.ABC):
       also takes ``allocate(..., external_wrench=w)``, w (6,) the wrench on the object about
       its COM, world axes [N, N*m] (e.g. its weight), and balances ``G f + w`` instead of
       ``G f``.
+    - Torque bias (optional): a class that sets :attr:`supports_tau_bias` also takes
+      ``allocate(..., tau_bias=b)``, b (n_v,) the torque the joints command besides the contact
+      forces [N*m] (the hand links' weight): it keeps ``b + tau`` within the torque limits. The
+      returned ``tau`` stays the contact forces' part; the caller adds ``b``.
     """
 
     needs_ground_truth: ClassVar[bool] = False
     """True for allocators whose :meth:`start` reads ``context.ground_truth()``."""
     supports_external_wrench: ClassVar[bool] = False
     """True for allocators whose :meth:`allocate` takes ``external_wrench``."""
+    supports_tau_bias: ClassVar[bool] = False
+    """True for allocators whose :meth:`allocate` takes ``tau_bias``."""
 
     def start(self, context: CycleContext) -> None:  # noqa: B027 - an optional hook
         """Called on the first cycle of force regulation, before the first :meth:`allocate`."""

@@ -231,6 +231,10 @@ class AllocationQP:
     w_ext: FloatArray = field(default_factory=lambda: np.zeros(N_WRENCH))
     """(6,) known external wrench on the object about its COM, world axes [N, N*m] (e.g. its
     weight); the objective is the net wrench ``||G f + w_ext||^2`` (zero: the paper's)."""
+    tau_bias: FloatArray | None = None
+    """(n_a,) torque the commanded joints carry besides the contact forces [N*m] (the hand
+    links' own weight, say): the limits then bind ``tau_bias + J_act^T f_act``; None: zero (the
+    paper's)."""
 
     @functools.cached_property
     def G(self) -> FloatArray:  # noqa: N802 - the paper's symbol
@@ -276,6 +280,23 @@ class AllocationQP:
         tau[self.dofs] = self.J_act.T @ self.f_act(lam)
         return tau
 
+    def torque_totals(self, values: FloatArray) -> FloatArray:
+        """(n_t,) joint torques the torque rows limit [N*m]: their ``values`` (``T_lam @
+        lambda``) plus :attr:`tau_bias`."""
+        if self.tau_bias is None:
+            return values
+        return values + self.tau_bias[self.torque_rows]
+
+    def torque_bounds(self, sel: IntArray | None = None) -> tuple[FloatArray, FloatArray]:
+        """Lower and upper bounds of the torque rows ``T_lam @ lambda`` [N*m], of those at
+        positions ``sel`` in :attr:`torque_rows` (None: all)."""
+        rows = self.torque_rows if sel is None else self.torque_rows[sel]
+        lim = self.tau_max[rows]
+        if self.tau_bias is None:
+            return -lim, lim
+        bias = self.tau_bias[rows]
+        return -lim - bias, lim - bias
+
     def null_values(self, lam: FloatArray) -> FloatArray:
         """(n_null,) consistency values ``N_u^T f_act`` [N]."""
         if self.null is None:
@@ -298,7 +319,7 @@ class AllocationQP:
         lam = x[: self.n_lambda]
         v = [0.0, float(-lam.min(initial=0.0)), self.params.f_n_min - float(lam.sum())]
         if self.torque_rows.size:
-            t = self.T_lam @ lam
+            t = self.torque_totals(self.T_lam @ lam)
             v.append(float((np.abs(t) - self.tau_max[self.torque_rows]).max()))
         if self.n_null:
             v.append(float(np.abs(self.null_values(lam)).max() - self.params.eps_margin))
@@ -313,6 +334,7 @@ def build_allocation_qp(
     params: AllocationParams,
     owner: str = "build_allocation_qp",
     w_ext: FloatArray | None = None,
+    tau_bias: FloatArray | None = None,
 ) -> AllocationQP:
     """The allocation QP of the current contacts.
 
@@ -325,6 +347,8 @@ def build_allocation_qp(
         owner: Name used in error messages.
         w_ext: (6,) known external wrench on the object about its COM, world axes [N, N*m];
             None: zero (the paper's quasi-static balance).
+        tau_bias: (n_v,) torque the joints command besides the contact forces [N*m] (their
+            links' weight, say), kept within the limits together with them; None: zero.
 
     Raises:
         ConfigError: ``J_world``, ``p_com_world``, ``tau_max`` or ``actuated_dofs`` do not match
@@ -387,6 +411,7 @@ def build_allocation_qp(
         T_lam=T_lam,
         null=null,
         **({} if w_ext is None else {"w_ext": _wrench(w_ext, owner)}),
+        tau_bias=None if tau_bias is None else _bias(tau_bias, n_v, owner)[dofs],
     )
 
 
@@ -397,3 +422,13 @@ def _wrench(w_ext: npt.ArrayLike, owner: str) -> FloatArray:
             f"{owner}: external wrench must be 6 finite numbers [N, N*m], got {w_ext!r}"
         )
     return w
+
+
+def _bias(tau_bias: npt.ArrayLike, n_v: int, owner: str) -> FloatArray:
+    b = np.asarray(tau_bias, dtype=np.float64)
+    if b.shape != (n_v,) or not np.isfinite(b).all():
+        raise ConfigError(
+            f"{owner}: tau_bias must be {n_v} finite joint torques [N*m] (one per column of "
+            f"J_world), got shape {b.shape}"
+        )
+    return b

@@ -22,8 +22,8 @@ def solved_problem(qp: AllocationQP, sparse: bool = False) -> qpsolvers.Problem:
     """The full QP in the solved (edge, wrench-split) form as a :class:`qpsolvers.Problem`.
 
     ``x = [lambda; w]``; ``P = diag(reg, ..., reg, 1, ..., 1)``, ``q = 0``; equality
-    ``G_lam lambda - w = -w_ext``; inequalities ``-sum(lambda) <= -f_n_min``, ``+-T_lam lambda
-    <= tau_max``, ``+-C lambda <= eps_margin``; bounds ``lambda >= 0``.
+    ``G_lam lambda - w = -w_ext``; inequalities ``-sum(lambda) <= -f_n_min``, ``+-(tau_bias +
+    T_lam lambda) <= tau_max``, ``+-C lambda <= eps_margin``; bounds ``lambda >= 0``.
 
     Args:
         sparse: Return CSC matrices (for sparse solvers) instead of dense arrays.
@@ -36,8 +36,9 @@ def solved_problem(qp: AllocationQP, sparse: bool = False) -> qpsolvers.Problem:
     rows = [-np.ones((1, nl))]
     h = [np.array([-qp.params.f_n_min])]
     if qp.torque_rows.size:
+        lower, upper = qp.torque_bounds()
         rows += [qp.T_lam, -qp.T_lam]
-        h += [qp.tau_max[qp.torque_rows]] * 2
+        h += [upper, -lower]
     if qp.n_null and np.isfinite(qp.params.eps_margin):
         C = qp.null_rows(np.arange(qp.n_null))
         rows += [C, -C]
@@ -97,8 +98,9 @@ def direct_problem(qp: AllocationQP, reg: float | None = None) -> qpsolvers.Prob
     Rb = blocks.reshape(3 * qp.act_idx.size, 3 * n)
     if qp.torque_rows.size:
         T = (qp.J_act.T @ Rb)[qp.torque_rows]
+        lower, upper = qp.torque_bounds()
         rows += [T, -T]
-        h += [qp.tau_max[qp.torque_rows]] * 2
+        h += [upper, -lower]
     if qp.n_null and np.isfinite(p.eps_margin):
         assert qp.null is not None
         C = qp.null.basis().T @ Rb

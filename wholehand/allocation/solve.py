@@ -187,16 +187,15 @@ def _rows(
     A[:N_WRENCH, nl:] = -np.eye(N_WRENCH)
     A[N_WRENCH, :nl] = 1.0
     k = N_WRENCH + 1
-    lim = np.empty(nt + nn)
+    t_lower, t_upper = qp.torque_bounds(torque_sel)
     if nt:
         A[k : k + nt, :nl] = qp.T_lam[torque_sel]
-        lim[:nt] = qp.tau_max[qp.torque_rows[torque_sel]]
+    eps = np.full(nn, qp.params.eps_margin)
     if nn:
         A[k + nt :, :nl] = qp.null_rows(null_sel)
-        lim[nt:] = qp.params.eps_margin
     # G lambda - w = -w_ext: w is then the net wrench G f + w_ext, whose norm is minimised.
-    lower = np.concatenate((-qp.w_ext, [qp.params.f_n_min], -lim))
-    upper = np.concatenate((-qp.w_ext, [np.inf], lim))
+    lower = np.concatenate((-qp.w_ext, [qp.params.f_n_min], t_lower, -eps))
+    upper = np.concatenate((-qp.w_ext, [np.inf], t_upper, eps))
     return A, lower, upper
 
 
@@ -313,7 +312,7 @@ def solve_allocation(
         x_relaxed = x
         lam = x[:nl]
         t_val = qp.T_lam @ lam
-        t_over = np.abs(t_val) - limits
+        t_over = np.abs(qp.torque_totals(t_val)) - limits
         if n_null:
             z_val = qp.null_values(lam)
             z_over = np.abs(z_val) - eps
@@ -399,9 +398,9 @@ def rows_at_bounds(
     abs_tol: float = 1e-9,
 ) -> tuple[IntArray, IntArray]:
     """(positions in ``qp.torque_rows``, consistency-row indices) whose values (every torque
-    row's [N*m], every consistency row's [N]) are at or past their bounds."""
+    row's ``T_lam @ lambda`` [N*m], every consistency row's [N]) are at or past their bounds."""
     lim = qp.tau_max[qp.torque_rows]
-    t = np.flatnonzero(np.abs(torque_values) >= lim * (1.0 - rel) - abs_tol)
+    t = np.flatnonzero(np.abs(qp.torque_totals(torque_values)) >= lim * (1.0 - rel) - abs_tol)
     eps = qp.params.eps_margin
     z = np.flatnonzero(np.abs(null_values) >= eps * (1.0 - rel) - abs_tol)
     return t, z

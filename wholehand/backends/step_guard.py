@@ -8,12 +8,12 @@ reports ``bad_qacc`` and resets the simulation to its initial state, which ends 
 "diverged".
 
 :class:`StepGuard` keeps the state before every step. A step that ends faster than
-:data:`MAX_SPEED` (or raises ``bad_qacc``) is taken again from that state with frictionless
-hand-hand contacts (``condim`` 1 on the hand's geoms, for that one step). Hand-object and
-hand-table contacts keep their friction: the object's geoms have the higher ``priority``, so
-their contact model wins, and the table's ``condim`` is the larger one. A step that passes the
-check is never changed, so a simulation without failed solves is bit-identical with or without
-the guard.
+:data:`MAX_SPEED` (a free body turning faster than :data:`MAX_SPIN`), or raises ``bad_qacc``, is
+taken again from that state with frictionless hand-hand contacts (``condim`` 1 on the hand's
+geoms, for that one step). Hand-object and hand-table contacts keep their friction: the
+object's geoms have the higher ``priority``, so their contact model wins, and the table's
+``condim`` is the larger one. A step that passes the check is never changed, so a simulation
+without failed solves is bit-identical with or without the guard.
 """
 
 from __future__ import annotations
@@ -25,6 +25,10 @@ import numpy.typing as npt
 MAX_SPEED = 100.0
 """Fastest joint or object speed [rad/s or m/s] a step may end with. The Allegro's joints move
 at most a few rad/s and an object shaken loose at a few m/s; a failed solve leaves 1e3-1e7."""
+MAX_SPIN = 1000.0
+"""Fastest turn of a free body [rad/s] (an object, a floating wrist) a step may end with. An
+object torn out of the hand by the reach episode's snatch spins at up to about 110 rad/s
+(a small cube, legitimately); a failed solve leaves thousands."""
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _BAD_QACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
@@ -49,6 +53,7 @@ class StepGuard:
         self._geoms = np.flatnonzero(hand_geoms)
         self._condim = model.geom_condim[self._geoms].copy()
         self._saved = np.empty(mujoco.mj_stateSize(model, _STATE))
+        self._limits = speed_limits(model)
         self.retries = 0
         self.failed_retries = 0
 
@@ -63,7 +68,7 @@ class StepGuard:
         mujoco.mj_getState(m, data, self._saved, _STATE)
         bad_before = data.warning[_BAD_QACC].number
         mujoco.mj_step(m, data)
-        if data.warning[_BAD_QACC].number == bad_before and _speed(data) <= MAX_SPEED:
+        if data.warning[_BAD_QACC].number == bad_before and self._calm(data):
             return
         mujoco.mj_setState(m, data, self._saved, _STATE)
         data.warning[_BAD_QACC].number = bad_before
@@ -73,10 +78,19 @@ class StepGuard:
         finally:
             m.geom_condim[self._geoms] = self._condim
         self.retries += 1
-        if data.warning[_BAD_QACC].number != bad_before or not _speed(data) <= MAX_SPEED:
+        if data.warning[_BAD_QACC].number != bad_before or not self._calm(data):
             self.failed_retries += 1
 
+    def _calm(self, data: mujoco.MjData) -> bool:
+        """Every speed within its limit (False for NaN)."""
+        return bool((np.abs(data.qvel) <= self._limits).all())
 
-def _speed(data: mujoco.MjData) -> float:
-    """Largest joint speed [rad/s or m/s]; NaN if any speed is NaN (``np.max`` propagates it)."""
-    return float(np.abs(data.qvel).max()) if data.qvel.size else 0.0
+
+def speed_limits(model: mujoco.MjModel) -> npt.NDArray[np.float64]:
+    """(nv,) fastest speed of each degree of freedom a step may end with: :data:`MAX_SPIN` for
+    the turning ones of free joints, :data:`MAX_SPEED` for the rest."""
+    limits = np.full(model.nv, MAX_SPEED)
+    for j in np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE):
+        start = int(model.jnt_dofadr[j]) + 3  # a free joint's dofs: 3 linear, then 3 angular
+        limits[start : start + 3] = MAX_SPIN
+    return limits

@@ -27,6 +27,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="the paper's quasi-static balance: the QP ignores the object's weight",
     )
+    p.add_argument(
+        "--no-gravity-compensation",
+        action="store_true",
+        help="the paper's tau = J^T f: the fingers do not hold their own links' weight",
+    )
     p.add_argument("--reacher", default="mink", help="reacher plug-in")
     p.add_argument("--allocator", default="qp", help="allocator plug-in")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -59,6 +64,7 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         reacher=args.reacher,
         allocator=args.allocator,
         balance_weight=not args.no_balance_weight,
+        gravity_compensation=not args.no_gravity_compensation,
         **extra,
     )
     recording = bool(args.record or args.record_html)

@@ -13,8 +13,9 @@ among those usable at the object's current pose.
 
 Reaching commands a floating wrist (``Command.base``) or an assembly's arm joints, and the finger
 joints, as position targets that the backend's servo tracks within the torque limits (the arm
-with gravity feed-forward, :class:`ArmServo`). Force regulation commands the hand's torques and
-leaves the wrist where it is (an arm holds the posture it grasped at).
+with gravity feed-forward, :class:`ArmServo`; the fingers with it on request). Force regulation
+commands the hand's torques and leaves the wrist where it is (an arm holds the posture it
+grasped at).
 """
 
 from __future__ import annotations
@@ -136,6 +137,9 @@ class ArmServo:
 class ReachStage(Stage):
     """Drive the hand toward the chosen plan's pre-grasp (``kind="pregrasp"``) or grasp.
 
+    ``gravity_compensation``: the finger servo adds the links' gravity torques
+    (:class:`~wholehand.models.gravity.GravityCompensation`) to its PD law.
+
     Status: ``reaching``, or ``no_plan`` when no stored grasp is usable at the object's pose
     (the hand then holds still and the choice is retried every cycle).
     """
@@ -152,6 +156,7 @@ class ReachStage(Stage):
         timeout: float = GRASP_TIMEOUT,
         closing: FloatArray | None = None,
         grasp_hand: HandModel | None = None,
+        gravity_compensation: bool = False,
     ) -> None:
         if kind not in ("pregrasp", "grasp"):
             raise ConfigError(f"ReachStage: kind must be 'pregrasp' or 'grasp', got {kind!r}")
@@ -175,6 +180,7 @@ class ReachStage(Stage):
         self.links = [hand.palm_link, *self.tips]
         self._kin = HandKinematics(self.grasp_hand)
         self.arm = ArmServo(hand) if hand.arm_dofs.any() else None
+        self.gravity = GravityCompensation(hand) if gravity_compensation else None
         kp = np.full(hand.nv, FINGER_KP)
         kd = np.full(hand.nv, FINGER_KD)
         if self.arm is not None:
@@ -252,6 +258,8 @@ class ReachStage(Stage):
         if self.kind == "grasp" and palm_error < SQUEEZE_PALM_ERROR:
             q_servo = np.clip(q_next + self.squeeze, self.hand.q_lower, self.hand.q_upper)
         tau = np.zeros(self.hand.nv)
+        if self.gravity is not None:
+            tau = self.hand.joint_torques(self.gravity.actuation_torques(obs.q, obs.wMb))
         if self.arm is not None:
             tau[self.arm.dofs] = self.arm.feedforward(obs.q, obs.wMb)
         servo = JointTargets(self._dofs, q_servo, None, self._kp, self._kd, name="joints")

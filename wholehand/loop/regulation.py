@@ -7,7 +7,8 @@ Each cycle, in two halves as the paper's hardware loop runs them (Sec. V-D):
    (``estimate_at="current"``, for comparison);
 2. carry the contacts with their links to the current q (a no-op when both stamps agree), take
    the point Jacobians there and allocate the forces; ``tau = J_act^T f`` (per actuator,
-   ``C^T J_act^T f``, for a hand with coupled joints: :mod:`wholehand.models.coupling`).
+   ``C^T J_act^T f``, for a hand with coupled joints: :mod:`wholehand.models.coupling`), plus
+   the links' gravity torques when ``gravity_compensation`` is on.
 
 With exact, current observations both halves run at one configuration and nothing is moved.
 """
@@ -25,6 +26,7 @@ from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.models.gravity import GravityCompensation
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
 
@@ -64,6 +66,11 @@ class ForceRegulation(Stage):
         allocate_every: ``"cycle"``: allocate every control cycle at the current q, the
             contacts of the newest pose carried with their links; ``"pose"``: allocate once per
             new object pose and hold that torque until the next (the paper's hardware loop).
+        gravity_compensation: the hand's actuators also hold their own links against gravity:
+            ``tau = g(q) + J^T f`` with ``g`` from Pinocchio at the current q and base pose
+            (:class:`~wholehand.models.gravity.GravityCompensation`), and the allocator keeps
+            the sum within the torque limits (it needs ``supports_tau_bias``). False: the
+            paper's ``tau = J^T f`` (its studies run without gravity).
 
     Status: the allocation's (``ok``, ``empty``, ``infeasible``, ``hold``, ...). When the
     allocation gives no torque the stage gives no command and the loop keeps the last feasible
@@ -85,12 +92,19 @@ class ForceRegulation(Stage):
         name: str = "regulate",
         weight: npt.ArrayLike | None = None,
         allocate_every: AllocateEvery = "cycle",
+        gravity_compensation: bool = False,
     ) -> None:
         if weight is not None and not allocator.supports_external_wrench:
             raise ConfigError(
                 f"ForceRegulation: allocator {type(allocator).__name__} cannot balance the "
                 "object's weight (supports_external_wrench is False); use the qp allocator or "
                 "leave compensation off"
+            )
+        if gravity_compensation and not allocator.supports_tau_bias:
+            raise ConfigError(
+                f"ForceRegulation: allocator {type(allocator).__name__} cannot keep the links' "
+                "gravity torques within the limits (supports_tau_bias is False); use the qp "
+                "allocator or leave gravity_compensation off"
             )
         if estimate_at not in ESTIMATE_AT:
             raise ConfigError(
@@ -117,6 +131,8 @@ class ForceRegulation(Stage):
                     f"ForceRegulation: weight must be 3 finite numbers [N], got {weight!r}"
                 )
             self._extra["external_wrench"] = np.r_[force, 0.0, 0.0, 0.0]
+        self.gravity = GravityCompensation(hand) if gravity_compensation else None
+        """The links' gravity torques, when compensated."""
         self.degenerate_normals = 0
         """Contacts dropped because their normal was not a unit vector."""
 
@@ -148,8 +164,15 @@ class ForceRegulation(Stage):
         estimated = time.perf_counter()
         J = now.actuation_jacobians(self.hand.link_joint[contacts.link], contacts.p_world)
         p_com = (wMo @ self._com_h)[:3]
-        allocation = self.allocator.allocate(contacts, J, p_com, now, **self._extra)
+        extra = self._extra
+        bias = None
+        if self.gravity is not None:
+            bias = self.gravity.actuation_torques(obs.q, obs.wMb)
+            extra = {**extra, "tau_bias": bias}
+        allocation = self.allocator.allocate(contacts, J, p_com, now, **extra)
         tau = allocation.tau
+        if tau is not None and bias is not None:
+            tau = tau + bias
         command = None if tau is None else Command.torques(self.hand.joint_torques(tau))
         return StageOutput(
             command, allocation.status.value, contacts, allocation, estimated - started

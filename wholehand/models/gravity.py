@@ -26,6 +26,7 @@ class GravityCompensation:
     """
 
     def __init__(self, hand: HandModel, g_world: tuple[float, float, float] = GRAVITY_WORLD):
+        self.hand = hand
         self.model = pin.Model(hand.model)
         self.data = self.model.createData()
         self.g_world = np.asarray(g_world, dtype=float)
@@ -34,3 +35,14 @@ class GravityCompensation:
         """(n_v,) torques [N*m] at joint positions ``q`` (n_q,) with the base at ``wMb``."""
         self.model.gravity.linear = np.asarray(wMb, dtype=float)[:3, :3].T @ self.g_world
         return np.array(pin.computeGeneralizedGravity(self.model, self.data, np.asarray(q)))
+
+    def actuation_torques(self, q: FloatArray, wMb: FloatArray) -> FloatArray:
+        """(n_actuation,) what the hand's actuators command to hold its links against gravity
+        [N*m], in the coordinates allocators work in: ``C^T g(q)`` for a coupled hand (each
+        actuator carries its followers' links too), ``g(q)`` per joint otherwise, zero on joints
+        that are not actuated (an assembly's arm, which has its own servo)."""
+        g = self.torques(q, wMb)
+        hand = self.hand
+        if hand.coupled:
+            return hand.coupling.T @ g
+        return np.where(hand.actuated_dofs, g, 0.0)

@@ -86,6 +86,10 @@ class EpisodeSpec:
     balance_weight: bool = True
     """Force regulation balances the object's known weight (``ForceRegulation(weight=...)``);
     False: the paper's quasi-static balance of no external wrench."""
+    gravity_compensation: bool = True
+    """The hand's actuators hold their own links against gravity, while reaching and while
+    regulating (``ForceRegulation(gravity_compensation=True)``); False: the paper's ``tau = J^T
+    f``, the fingers' weight left to the grip."""
 
 
 PERSON_BANDWIDTH = 50.0
@@ -291,12 +295,22 @@ def run_episode(
     closing = style_arrays(grasp_hand, grasp_hand.config.grasp_styles["power"])[1]
     weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if spec.balance_weight else None
     allocator = load_allocator(spec.allocator, hand, {})
-    regulation = ForceRegulation(hand, obj, estimator, allocator, weight=weight)
-    reaching = (
-        ReachStage(hand, reacher, planner, estimator, "pregrasp", grasp_hand=grasp_hand),
+    compensate = spec.gravity_compensation
+    regulation = ForceRegulation(
+        hand, obj, estimator, allocator, weight=weight, gravity_compensation=compensate
+    )
+    reaching = tuple(
         ReachStage(
-            hand, reacher, planner, estimator, "grasp", closing=closing, grasp_hand=grasp_hand
-        ),
+            hand,
+            reacher,
+            planner,
+            estimator,
+            kind,
+            closing=closing if kind == "grasp" else None,
+            grasp_hand=grasp_hand,
+            gravity_compensation=compensate,
+        )
+        for kind in ("pregrasp", "grasp")
     )
     stages: dict[str, Stage] = {
         PREGRASP: reaching[0],

@@ -505,3 +505,37 @@ def test_self_collision_keeps_two_fingers_apart(allegro, cube, self_collision) -
         assert 0.5 * SELF_CLEARANCE < gap < 2.0 * SELF_CLEARANCE
     else:
         assert gap < -0.01
+
+
+def test_a_floating_wrist_never_starts_inside_the_object(allegro) -> None:
+    # The start used to be the pre-grasp lifted 10 cm and moved at random: 13 of these 40
+    # draws put the hand into the mustard bottle (the palm 5 cm deep in one), and MuJoCo
+    # ejected the thumb at 200 rad/s in the first steps. Ground truth here: the SDF distance of
+    # every hand sample.
+    from wholehand.models.object_catalogue import load_object
+    from wholehand.reaching.episode import (
+        START_CLEARANCE,
+        START_LIFT,
+        START_SPREAD,
+        _plans,
+        episode_table,
+        floating_start,
+    )
+    from wholehand.reaching.pregrasp import hand_clearance
+
+    obj = load_object("006_mustard_bottle")
+    plans, table = _plans(allegro, obj), episode_table(allegro)
+    wMo = np.eye(4)
+    wMo[:3, 3] = [*table.centre, table.top + 0.25]
+    naive_inside = 0
+    for seed in range(40):
+        plan = plans[seed % len(plans)]
+        naive = wMo @ plan.oMb_pre
+        draw = np.random.default_rng(seed).normal(size=2)
+        naive[:3, 3] += np.array([0.0, 0.0, START_LIFT]) + START_SPREAD * np.r_[draw, 0.0]
+        oMw = np.linalg.inv(wMo)
+        naive_inside += hand_clearance(allegro, obj, plan.q_pre, oMw @ naive) < 0.0
+        wMb = floating_start(allegro, obj, plan, wMo, table, np.random.default_rng(seed))
+        assert hand_clearance(allegro, obj, plan.q_pre, oMw @ wMb) >= START_CLEARANCE
+        assert lowest_point(allegro, plan.q_pre, wMb) >= table.top
+    assert naive_inside >= 1  # the redraw was needed

@@ -46,7 +46,13 @@ from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
-from wholehand.reaching.pregrasp import GraspPlan, plan_pregrasp, usable_on_table
+from wholehand.reaching.pregrasp import (
+    GraspPlan,
+    hand_clearance,
+    lowest_point,
+    plan_pregrasp,
+    usable_on_table,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -112,6 +118,15 @@ paper's objects out of a 0.2 N*m hand (the pull at 15 cm is 0.15 m * m * w^2: 17
 ``2 w dt`` = 0.3 keeps the explicit spring stable."""
 SNATCH_GIVE_UP = 2.0
 """If the hand still holds the object this long after the snatch, the person lets go [s]."""
+START_LIFT = 0.1
+"""A floating wrist starts this far above its first pre-grasp [m] ..."""
+START_SPREAD = 0.1
+"""... moved horizontally by a normal draw with this deviation per axis [m] ..."""
+START_CLEARANCE = defaults.PREGRASP_CLEARANCE
+"""... and at least this far from the object [m] (a draw that puts the hand into the object, as a
+third did on the mustard bottle, starts the simulation by ejecting it at hundreds of rad/s)."""
+START_DRAWS = 20
+"""Draws tried before starting at the pre-grasp itself."""
 PERTURBATIONS = ("person moves", "push", "twist", "person snatches")
 """Events that count as perturbations."""
 
@@ -227,6 +242,29 @@ def episode_table(hand: HandModel) -> Table:
     return Table(centre=ARM_REACH_XY if hand.arm_dofs.any() else (0.0, 0.0), size=TABLE_SIZE)
 
 
+def floating_start(
+    hand: HandModel,
+    obj: ObjectModel,
+    plan: GraspPlan,
+    wMo: FloatArray,
+    table: Table,
+    rng: np.random.Generator,
+) -> FloatArray:
+    """(4, 4) start pose of a floating wrist: ``START_LIFT`` above the plan's pre-grasp, moved
+    horizontally by a normal draw of ``START_SPREAD`` per axis, drawn again until the hand at
+    the pre-grasp's angles clears the object by ``START_CLEARANCE`` and the table by
+    ``TABLE_MARGIN``; after ``START_DRAWS`` draws, the pre-grasp itself (clear by
+    construction)."""
+    oMw = np.linalg.inv(wMo)
+    for _ in range(START_DRAWS):
+        wMb = wMo @ plan.oMb_pre
+        wMb[:3, 3] += np.array([0.0, 0.0, START_LIFT]) + START_SPREAD * np.r_[rng.normal(size=2), 0]
+        clear = hand_clearance(hand, obj, plan.q_pre, oMw @ wMb) >= START_CLEARANCE
+        if clear and lowest_point(hand, plan.q_pre, wMb) >= table.top + TABLE_MARGIN:
+            return wMb
+    return wMo @ plan.oMb_pre
+
+
 def _plans(hand: HandModel, obj: ObjectModel) -> list[GraspPlan]:
     q_open = style_arrays(hand, hand.config.grasp_styles["power"])[0]
     plans = [plan_pregrasp(hand, obj, g, q_open) for g in load_grasps(hand.name, obj.name, "power")]
@@ -271,9 +309,8 @@ def run_episode(
             i = grasp_hand.model.joints[grasp_hand.model.getJointId(name)].idx_q
             q0[hand.model.joints[hand.model.getJointId(name)].idx_q] = start.q_pre[i]
         placement: dict[str, Any] = {"q_init": q0}
-    else:  # a floating wrist: above the pre-grasp, offset at random
-        wMb0 = wMo @ start.oMb_pre
-        wMb0[:3, 3] += np.array([0.0, 0.0, 0.1]) + 0.1 * np.r_[rng.normal(size=2), 0.0]
+    else:  # a floating wrist: above the pre-grasp, offset at random, clear of everything
+        wMb0 = floating_start(hand, obj, start, wMo, table, rng)
         placement = {"q_init": start.q_pre, "wMb": wMb0, "base": "floating"}
     backend = registry.load(
         "backends",

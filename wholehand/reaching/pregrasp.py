@@ -61,6 +61,14 @@ def _min_distance(kin: HandKinematics, hand: HandModel, obj: ObjectModel) -> flo
     return float(obj.sdf.query(points).min())
 
 
+def hand_clearance(hand: HandModel, obj: ObjectModel, q: FloatArray, oMb: FloatArray) -> float:
+    """Smallest signed distance [m] from the hand's surface samples at ``q``, base at ``oMb``
+    (object frame), to the object (negative: the hand is inside it)."""
+    kin = HandKinematics(hand)
+    kin.update(q, oMb)
+    return _min_distance(kin, hand, obj)
+
+
 def plan_pregrasp(
     hand: HandModel,
     obj: ObjectModel,

@@ -63,6 +63,8 @@ def test_run_takes_grasp_type_and_backend_options(capsys):
         (["reach", "--duration", "0"], "--duration 0.0 must be > 0 [s]"),
         (["run", "--sdf-spacing", "fine"], "--sdf-spacing 'fine' must be a spacing in metres"),
         (["run", "--sdf-spacing", "-1"], "sdf_spacing must be > 0 [m] or 'auto', got -1.0"),
+        (["run", "--protocol", "dexgraspbench", "--save", "r.npz"], "--save records one run"),
+        (["run", "--protocol", "dexgraspbench", "--gravity"], "runs with gravity off"),
     ],
 )
 def test_bad_input_exits_with_a_clear_message(capsys, argv, message):
@@ -156,3 +158,12 @@ def test_run_exits_non_zero_when_a_stage_raises(capsys, monkeypatch):
     assert count and int(count.group(1)) > 100
     assert "TypeError: estimate() of a broken plug-in" in captured.err
     assert f"{count.group(1)} stage_error" in captured.out
+
+
+def test_run_takes_the_dexgraspbench_protocol(capsys):
+    # Feedforward on the cube's grasp 0 turns it 15 deg while closing: one direction, quickly.
+    argv = ["run", "--protocol", "dexgraspbench", "--allocator", "feedforward"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "DexGraspBench load test: allegro_right, 077_rubiks_cube grasp 0, feedforward" in out
+    assert "  +x         no" in out and "settle" in out and "held: no" in out

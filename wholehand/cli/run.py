@@ -45,6 +45,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--estimator", default="mesh_sdf", help="contact-estimator plug-in")
     p.add_argument("--allocator", default="qp", help="allocator plug-in")
+    p.add_argument(
+        "--protocol",
+        choices=("paper", "dexgraspbench"),
+        default="paper",
+        help="paper: settle, load test, pull, load test (default); dexgraspbench: "
+        "DexGraspBench's load test (0.1 kg, mu 0.6, six 1 N pushes of 2 s, fail at 5 cm or "
+        "15 deg; the allocator is told mu = 0.6)",
+    )
     p.add_argument("--theta", type=float, default=60.0, help="rotation of the pull [deg]")
     p.add_argument("--seed", type=int, default=0, help="seeds the pull's rotation axis")
     p.add_argument("--rate", type=float, default=200.0, help="control rate in sim time [Hz]")
@@ -189,6 +197,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         estimate_at=args.estimate_at,
     )
     observers = [live_view(spec, args.view_every)] if args.view else []
+    if args.protocol == "dexgraspbench":
+        return _load_test(args, spec, observers)
     record = run_trial(spec, obj=_object(obj, args.sdf_spacing), observers=observers)
     if args.save:
         print(f"run record: {record.save(Path(args.save))}")
@@ -215,6 +225,41 @@ def _cmd_run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
+    return 0
+
+
+def _load_test(args: argparse.Namespace, spec: Any, observers: list[Observer]) -> int:
+    """``--protocol dexgraspbench``: run DexGraspBench's load test and print it."""
+    import dataclasses
+
+    from wholehand.loop.dexgraspbench import FRICTION, run_load_test
+    from wholehand.models.hand import load_hand
+
+    for flag in ("save", "record_html", "plot"):
+        if getattr(args, flag):
+            raise ConfigError(
+                f"--{flag.replace('_', '-')} records one run of the paper's protocol; "
+                "--protocol dexgraspbench runs one per direction: leave it out"
+            )
+    spec = dataclasses.replace(spec, allocator_params={"mu": FRICTION, **spec.allocator_params})
+    from wholehand.models.object_catalogue import load_object
+
+    obj = _object(spec.object, args.sdf_spacing) or load_object(spec.object)
+    out = run_load_test(spec, load_hand(spec.hand), obj, observers)
+    if args.json:
+        print(json.dumps(out, indent=2, default=lambda o: o.__dict__))
+        return 0
+    print(
+        f"DexGraspBench load test: {spec.hand}, {spec.object} grasp {spec.grasp}, "
+        f"{spec.allocator} (gravity off, 0.1 kg, mu 0.6, 1 N for 2 s per direction)\n"
+    )
+    print("  direction  passed  moved [mm]  turned [deg]  failed in")
+    for d in out["directions"]:
+        print(
+            f"  {d.direction:9s}  {'yes' if d.passed else 'no':6s}  {1000 * d.translation:10.1f}"
+            f"  {d.rotation_deg:12.1f}  {d.failed_in or '-'}"
+        )
+    print(f"\nheld: {'yes' if out['held'] else 'no'}  (wall time {out['wall_time_s']:.1f} s)")
     return 0
 
 

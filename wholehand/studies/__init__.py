@@ -9,6 +9,7 @@ from wholehand.errors import ConfigError
 from wholehand.studies.base import SIZES, Study, TrialJob
 from wholehand.studies.consistency import ConsistencyStudy
 from wholehand.studies.contacts import ContactsStudy
+from wholehand.studies.dexgraspbench import DexGraspBenchStudy
 from wholehand.studies.gravity import GravityStudy
 from wholehand.studies.k_sweep import KSweepStudy
 from wholehand.studies.perturbation import PerturbationStudy
@@ -29,6 +30,7 @@ STUDIES: dict[str, type[Study]] = {
         ReachStudy,
         GravityStudy,
         TrackingStudy,
+        DexGraspBenchStudy,
     )
 }
 """Study name -> class, in the paper's priority order."""

@@ -33,6 +33,7 @@ from wholehand.errors import ConfigError
 from wholehand.loop.trial import run_trial
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, with_methods
 from wholehand.studies.consistency import net_force_row
+from wholehand.studies.dexgraspbench import load_test_row
 from wholehand.studies.executors import execute
 from wholehand.studies.models import model
 from wholehand.studies.reach import episode_row
@@ -66,6 +67,7 @@ JOB_KINDS: dict[str, Callable[[TrialJob], dict[str, Any]]] = {
     "trial": _trial,
     "net_force": net_force_row,
     "episode": episode_row,
+    "load_test": load_test_row,
 }
 """Job kind -> function computing its outcome columns (studies add their measurements)."""
 

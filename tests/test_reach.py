@@ -539,3 +539,83 @@ def test_a_floating_wrist_never_starts_inside_the_object(allegro) -> None:
         assert hand_clearance(allegro, obj, plan.q_pre, oMw @ wMb) >= START_CLEARANCE
         assert lowest_point(allegro, plan.q_pre, wMb) >= table.top
     assert naive_inside >= 1  # the redraw was needed
+
+
+def test_pushes_and_twists_spare_an_object_the_hand_has_dropped() -> None:
+    # A twist of 0.1 N*m on a dropped Lego brick (a few 1e-5 kg*m^2) spun it at 1000 rad/s.
+    from types import SimpleNamespace
+
+    from wholehand.reaching.episode import GAP, EpisodeSpec, Person
+
+    class Pushes:
+        def __init__(self) -> None:
+            self.wrenches: list[tuple[float, float]] = []
+
+        def set_object_spring(self, *args: object) -> None:
+            pass
+
+        def apply_object_wrench(self, force: np.ndarray, torque: np.ndarray) -> None:
+            self.wrenches.append((float(np.linalg.norm(force)), float(np.linalg.norm(torque))))
+
+    spec = EpisodeSpec()
+    for held in (True, False):
+        backend = Pushes()
+        person = Person(spec, backend, np.eye(4), np.random.default_rng(0), (0.1, 1e-5), "palm")
+        person.state, person.since = "released", 0.0
+        stage = REGULATE if held else PREGRASP
+        t = 0.0
+        while person.state != "twisted" and t < 10.0:  # up to the snatch
+            t += 0.05
+            person.on_cycle(SimpleNamespace(t=t, stage=stage))  # type: ignore[arg-type]
+        assert t < 2 * (GAP + spec.pulse) + 0.1
+        notes = [e.what for e in person.events]
+        if held:
+            assert notes == ["push 3.0 N for 0.3 s", "twist 0.10 N*m for 0.3 s"]
+            twist = (0.0, pytest.approx(0.1))
+            assert backend.wrenches == [(3.0, 0.0), (0.0, 0.0), twist, (0.0, 0.0)]
+        else:
+            assert notes == [
+                "no push: the hand holds no object",
+                "no twist: the hand holds no object",
+            ]
+            assert backend.wrenches == []
+
+
+def test_a_dropped_object_is_carried_back_at_a_persons_pace() -> None:
+    # An object flung off the table lay 13 m below it; a grip stretched that far yanked it at
+    # 300 m/s. The grip's target now starts at the object and moves at PICKUP_SPEED.
+    from types import SimpleNamespace
+
+    from wholehand.reaching.episode import GAP, PICKUP_SPEED, EpisodeSpec, Person
+
+    class Grips:
+        def __init__(self) -> None:
+            self.targets: list[np.ndarray] = []
+
+        def set_object_spring(self, wMo: np.ndarray | None, *gains: object) -> None:
+            if wMo is not None:
+                self.targets.append(wMo[:3, 3].copy())
+
+        def apply_object_wrench(self, *wrench: object) -> None:
+            pass
+
+    backend = Grips()
+    held_at = np.eye(4)
+    held_at[:3, 3] = [0.0, 0.0, 1.0]
+    person = Person(EpisodeSpec(), backend, held_at, np.random.default_rng(0), (0.1, 1e-5), "p")
+    person.state, person.since = "twisted", 0.0
+    fallen = np.eye(4)
+    fallen[:3, 3] = [2.0, 2.0, -5.0]
+    dt, t = 0.005, GAP
+    for _ in range(400):
+        cycle = SimpleNamespace(t=t, stage=PREGRASP, truth=SimpleNamespace(wMo=fallen))
+        person.on_cycle(cycle)  # type: ignore[arg-type]
+        t += dt
+    assert [e.what for e in person.events] == [
+        "person picks the dropped object up and holds it out"
+    ]
+    targets = np.asarray(backend.targets)
+    np.testing.assert_allclose(targets[0], fallen[:3, 3])
+    steps = np.linalg.norm(np.diff(targets, axis=0), axis=1)
+    assert steps.max() <= PICKUP_SPEED * dt + 1e-9
+    assert np.linalg.norm(targets[-1] - fallen[:3, 3]) == pytest.approx(PICKUP_SPEED * 399 * dt)

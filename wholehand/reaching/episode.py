@@ -6,7 +6,8 @@ spring-damper on the object) holds the object out in the air:
 1. while the hand reaches, the person moves the object by ``displace`` in a seeded horizontal
    direction and turns it about the vertical (the hand must follow);
 2. once the hand has held it for ``release_after``, the person lets go (gravity on);
-3. while held: a push (``push_force`` for ``pulse``) and a twist (``twist_torque``);
+3. while held: a push (``push_force`` for ``pulse``) and a twist (``twist_torque``), each
+   left out (and cut short) when the hand holds no object;
 4. the person snatches the object, pulling it ``snatch`` away from the palm, no lower than it
    was first held, and holds it there; if the hand had already dropped it, the person picks it
    up and holds it out ``snatch`` beside where it was first held;
@@ -116,6 +117,8 @@ SNATCH_BANDWIDTH = 150.0
 """The snatch's grip [rad/s]: three times stiffer than the holding grip, so it pulls any of the
 paper's objects out of a 0.2 N*m hand (the pull at 15 cm is 0.15 m * m * w^2: 170 N for 50 g);
 ``2 w dt`` = 0.3 keeps the explicit spring stable."""
+PICKUP_SPEED = 1.0
+"""How fast the person carries a dropped object to where it is held out [m/s]."""
 SNATCH_GIVE_UP = 2.0
 """If the hand still holds the object this long after the snatch, the person lets go [s]."""
 START_LIFT = 0.1
@@ -153,6 +156,8 @@ class Person(Observer):
     since: float = 0.0
     held_since: float | None = None
     done: bool = False
+    _pickup: tuple[FloatArray, FloatArray, float] | None = None
+    """A pick-up under way: (object pose at its start, pose to hold it out at, start time)."""
 
     def on_start(self, loop: ControlLoop) -> None:
         self._grip(self.wMo_hold)
@@ -170,8 +175,22 @@ class Person(Observer):
         angle = self.rng.uniform(0.0, 2.0 * np.pi)
         return np.array([np.cos(angle), np.sin(angle), 0.0])
 
+    def _carry(self, t: float) -> None:
+        """Move the grip's target of a pick-up toward its goal at :data:`PICKUP_SPEED`."""
+        assert self._pickup is not None
+        start, goal, t0 = self._pickup
+        distance = float(np.linalg.norm(goal[:3, 3] - start[:3, 3]))
+        s = min(1.0, (t - t0) * PICKUP_SPEED / max(distance, 1e-9))
+        target = goal.copy()
+        target[:3, 3] = start[:3, 3] + s * (goal[:3, 3] - start[:3, 3])
+        self._grip(target)
+        if s >= 1.0:
+            self._pickup = None
+
     def on_cycle(self, cycle: Cycle) -> str | None:
         t, spec, state = cycle.t, self.spec, self.state
+        if self._pickup is not None and state == "snatched":  # until the person lets go
+            self._carry(t)
         holding = cycle.stage == REGULATE
         self.held_since = (self.held_since or t) if holding else None
         held_for = t - self.held_since if self.held_since is not None else 0.0
@@ -196,20 +215,28 @@ class Person(Observer):
                 self._note(t, "person lets go: the hand kept the object through the snatch")
                 self.state, self.since = "regrasped", t
         elif state == "released" and t - self.since >= GAP:
+            # Pushes and twists test a grip: an object the hand has dropped is left alone (a
+            # 0.1 N*m twist on a dropped Lego brick spun it at 1000 rad/s).
             force = spec.push_force * self._horizontal()
-            self.backend.apply_object_wrench(force, np.zeros(3))
-            self._note(t, f"push {spec.push_force:.1f} N for {spec.pulse} s")
-            self.state, self.since = "pushing", t
-        elif state == "pushing" and t - self.since >= spec.pulse:
+            if holding:
+                self.backend.apply_object_wrench(force, np.zeros(3))
+                self._note(t, f"push {spec.push_force:.1f} N for {spec.pulse} s")
+            else:
+                self._note(t, "no push: the hand holds no object")
+            self.state, self.since = "pushing" if holding else "pushed", t
+        elif state == "pushing" and (t - self.since >= spec.pulse or not holding):
             self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
             self.state, self.since = "pushed", t
         elif state == "pushed" and t - self.since >= GAP:
             axis = self.rng.normal(size=3)
             torque = spec.twist_torque * axis / np.linalg.norm(axis)
-            self.backend.apply_object_wrench(np.zeros(3), torque)
-            self._note(t, f"twist {spec.twist_torque:.2f} N*m for {spec.pulse} s")
-            self.state, self.since = "twisting", t
-        elif state == "twisting" and t - self.since >= spec.pulse:
+            if holding:
+                self.backend.apply_object_wrench(np.zeros(3), torque)
+                self._note(t, f"twist {spec.twist_torque:.2f} N*m for {spec.pulse} s")
+            else:
+                self._note(t, "no twist: the hand holds no object")
+            self.state, self.since = "twisting" if holding else "twisted", t
+        elif state == "twisting" and (t - self.since >= spec.pulse or not holding):
             self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
             self.state, self.since = "twisted", t
         elif state == "twisted" and t - self.since >= GAP:
@@ -223,9 +250,14 @@ class Person(Observer):
                 norm = float(np.linalg.norm(away))
                 target[:3, 3] += spec.snatch * (away / norm if norm > 1e-6 else self._horizontal())
                 target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
-            else:  # dropped earlier: picked up and held out beside where it was first held
-                target[:3, 3] = self.wMo_hold[:3, 3] + spec.snatch * self._horizontal()
-            self._grip(target, SNATCH_BANDWIDTH)
+                self._grip(target, SNATCH_BANDWIDTH)
+            else:  # dropped earlier: picked up and held out beside where it was first held,
+                # the grip's target carried there at PICKUP_SPEED (a spring stretched to an
+                # object flung off the table yanked it to 300 m/s)
+                goal = target.copy()
+                goal[:3, 3] = self.wMo_hold[:3, 3] + spec.snatch * self._horizontal()
+                self._pickup = (target, goal, t)
+                self._carry(t)
             if cycle.stage == REGULATE:
                 self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
             else:

@@ -9,7 +9,6 @@ from wholehand.errors import (
     AssetError,
     ConfigError,
     PluginError,
-    SolverError,
     WholehandError,
 )
 
@@ -19,7 +18,6 @@ __all__ = [
     "AssetError",
     "ConfigError",
     "PluginError",
-    "SolverError",
     "WholehandError",
     "__version__",
 ]

@@ -7,8 +7,6 @@ errors from the libraries underneath are wrapped with ``raise ... from err``.
 
 from __future__ import annotations
 
-from typing import Any
-
 
 class WholehandError(Exception):
     """Root of every error raised on purpose by wholehand."""
@@ -30,16 +28,3 @@ class ObservationError(WholehandError):
     """An observation is unusable (NaN or inf, wrong shape, not a rigid pose, a stamp the joint
     history does not cover). Inside the control loop it becomes a status, a count and a logged
     reason, and the last feasible command is kept; it never ends a run."""
-
-
-class SolverError(WholehandError):
-    """A numerical solve failed; carries the problem and the solver's result for debugging.
-
-    Inside the control loop allocators never raise this: they return the last feasible torque
-    with a status instead. It is raised by offline tools that have no safe fallback.
-    """
-
-    def __init__(self, message: str, problem: Any = None, result: Any = None) -> None:
-        super().__init__(message)
-        self.problem = problem
-        self.result = result

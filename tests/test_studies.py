@@ -602,13 +602,17 @@ def test_a_study_runs_a_users_hand_and_a_third_party_allocator(tmp_path, monkeyp
 
 
 def test_gravity_study_pairs_its_trials_with_the_perturbation_study():
-    """Gravity on in every trial, the weight balanced by qp+weight only, and the perturbation
-    study's seeds for the same (object, grasp, angle, repeat): the same pull axes."""
+    """Gravity on in every trial, the weight balanced by qp+weight and qp+weight+fingers, the
+    fingers' weight by the latter alone, and the perturbation study's seeds for the same
+    (object, grasp, angle, repeat): the same pull axes."""
     gravity = get_study("gravity").jobs("full", seed=0)
-    assert len(gravity) == 50 * 2 * (1 + 3 * 5)
-    assert {j.labels["method"] for j in gravity} == {"qp", "qp+weight"}
+    assert len(gravity) == 50 * 3 * (1 + 3 * 5)
+    assert {j.labels["method"] for j in gravity} == {"qp", "qp+weight", "qp+weight+fingers"}
     assert all(j.spec.gravity and j.spec.allocator == "qp" for j in gravity)
-    assert all(j.spec.balance_weight == (j.labels["method"] == "qp+weight") for j in gravity)
+    assert all(j.spec.balance_weight == (j.labels["method"] != "qp") for j in gravity)
+    assert all(
+        j.spec.gravity_compensation == (j.labels["method"] == "qp+weight+fingers") for j in gravity
+    )
     seeds = {
         (j.spec.object, j.spec.grasp, j.spec.theta_deg, j.labels["repeat"]): j.spec.seed
         for j in get_study("perturbation").jobs("full", seed=0)
@@ -625,6 +629,8 @@ def test_balancing_the_weight_needs_gravity(allegro):
 
     with pytest.raises(ConfigError, match="balance_weight=True needs gravity=True"):
         set_up_trial(TrialSpec(balance_weight=True), allegro)
+    with pytest.raises(ConfigError, match="gravity_compensation=True needs gravity=True"):
+        set_up_trial(TrialSpec(gravity_compensation=True), allegro)
     trial = set_up_trial(TrialSpec(balance_weight=True, gravity=True), allegro)
     mass = trial.obj.mass
     np.testing.assert_allclose(

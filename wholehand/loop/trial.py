@@ -69,6 +69,10 @@ class TrialSpec:
     """Force regulation balances the object's known weight (``ForceRegulation(weight=...)``,
     the allocator then needs ``supports_external_wrench``); only with ``gravity``. False: the
     paper's quasi-static balance of no external wrench."""
+    gravity_compensation: bool = False
+    """The hand's actuators also hold their own links against gravity
+    (``ForceRegulation(gravity_compensation=True)``, the allocator then needs
+    ``supports_tau_bias``); only with ``gravity``. False: the paper's ``tau = J^T f``."""
     backend: str | type = "mujoco"
     """Backend plug-in: a registered name or a class."""
     estimator_params: dict[str, Any] = field(default_factory=dict)
@@ -227,6 +231,11 @@ def set_up_trial(
             "balance_weight=True needs gravity=True: without gravity the object has no weight "
             "to balance, and the hand would push it with the weight's force"
         )
+    if spec.gravity_compensation and not spec.gravity:
+        raise ConfigError(
+            "gravity_compensation=True needs gravity=True: without gravity the links weigh "
+            "nothing, and the torques would be those of the default gravity all the same"
+        )
     filters: list[ObservationFilter] = []
     offset = pose_error_offset(spec.pose_error, obj.com)
     if offset is not None:
@@ -253,7 +262,13 @@ def set_up_trial(
         )
     weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if spec.balance_weight else None
     regulation = ForceRegulation(
-        hand, obj, estimator, allocator, cast(EstimateAt, spec.estimate_at), weight=weight
+        hand,
+        obj,
+        estimator,
+        allocator,
+        cast(EstimateAt, spec.estimate_at),
+        weight=weight,
+        gravity_compensation=spec.gravity_compensation,
     )
     n_gt = len(backend.ground_truth_contacts()) if isinstance(backend, HasGroundTruth) else None
     return TrialSetup(hand, obj, backend, regulation, grasp, filters, n_gt)

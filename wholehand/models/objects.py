@@ -31,6 +31,7 @@ import trimesh
 
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
+from wholehand.models import solids
 from wholehand.models.mesh_repair import check_extent, describe_defects, read_mesh, repair_mesh
 from wholehand.models.sdf import (
     DEFAULT_PADDING,
@@ -39,28 +40,17 @@ from wholehand.models.sdf import (
     SignedDistanceGrid,
     grid_layout,
 )
+from wholehand.models.solids import CYLINDER_SECTIONS as CYLINDER_SECTIONS
+from wholehand.models.solids import DEFAULT_DENSITY as DEFAULT_DENSITY
+from wholehand.models.solids import SPHERE_SUBDIVISIONS as SPHERE_SUBDIVISIONS
 from wholehand.models.walls import CELLS_PER_WALL, spacing_for_wall, thinnest_wall
 
 FloatArray = npt.NDArray[np.float64]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_DENSITY: float = 500.0
-"""Density given to objects without a registered or given mass [kg/m^3] (a generic value
-between hollow plastic and solid wood; the resulting mass is an estimate, said so in
-``ObjectModel.source``)."""
-
 DEFAULT_FRICTION: float = defaults.MU
 """Friction coefficient of objects without a registered one [-] (the paper's mu, Sec. IV)."""
-
-SPHERE_SUBDIVISIONS: int = 4
-"""Icosphere subdivisions of sphere meshes (5120 faces; chord error 1.2e-3 R, 0.05 mm at 4 cm)."""
-
-CYLINDER_SECTIONS: int = 128
-"""Facets around cylinder and capsule meshes (chord error 3e-4 R)."""
-
-CAPSULE_RINGS: int = 64
-"""Latitude rings of each capsule hemisphere mesh."""
 
 KINDS = ("mesh", "box", "sphere", "cylinder", "capsule")
 """Object kinds: a triangle mesh or one of the primitives."""
@@ -232,24 +222,8 @@ class ObjectModel:
         The mass is ``mass`` [kg], else ``density`` [kg/m^3] times the volume, else
         ``DEFAULT_DENSITY`` times the volume. Mass properties are analytic.
         """
-        dims = _positive_vector(size, 3, "box size")
-        volume = float(np.prod(dims))
-        m, mass_note = _resolve_mass(mass, density, volume, "box")
-        x2, y2, z2 = dims**2
-        inertia = m / 12.0 * np.diag([y2 + z2, x2 + z2, x2 + y2])
-        size_t = (float(dims[0]), float(dims[1]), float(dims[2]))
-        return cls._primitive(
-            "box",
-            {"size": size_t},
-            trimesh.creation.box(extents=dims),
-            m,
-            friction,
-            inertia,
-            mass_note,
-            name or "box:{}x{}x{}".format(*_fmt(size_t)),
-            sdf_spacing,
-            sdf_padding,
-        )
+        solid = solids.box(size)
+        return cls.from_solid(solid, mass, friction, density, name, sdf_spacing, sdf_padding)
 
     @classmethod
     def sphere(
@@ -265,22 +239,8 @@ class ObjectModel:
     ) -> ObjectModel:
         """A sphere of ``radius`` [m] centred at the origin (icosphere mesh,
         ``SPHERE_SUBDIVISIONS``); mass as in :meth:`box`, mass properties analytic."""
-        (r,) = _positive_vector([radius], 1, "sphere radius")
-        volume = 4.0 / 3.0 * np.pi * r**3
-        m, mass_note = _resolve_mass(mass, density, volume, "sphere")
-        mesh = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS, radius=r)
-        return cls._primitive(
-            "sphere",
-            {"radius": float(r)},
-            mesh,
-            m,
-            friction,
-            0.4 * m * r**2 * np.eye(3),
-            mass_note,
-            name or f"sphere:{_fmt([r])[0]}",
-            sdf_spacing,
-            sdf_padding,
-        )
+        solid = solids.sphere(radius)
+        return cls.from_solid(solid, mass, friction, density, name, sdf_spacing, sdf_padding)
 
     @classmethod
     def cylinder(
@@ -297,24 +257,8 @@ class ObjectModel:
     ) -> ObjectModel:
         """A solid cylinder of ``radius`` and ``height`` [m] along z, centred at the origin
         (``CYLINDER_SECTIONS`` facets); mass as in :meth:`box`, mass properties analytic."""
-        r, h = _positive_vector([radius, height], 2, "cylinder radius and height")
-        volume = np.pi * r**2 * h
-        m, mass_note = _resolve_mass(mass, density, volume, "cylinder")
-        i_xx = m * (3.0 * r**2 + h**2) / 12.0
-        inertia = np.diag([i_xx, i_xx, 0.5 * m * r**2])
-        mesh = trimesh.creation.cylinder(radius=r, height=h, sections=CYLINDER_SECTIONS)
-        return cls._primitive(
-            "cylinder",
-            {"radius": float(r), "height": float(h)},
-            mesh,
-            m,
-            friction,
-            inertia,
-            mass_note,
-            name or "cylinder:{}x{}".format(*_fmt([r, h])),
-            sdf_spacing,
-            sdf_padding,
-        )
+        solid = solids.cylinder(radius, height)
+        return cls.from_solid(solid, mass, friction, density, name, sdf_spacing, sdf_padding)
 
     @classmethod
     def capsule(
@@ -333,57 +277,37 @@ class ObjectModel:
         the hemisphere centres, as coal and MuJoCo define it; total length ``length + 2 radius``)
         capped by two hemispheres, centred at the origin; mass as in :meth:`box`, mass properties
         analytic."""
-        r, length = _positive_vector([radius, length], 2, "capsule radius and length")
-        v_cyl = np.pi * r**2 * length
-        v_sph = 4.0 / 3.0 * np.pi * r**3
-        m, mass_note = _resolve_mass(mass, density, v_cyl + v_sph, "capsule")
-        m_cyl, m_sph = m * v_cyl / (v_cyl + v_sph), m * v_sph / (v_cyl + v_sph)
-        # Hemispheres: centroid 3r/8 from the flat face, parallel axis to the origin.
-        i_xx = m_cyl * (3.0 * r**2 + length**2) / 12.0 + m_sph * (
-            0.4 * r**2 + length**2 / 4.0 + 3.0 * length * r / 8.0
-        )
-        inertia = np.diag([i_xx, i_xx, 0.5 * m_cyl * r**2 + 0.4 * m_sph * r**2])
-        mesh = trimesh.creation.capsule(
-            height=length, radius=r, count=[CYLINDER_SECTIONS, CAPSULE_RINGS]
-        )
-        return cls._primitive(
-            "capsule",
-            {"radius": float(r), "length": float(length)},
-            mesh,
-            m,
-            friction,
-            inertia,
-            mass_note,
-            name or "capsule:{}x{}".format(*_fmt([r, length])),
-            sdf_spacing,
-            sdf_padding,
-        )
+        solid = solids.capsule(radius, length)
+        return cls.from_solid(solid, mass, friction, density, name, sdf_spacing, sdf_padding)
 
     @classmethod
-    def _primitive(
+    def from_solid(
         cls,
-        kind: str,
-        dims: dict[str, Any],
-        mesh: trimesh.Trimesh,
-        mass: float,
-        friction: float,
-        inertia: FloatArray,
-        mass_note: str,
-        name: str,
-        sdf_spacing: float | str,
-        sdf_padding: float,
+        solid: solids.Solid,
+        mass: float | None = None,
+        friction: float = DEFAULT_FRICTION,
+        density: float | None = None,
+        name: str | None = None,
+        sdf_spacing: float | str = DEFAULT_SPACING,
+        sdf_padding: float = DEFAULT_PADDING,
     ) -> ObjectModel:
-        check_extent(mesh, name)
+        """An object of a primitive solid (:mod:`wholehand.models.solids`); mass as in
+        :meth:`box`, named after the solid's spec unless ``name`` is given."""
+        m, mass_note = solids.resolve_mass(mass, density, solid.volume, solid.kind)
+        name = name or solid.spec
+        check_extent(solid.mesh, name)
         return cls(
             name=name,
-            mesh=mesh,
-            mass=mass,
+            mesh=solid.mesh,
+            mass=m,
             friction=friction,
             com=np.zeros(3),
-            inertia=inertia,
-            source=f"procedural {kind} {dims}; {mass_note}; analytic mass properties",
-            kind=kind,
-            dimensions=dims,
+            inertia=solid.inertia(m),
+            source=(
+                f"procedural {solid.kind} {solid.dimensions}; {mass_note}; analytic mass properties"
+            ),
+            kind=solid.kind,
+            dimensions=solid.dimensions,
             sdf_spacing=sdf_spacing,
             sdf_padding=sdf_padding,
         )
@@ -475,7 +399,7 @@ class ObjectModel:
         volume = float(mesh.volume)
         if not volume > 0.0:
             raise AssetError(f"mesh of {name!r} ({origin}) encloses no volume ({volume} m^3)")
-        m, mass_note = _resolve_mass(mass, density, volume, name, mass_source)
+        m, mass_note = solids.resolve_mass(mass, density, volume, name, mass_source)
         notes.append(mass_note)
         per_kg = np.asarray(mesh.moment_inertia) / float(mesh.mass)  # about the COM, per kg
         inertia = 0.5 * (per_kg + per_kg.T) * m
@@ -492,44 +416,3 @@ class ObjectModel:
             sdf_spacing=sdf_spacing,
             sdf_padding=sdf_padding,
         )
-
-
-def _resolve_mass(
-    mass: float | None,
-    density: float | None,
-    volume: float,
-    name: str,
-    mass_source: str | None = None,
-) -> tuple[float, str]:
-    """Mass [kg] from a mass, a density or the default density, and a note saying which."""
-    if mass is not None and density is not None:
-        raise ConfigError(f"object {name!r}: give a mass or a density, not both")
-    src = f" ({mass_source})" if mass_source else ""
-    if mass is not None:
-        if not (np.isfinite(mass) and mass > 0.0):
-            raise ConfigError(f"object {name!r}: mass must be > 0 [kg], got {mass!r}")
-        return float(mass), f"mass {float(mass):.4g} kg{src or ' (given)'}"
-    if density is not None:
-        if not (np.isfinite(density) and density > 0.0):
-            raise ConfigError(f"object {name!r}: density must be > 0 [kg/m^3], got {density!r}")
-        m = float(density) * volume
-        return m, f"mass {m:.4g} kg = density {float(density):g} kg/m^3{src} x volume"
-    m = DEFAULT_DENSITY * volume
-    return m, (
-        f"mass {m:.4g} kg = default density {DEFAULT_DENSITY:g} kg/m^3 x volume (an estimate: "
-        "no mass registered or given)"
-    )
-
-
-def _positive_vector(values: npt.ArrayLike, n: int, what: str) -> FloatArray:
-    try:
-        arr = np.asarray(values, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as err:
-        raise ConfigError(f"{what} must be {n} numbers [m], got {values!r}") from err
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
-        raise ConfigError(f"{what} must be {n} finite numbers > 0 [m], got {values!r}")
-    return arr
-
-
-def _fmt(values: Any) -> list[str]:
-    return [f"{float(v):g}" for v in values]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from wholehand.errors import AssetError, ConfigError
-from wholehand.models import hand as hand_module
+from wholehand.models import hand_samples
 from wholehand.models.hand import load_hand
 from wholehand.models.hand_config import parse_hand_config, shipped_hands_dir
 
@@ -72,7 +72,7 @@ def test_second_load_uses_the_cache(fresh_cache, monkeypatch):
     def fail(*args, **kwargs):
         raise AssertionError("resampled although the cache holds the samples")
 
-    monkeypatch.setattr(hand_module, "sample_link_surface", fail)
+    monkeypatch.setattr(hand_samples, "sample_link_surface", fail)
     second = load_hand("allegro_right")
     assert second.samples_from_cache
     np.testing.assert_array_equal(first.samples.p_joint, second.samples.p_joint)

@@ -7,10 +7,7 @@ placements) is all a cycle needs to move every sample.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
-import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +17,6 @@ import pinocchio as pin
 
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
-from wholehand.models import cache
 from wholehand.models.coupling import (
     Mimic,
     coupling_matrix,
@@ -29,11 +25,11 @@ from wholehand.models.coupling import (
     urdf_mimics,
 )
 from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
+from wholehand.models.hand_samples import load_or_sample
 from wholehand.models.mesh_files import check_meshes
 from wholehand.models.mjcf_file import mjcf_for_parsers
-from wholehand.models.outer_surface import find_buried_samples
 from wholehand.models.poses import pose_from_xyz_rpy
-from wholehand.models.surface import link_mesh_in_joint_frame, sample_link_surface
+from wholehand.models.surface import link_mesh_in_joint_frame
 
 log = logging.getLogger(__name__)
 
@@ -52,23 +48,6 @@ SUPPORTED_JOINTS = {
     "JointModelPrismaticUnaligned",
 }
 """Pinocchio joint types a hand may have: revolute and prismatic, one DoF each (nq = nv)."""
-
-
-@dataclass(frozen=True)
-class SurfaceSamples:
-    """Candidate contact points on every link, stacked; rows grouped by link."""
-
-    p_joint: FloatArray
-    """(P, 3) points in the frame of their link's parent joint [m]."""
-    n_joint: FloatArray
-    """(P, 3) outward surface normals of the hand at the points, same frames."""
-    link: IntArray
-    """(P,) link index of each point."""
-    joint: IntArray
-    """(P,) Pinocchio joint index of each point's parent joint (0: the hand base)."""
-
-    def __len__(self) -> int:
-        return int(self.p_joint.shape[0])
 
 
 class HandModel:
@@ -120,8 +99,7 @@ class HandModel:
             "seed": int(seed),
             "surface": config.sample_surface,
         }
-        self.samples_from_cache = False
-        self.samples = self._load_or_sample()
+        self.samples, self.samples_from_cache = load_or_sample(self)
 
     # --- construction -------------------------------------------------------------------------
     def _build_model(self) -> pin.Model:
@@ -363,80 +341,6 @@ class HandModel:
                     f"{cfg.model_path}: joint {name!r} has inverted limits: lower "
                     f"{self.q_lower[i]:g} > upper {self.q_upper[i]:g}; swap them in the URDF"
                 )
-
-    # --- surface samples ----------------------------------------------------------------------
-    def _cache_key(self) -> str:
-        cfg = self.config
-        sampled = self.collision_model if cfg.sample_surface == "collision" else self.visual_model
-        meshes = sorted(
-            {Path(o.meshPath) for o in sampled.geometryObjects if Path(o.meshPath).is_file()}
-        )
-        shape = {
-            "links": self.link_names,
-            "locked": cfg.locked_joints,
-            "outer_surface_only": cfg.outer_surface_only,
-        }
-        # An MJCF's self-contained copy holds its <include>d files too.
-        return cache.content_hash(self.parsed_model_path, *meshes, self.sample_params, shape)
-
-    def _load_or_sample(self) -> SurfaceSamples:
-        key = self._cache_key()
-        stored = cache.load_arrays(
-            "link_samples", key, [f.name for f in dataclasses.fields(SurfaceSamples)]
-        )
-        if stored is not None:
-            self.samples_from_cache = True
-            return SurfaceSamples(**stored)
-        started = time.perf_counter()
-        samples = self._sample_surfaces()
-        cache.save_arrays("link_samples", key, samples.__dict__)
-        log.info(
-            "sampled %d candidate points on %d links of %s in %.2f s",
-            len(samples),
-            len(self.link_names),
-            self.config.name,
-            time.perf_counter() - started,
-        )
-        return samples
-
-    def _sample_surfaces(self) -> SurfaceSamples:
-        p, n, link, joint = [], [], [], []
-        for i, frame in enumerate(self.link_frame):
-            mesh = link_mesh_in_joint_frame(self._link_geometry[int(frame)])
-            pts, normals = sample_link_surface(
-                mesh,
-                self.sample_params["n_uniform"],
-                self.sample_params["density_per_cm2"],
-                self.sample_params["seed"] + i,
-            )
-            p.append(pts)
-            n.append(normals)
-            link.append(np.full(len(pts), i, dtype=np.intp))
-            joint.append(np.full(len(pts), self.link_joint[i], dtype=np.intp))
-        samples = SurfaceSamples(
-            p_joint=np.concatenate(p),
-            n_joint=np.concatenate(n),
-            link=np.concatenate(link),
-            joint=np.concatenate(joint),
-        )
-        if not self.config.outer_surface_only:
-            return samples
-        found = find_buried_samples(
-            self.model,
-            self.collision_model,
-            samples.p_joint,
-            samples.joint,
-            self.sample_params["seed"],
-        )
-        if found.skipped_shapes:
-            log.warning(
-                "%s: outer_surface_only skips %d collision shapes that are not closed surfaces: %s",
-                self.config.path,
-                len(found.skipped_shapes),
-                found.skipped_shapes,
-            )
-        keep = ~found.buried
-        return SurfaceSamples(**{k: v[keep] for k, v in samples.__dict__.items()})
 
     def link_mesh(self, link: int | str):
         """Mesh of one link's sampled surface, in its parent-joint frame [m]."""

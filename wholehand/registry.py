@@ -18,7 +18,7 @@ import inspect
 import warnings
 from dataclasses import dataclass
 from importlib import metadata
-from typing import Any
+from typing import Any, cast
 
 from wholehand.errors import PluginError, WholehandError
 
@@ -54,7 +54,7 @@ class PluginSpec:
     def load(self) -> type:
         """Import the plug-in class; an import failure raises :class:`PluginError`."""
         try:
-            return self.entry_point.load()
+            return cast(type, self.entry_point.load())
         except Exception as err:
             raise PluginError(
                 f"plug-in {self.name!r} in group {GROUPS[self.group]!r} (entry point "

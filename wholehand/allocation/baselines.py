@@ -18,7 +18,7 @@ baseline ignores the estimated contacts and applies its law at the configuration
 from __future__ import annotations
 
 import abc
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -137,7 +137,7 @@ class FixedAllocationBaseline(Allocator):
                     f"{type(self).__name__}: actuated_dofs mask has shape {self._actuated.shape}, "
                     f"the hand has n_v={n_v} joints"
                 )
-            return self._actuated.copy()
+            return cast(npt.NDArray[np.bool_], self._actuated.copy())
         mask = np.zeros(n_v, dtype=bool)
         mask[self._actuated.astype(np.intp)] = True
         return mask

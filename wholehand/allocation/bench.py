@@ -39,7 +39,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -101,7 +101,9 @@ class SyntheticHand:
         same_finger = (finger_link[:, None] // self.dofs) == (j[None, :] // self.dofs)
         proximal = (j[None, :] % self.dofs) <= (finger_link[:, None] % self.dofs)
         mask = (finger_link[:, None] >= 0) & same_finger & proximal
-        return (cross * mask[:, :, None]).transpose(0, 2, 1).reshape(n, 3, self.n_v)
+        return cast(
+            FloatArray, (cross * mask[:, :, None]).transpose(0, 2, 1).reshape(n, 3, self.n_v)
+        )
 
 
 def synthetic_hand(
@@ -327,13 +329,14 @@ def run_allocation_benchmark(
                 screening: bool = screening,
                 edges: bool = edges,
             ) -> Allocator:
-                return qp_allocator(
+                allocator = qp_allocator(
                     solver=solver,
                     screening=screening,
                     screen_edges=edges,
                     warm_start=warm_start,
                     **extra,
                 )
+                return cast(Allocator, allocator)
 
             for mode in MODES:
                 stats = _time_mode(grasp, make, cycles, warmup, seed, mode)

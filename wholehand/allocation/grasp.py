@@ -20,6 +20,8 @@ over the sphere has such a seam (hairy-ball theorem), this one is at least fixed
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import numpy.typing as npt
 
@@ -133,4 +135,4 @@ def grasp_matrix(
 
 def local_to_world(wRc: FloatArray, f_local: FloatArray) -> FloatArray:
     """(N, 3) world-axis forces from (N, 3) local forces and (N, 3, 3) frames ``wRc``."""
-    return np.einsum("nij,nj->ni", wRc, f_local)
+    return cast(FloatArray, np.einsum("nij,nj->ni", wRc, f_local))

@@ -13,6 +13,8 @@ unchanged. It is kept as Householder reflectors and applied in O(m n), never for
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import numpy.typing as npt
 from scipy.linalg import lapack
@@ -93,12 +95,12 @@ class ActuationNullSpace:
         )
         if info != 0:  # pragma: no cover - LAPACK argument error
             raise ValueError(f"dormqr failed with info={info}")
-        return out
+        return cast(FloatArray, out)
 
     def project(self, v: FloatArray) -> FloatArray:
         """``N_u^T v`` for (m,) ``v``: its (dim,) coordinates in the null-space basis."""
         if self._explicit is not None:
-            return self._explicit.T @ v
+            return cast(FloatArray, self._explicit.T @ v)
         y = self._apply_q(v.reshape(-1, 1), "T")[:, 0]
         if self._head is None:
             return y[self._k :]

@@ -57,7 +57,7 @@ import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -263,16 +263,17 @@ class AllocationQP:
     def f_local(self, lam: FloatArray) -> FloatArray:
         """(N, 3) local forces ``[f_n, f_t1, f_t2]`` [N] from (4N,) edge weights."""
         E = friction_edges(self.params.mu)
-        return lam.reshape(-1, N_EDGES) @ E.T
+        return cast(FloatArray, lam.reshape(-1, N_EDGES) @ E.T)
 
     def f_world(self, lam: FloatArray) -> FloatArray:
         """(N, 3) world-axis forces of the hand on the object [N] from (4N,) edge weights."""
-        return np.einsum("nij,nj->ni", self.W, lam.reshape(-1, N_EDGES))
+        return cast(FloatArray, np.einsum("nij,nj->ni", self.W, lam.reshape(-1, N_EDGES)))
 
     def f_act(self, lam: FloatArray) -> FloatArray:
         """(3 N_act,) stacked world-axis forces of the actuated contacts [N]."""
         W = self.W[self.act_idx]
-        return np.einsum("nij,nj->ni", W, lam.reshape(-1, N_EDGES)[self.act_idx]).ravel()
+        forces = np.einsum("nij,nj->ni", W, lam.reshape(-1, N_EDGES)[self.act_idx])
+        return cast(FloatArray, forces.ravel())
 
     def tau(self, lam: FloatArray) -> FloatArray:
         """(n_v,) joint torques ``J_act^T f_act`` [N*m]; zero on joints not commanded."""

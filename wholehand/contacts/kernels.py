@@ -132,7 +132,7 @@ def sdf_value(
     ex, ey, ez = ucx - ux, ucy - uy, ucz - uz
     if ex != 0.0 or ey != 0.0 or ez != 0.0:  # outside the box (or NaN)
         d += math.sqrt(ex * ex + ey * ey + ez * ez) * spacing
-    return d
+    return float(d)
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")

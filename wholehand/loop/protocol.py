@@ -12,6 +12,7 @@ needs a backend that can push the object (:class:`~wholehand.backends.base.Pushe
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -131,7 +132,7 @@ class PerturbationProtocol:
 
     def target_rotation(self, wRo_initial: FloatArray) -> FloatArray:
         """(3, 3) world orientation the pull drives the object toward."""
-        return pin.exp3(np.deg2rad(self.theta_deg) * self.axis) @ wRo_initial
+        return cast(FloatArray, pin.exp3(np.deg2rad(self.theta_deg) * self.axis) @ wRo_initial)
 
     def spring(
         self,

@@ -114,7 +114,9 @@ def _targets(
 def root_link(hand: HandModel) -> str:
     """Name of the hand's root link (the frame its stored grasps place, ``oMb``)."""
     model = hand.model
-    return next(f.name for f in model.frames if f.parentJoint == 0 and f.type == pin.FrameType.BODY)
+    return str(
+        next(f.name for f in model.frames if f.parentJoint == 0 and f.type == pin.FrameType.BODY)
+    )
 
 
 class ArmServo:

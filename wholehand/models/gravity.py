@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
@@ -44,5 +46,5 @@ class GravityCompensation:
         g = self.torques(q, wMb)
         hand = self.hand
         if hand.coupled:
-            return hand.coupling.T @ g
+            return cast(FloatArray, hand.coupling.T @ g)
         return np.where(hand.actuated_dofs, g, 0.0)

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
+import trimesh
 
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
@@ -186,7 +187,7 @@ class HandModel:
                 f"{self.config.model_path.name}; "
                 f"valid links: {self.all_link_names}"
             )
-        return self.model.getFrameId(link, pin.FrameType.BODY)
+        return int(self.model.getFrameId(link, pin.FrameType.BODY))
 
     @property
     def all_link_names(self) -> list[str]:
@@ -342,7 +343,7 @@ class HandModel:
                     f"{self.q_lower[i]:g} > upper {self.q_upper[i]:g}; swap them in the URDF"
                 )
 
-    def link_mesh(self, link: int | str):
+    def link_mesh(self, link: int | str) -> trimesh.Trimesh:
         """Mesh of one link's sampled surface, in its parent-joint frame [m]."""
         i = self.link_index(link) if isinstance(link, str) else link
         return link_mesh_in_joint_frame(self._link_geometry[int(self.link_frame[i])])

@@ -49,7 +49,7 @@ import sys
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
@@ -163,7 +163,22 @@ def _locate_in_distribution(dist_name: str, rel: str, where: Path) -> Path:
     )
 
 
-def _str_list(table: dict[str, Any], key: str, where: Path, default: list[str] | None = None):
+@overload
+def _str_list(
+    table: dict[str, Any], key: str, where: Path, default: list[str]
+) -> tuple[str, ...]: ...
+
+
+@overload
+def _str_list(
+    table: dict[str, Any], key: str, where: Path, default: None = None
+) -> tuple[str, ...] | None: ...
+
+
+def _str_list(
+    table: dict[str, Any], key: str, where: Path, default: list[str] | None = None
+) -> tuple[str, ...] | None:
+    """``table[key]`` as a tuple of names, else ``default``; anything else is a ConfigError."""
     value = table.get(key, default)
     if value is None:
         return None
@@ -259,7 +274,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     fingers_raw = raw.get("fingers", {})
     if not isinstance(fingers_raw, dict):
         raise ConfigError(f"{path}: [fingers] must be a table of finger name -> link list")
-    fingers = {name: _str_list(fingers_raw, name, path) for name in fingers_raw}
+    fingers = {name: _str_list(fingers_raw, name, path, []) for name in fingers_raw}
     thumb = raw.get("thumb")
     if thumb is not None and thumb not in fingers:
         raise ConfigError(f"{path}: thumb = {thumb!r} is not a key of [fingers] {sorted(fingers)}")

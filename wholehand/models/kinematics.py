@@ -7,6 +7,8 @@ with the mount pose ``wMb``.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
@@ -88,13 +90,13 @@ class HandKinematics:
             fMw: (4, 4) pose of the world in the target frame.
         """
         R, t = self.joint_poses_in(np.eye(4) if fMw is None else fMw)
-        return np.einsum("pab,pb->pa", R[joint], p_joint) + t[joint]
+        return cast(FloatArray, np.einsum("pab,pb->pa", R[joint], p_joint) + t[joint])
 
     def frame_pose(self, link: str) -> FloatArray:
         """(4, 4) world pose of a URDF link frame."""
         fid = self.model.getFrameId(link, pin.FrameType.BODY)
         pin.updateFramePlacement(self.model, self.data, fid)
-        return self.wMb @ self.data.oMf[fid].homogeneous
+        return cast(FloatArray, self.wMb @ self.data.oMf[fid].homogeneous)
 
     def point_jacobians(self, joint: IntArray, p_world: FloatArray) -> FloatArray:
         """Linear-velocity Jacobians of hand points rigidly attached to given joints.
@@ -121,7 +123,7 @@ class HandKinematics:
         v[:, 1] = J[1] + wz * px - wx * pz
         v[:, 2] = J[2] + wx * py - wy * px
         v *= self._support[joint][:, None, :]
-        return np.einsum("ab,nbk->nak", wRb, v)
+        return cast(FloatArray, np.einsum("ab,nbk->nak", wRb, v))
 
     def actuation_jacobians(self, joint: IntArray, p_world: FloatArray) -> FloatArray:
         """Point Jacobians in the coordinates allocators work in (see

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -180,7 +181,7 @@ def _voxel_remesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
         raise AssetError(f"voxel remesh failed: {err}; repair the mesh offline") from err
     out.merge_vertices()
     trimesh.repair.fix_normals(out)
-    return out
+    return cast(trimesh.Trimesh, out)
 
 
 def check_extent(mesh: trimesh.Trimesh, name: str) -> None:

@@ -9,7 +9,7 @@ import logging
 import re
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -169,7 +169,7 @@ def load_object(name_or_path: str | Path, **overrides: Any) -> ObjectModel:
             overrides.pop("repair")
         builder = getattr(ObjectModel, kind)
         args = [tuple(dims)] if kind == "box" else dims
-        return builder(*args, **overrides)
+        return cast(ObjectModel, builder(*args, **overrides))
     mesh_path = ycb_mesh_dir() / f"{text}.stl"
     if isinstance(name_or_path, str) and "/" not in text and mesh_path.is_file():
         return _load_ycb(text, mesh_path, overrides)

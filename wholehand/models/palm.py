@@ -17,6 +17,7 @@ palm (largest z, toward the fingers) and the centre of their bounding box.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -52,7 +53,7 @@ class PalmFrame:
 
 
 def _unit(v: FloatArray) -> FloatArray:
-    return v / np.linalg.norm(v)
+    return cast(FloatArray, v / np.linalg.norm(v))
 
 
 def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFrame:

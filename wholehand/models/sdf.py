@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -162,7 +163,7 @@ class SignedDistanceGrid:
         excess = uc - u
         if not excess.any():  # NaN counts as True: NaN propagates through the sum below
             return None
-        return np.sqrt(np.einsum("ij,ij->j", excess, excess)) * self.spacing
+        return cast(FloatArray, np.sqrt(np.einsum("ij,ij->j", excess, excess)) * self.spacing)
 
     def query(self, points_obj: npt.ArrayLike) -> FloatArray:
         """(P,) signed distance [m] at (P, 3) object-frame points [m], trilinearly interpolated.
@@ -179,7 +180,7 @@ class SignedDistanceGrid:
         outside = self._outside(u, uc)
         if outside is not None:
             dist += outside
-        return dist
+        return cast(FloatArray, dist)
 
     def query_with_gradient(self, points_obj: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Signed distance and its unit gradient at (P, 3) object-frame points [m].

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -396,4 +396,4 @@ def _propagate_sign(in_band: npt.NDArray[np.bool_], band_sign: FloatArray) -> Fl
     boundary[:, :, [0, -1]] = True
     component_sign[np.unique(labels[boundary])] = 1.0
     component_sign[0] = 1.0  # label 0: band nodes (their own sign is kept)
-    return component_sign[labels]
+    return cast(FloatArray, component_sign[labels])

@@ -7,7 +7,7 @@ farthest-point sampling to ``SAMPLE_DENSITY_PER_CM2`` points per cm^2 (at least 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import coal
 import numpy as np
@@ -28,18 +28,21 @@ CYLINDER_SECTIONS = 64
 def geometry_to_trimesh(obj: pin.GeometryObject) -> trimesh.Trimesh:
     """Mesh of one Pinocchio geometry object in its own frame [m]."""
     geom = obj.geometry
+    primitive: Any = None  # trimesh.creation is untyped
     if isinstance(geom, coal.Box):
-        return trimesh.creation.box(extents=2.0 * np.asarray(geom.halfSide))
-    if isinstance(geom, coal.Sphere):
-        return trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS, radius=geom.radius)
-    if isinstance(geom, coal.Cylinder):
-        return trimesh.creation.cylinder(
+        primitive = trimesh.creation.box(extents=2.0 * np.asarray(geom.halfSide))
+    elif isinstance(geom, coal.Sphere):
+        primitive = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS, radius=geom.radius)
+    elif isinstance(geom, coal.Cylinder):
+        primitive = trimesh.creation.cylinder(
             radius=geom.radius, height=2.0 * geom.halfLength, sections=CYLINDER_SECTIONS
         )
-    if isinstance(geom, coal.Capsule):
-        return trimesh.creation.capsule(
+    elif isinstance(geom, coal.Capsule):
+        primitive = trimesh.creation.capsule(
             height=2.0 * geom.halfLength, radius=geom.radius, count=[CYLINDER_SECTIONS, 16]
         )
+    if primitive is not None:
+        return cast(trimesh.Trimesh, primitive)
     mesh_path = Path(obj.meshPath) if obj.meshPath else None
     if mesh_path is not None and mesh_path.is_file():
         try:

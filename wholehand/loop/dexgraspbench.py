@@ -37,7 +37,7 @@ import pinocchio as pin
 from wholehand.backends.base import PushesObject, ReportsWarnings
 from wholehand.errors import ConfigError
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.protocol import DIRECTIONS
+from wholehand.loop.protocol import DIRECTIONS, object_pusher
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
 
@@ -111,15 +111,10 @@ class Push(Observer):
         self.elapsed = 0.0
 
     def on_start(self, loop: ControlLoop) -> None:
-        backend = loop.backend
-        if not isinstance(backend, PushesObject):
-            raise ConfigError(
-                f"the {NAME} protocol needs a backend that can push the object (PushesObject); "
-                f"{type(backend).__name__} cannot"
-            )
-        self._backend, self._t0 = backend, backend.time
+        self._backend = object_pusher(loop, NAME)
+        self._t0 = loop.backend.time
         self._half_dt = 0.5 * loop.dt
-        wMo = backend.observe().wMo
+        wMo = loop.backend.observe().wMo
         assert wMo is not None
         self._start = wMo.copy()
 

@@ -173,6 +173,17 @@ class PerturbationProtocol:
         return self.load_fraction * mass * defaults.GRAVITY * np.asarray(phase.direction)
 
 
+def object_pusher(loop: ControlLoop, protocol: str) -> PushesObject:
+    """The loop's backend, which a protocol needs to push the object; else a ConfigError."""
+    backend = loop.backend
+    if not isinstance(backend, PushesObject):
+        raise ConfigError(
+            f"the {protocol} protocol needs a backend that can push the object "
+            f"(PushesObject); {type(backend).__name__} cannot"
+        )
+    return backend
+
+
 class ProtocolDriver(Observer):
     """Plays a :class:`PerturbationProtocol` over the loop's backend.
 
@@ -204,16 +215,10 @@ class ProtocolDriver(Observer):
         return [p.name for p in self.phases]
 
     def on_start(self, loop: ControlLoop) -> None:
-        backend = loop.backend
-        if not isinstance(backend, PushesObject):
-            raise ConfigError(
-                f"the perturbation protocol needs a backend that can push the object "
-                f"(PushesObject); {type(backend).__name__} cannot"
-            )
-        self._backend = backend
-        self._t0 = backend.time
+        self._backend = object_pusher(loop, "perturbation")
+        self._t0 = loop.backend.time
         self._half_dt = 0.5 * loop.dt
-        wMo = backend.observe().wMo
+        wMo = loop.backend.observe().wMo
         assert wMo is not None
         self._wMo0 = wMo.copy()
 

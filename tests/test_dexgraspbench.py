@@ -102,3 +102,12 @@ def test_dexgraspbench_study_rows_and_summary(tmp_path) -> None:
             not row["held"]
         )
     assert (tmp_path / "dexgraspbench.png").stat().st_size > 0
+
+
+def test_a_row_names_a_diverged_simulation_by_its_warnings() -> None:
+    from wholehand.loop.outcome import DIVERGED_PREFIX, sim_warnings_error
+
+    assert sim_warnings_error({"bad_qacc": 0, "bad_qpos": 0, "step_retries": 3}) == ""
+    for key in ("bad_qacc", "bad_qpos"):
+        error = sim_warnings_error({key: 1})
+        assert error.startswith(DIVERGED_PREFIX) and key in error

@@ -67,3 +67,10 @@ def _error(record: RunRecord) -> str:
         first = record.meta["loop"]["errors"][0]["error"]
         return f"stage raised x{n_errors}: {first}"
     return ""
+
+
+def sim_warnings_error(warnings: dict[str, int]) -> str:
+    """A row's ``error`` for a run with these simulator warnings: the warnings behind
+    :data:`DIVERGED_PREFIX` when MuJoCo diverged (``bad_qacc`` or ``bad_qpos``), else ""."""
+    diverged = warnings.get("bad_qacc", 0) + warnings.get("bad_qpos", 0)
+    return f"{DIVERGED_PREFIX}: {warnings}" if diverged else ""

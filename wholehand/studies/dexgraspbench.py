@@ -16,7 +16,7 @@ import numpy as np
 
 from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.dexgraspbench import FRICTION, run_load_test
-from wholehand.loop.outcome import DIVERGED_PREFIX
+from wholehand.loop.outcome import sim_warnings_error
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
@@ -43,7 +43,6 @@ def load_test_row(job: TrialJob) -> dict[str, Any]:
     spec = job.spec
     out = run_load_test(spec, model("hand", spec.hand), model("object", spec.object))
     warnings = out["sim_warnings"]
-    diverged = warnings.get("bad_qacc", 0) + warnings.get("bad_qpos", 0)
     return {
         "held": bool(out["held"]),
         "directions_passed": sum(r.passed for r in out["directions"]),
@@ -53,7 +52,7 @@ def load_test_row(job: TrialJob) -> dict[str, Any]:
         "rotation_deg": round(out["rotation_deg"], 3),
         "step_retries": int(warnings.get("step_retries", 0)),
         "failure_stage": out["failed_in"],
-        "error": f"{DIVERGED_PREFIX}: {warnings}" if diverged else "",
+        "error": sim_warnings_error(warnings),
         "wall_time_s": out["wall_time_s"],
     }
 

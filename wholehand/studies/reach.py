@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from wholehand.loop.outcome import DIVERGED_PREFIX
+from wholehand.loop.outcome import sim_warnings_error
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, derive_seed, group_rows
@@ -58,7 +58,6 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
         )
     )
     warnings = summary["mujoco_warnings"]
-    diverged = warnings.get("bad_qacc", 0) + warnings.get("bad_qpos", 0)
     loop = summary["loop"]
     cycles = max(int(loop["cycles"]), 1)
     return {
@@ -77,7 +76,7 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
         "step_retries": int(warnings.get("step_retries", 0)),
         "step_retries_failed": int(warnings.get("step_retries_failed", 0)),
         "failure_stage": "" if summary["complete"] else "episode",
-        "error": f"{DIVERGED_PREFIX}: {warnings}" if diverged else "",
+        "error": sim_warnings_error(warnings),
         "wall_time_s": time.perf_counter() - started,
         "cycle_mean_us": 1e6 * (time.perf_counter() - started) / cycles,
     }

@@ -30,11 +30,14 @@ from wholehand.backends.mujoco_scene import HandObjectScene, build_scene
 from wholehand.backends.scene_options import (
     DEFAULT_TIMESTEP,
     HAND_BIT,
+    OBJECT_BIT,
+    TABLE_BIT,
     WRIST_JOINT,
     WRIST_TARGET,
     SceneOptions,
 )
 from wholehand.backends.step_guard import StepGuard
+from wholehand.backends.table import TABLE_GEOM
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command
 from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
@@ -381,6 +384,17 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         mocap = int(self.model.body_mocapid[body])
         self.data.mocap_pos[mocap] = wMb[:3, 3]
         self.data.mocap_quat[mocap] = mujoco_quat(wMb)
+
+    def set_table_contact(self, enabled: bool) -> None:
+        """Let the table touch the hand and the object (``enabled``) or nothing: an object
+        taken off its support at once, where it is (the grasp generator checks that a table-top
+        grasp holds the object without the table). A scene without a table raises
+        ConfigError."""
+        if self.scene.options.table is None:
+            raise ConfigError("MujocoBackend.set_table_contact: this scene has no table")
+        geom = self.model.geom(TABLE_GEOM).id
+        contype, conaffinity = (TABLE_BIT, HAND_BIT | OBJECT_BIT) if enabled else (0, 0)
+        self.model.geom_contype[geom], self.model.geom_conaffinity[geom] = contype, conaffinity
 
     def object_pose_in_model(self) -> FloatArray:
         """(4, 4) object pose the model was compiled with (its ``qpos0``)."""

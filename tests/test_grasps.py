@@ -140,9 +140,11 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
     names = ["077_rubiks_cube", "065-f_cups"]
     monkeypatch.setattr(catalogue, "available_objects", lambda: names)
     seen: list[str] = []
+    tables: list[bool] = []
 
-    def fake(hand, obj, count, seed, max_candidates, progress, style):
+    def fake(hand, obj, count, seed, max_candidates, progress, style, on_table):
         seen.append(obj.name)
+        tables.append(on_table)
         found = [Grasp(0, np.eye(4), dict.fromkeys(hand.joint_names, 0.0))]
         rejected = {"the pre-shape penetrates the object": 2 if obj.name == names[0] else 3}
         info = {"candidates_tried": 3, "seed": seed, "rejected": rejected}
@@ -155,6 +157,9 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
     assert [p.name for p in tmp_path.iterdir()] == ["077_rubiks_cube.json"]
     assert "1 of 2 objects yield power grasps" in out and "none for: 065-f_cups" in out
     assert "Rejected because:\n     3  the pre-shape penetrates the object" in out
+    assert tables == [False, False]
+    args = ["grasps", "generate", "--object", names[0], "--on-table", "--out", str(tmp_path)]
+    assert main(args) == 0 and tables[-1] is True
 
 
 def test_a_users_hand_keeps_its_grasps_in_its_own_folder(tmp_path, monkeypatch):

@@ -16,6 +16,9 @@ FloatArray = npt.NDArray[np.float64]
 
 TABLE_GEOM = "table"
 """Name of the table's geom in MuJoCo scenes."""
+HAND_MARGIN = 0.01
+"""How far above the table top a grasp and its pre-grasp must keep the hand to be usable with
+the object resting on it [m] (twice the reacher's table clearance, so the grasp is reachable)."""
 
 
 @dataclass(frozen=True)

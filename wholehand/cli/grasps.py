@@ -23,6 +23,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="append",
         help="object name (repeatable), or 'all' for every YCB mesh; default: the paper's five",
     )
+    p.add_argument(
+        "--on-table",
+        action="store_true",
+        help="the object rests on a table and the hand comes from above; written to the "
+        "style's on_table/ folder",
+    )
     p.add_argument("--count", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-candidates", type=int, default=400, help="give up after this many")
@@ -54,7 +60,14 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     for name in names:
         obj = load_object(name)
         grasps, info = generate_grasps(
-            hand, obj, args.count, args.seed, args.max_candidates, progress=True, style=args.type
+            hand,
+            obj,
+            args.count,
+            args.seed,
+            args.max_candidates,
+            progress=True,
+            style=args.type,
+            on_table=args.on_table,
         )
         rejected = cast(dict[str, int], info["rejected"])
         if not grasps:
@@ -65,7 +78,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
                 f"Rejected because:\n{_reasons(rejected)}"
             )
             continue
-        default = grasp_file(args.hand, obj.name, args.type)
+        default = grasp_file(args.hand, obj.name, args.type, args.on_table)
         path = Path(args.out) / default.name if args.out else default
         path = save_grasps(path, hand.name, obj.name, grasps, info)
         if args.verbose and rejected:

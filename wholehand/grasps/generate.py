@@ -20,6 +20,15 @@ seeded candidate:
    less than ``MAX_SETTLE_MOTION`` [m].
 
 The hand base pose in the object frame and the joint angles after settling are stored.
+
+On a table (``on_table``) the object instead rests on one of its stable faces
+(:mod:`wholehand.models.resting`, drawn by probability) at a random yaw, and the hand comes from
+above: the palm normal points down, tilted by up to ``MAX_TILT`` from the vertical, turned at
+random about itself, with the object placed in front of the palm as in step 1. The table is
+there while the fingers close, so they cannot reach under the object, and is taken away for the
+settling, so that only a grasp that holds the object by itself is kept. A candidate whose
+pre-shape or settled grasp (with the object back on its face) comes within ``HAND_MARGIN`` of
+the table top is rejected. The face's up direction is stored with the grasp (``table_up``).
 """
 
 from __future__ import annotations
@@ -33,6 +42,7 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from wholehand import registry
+from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import style_arrays
@@ -45,6 +55,7 @@ from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
 from wholehand.models.poses import inverse
+from wholehand.models.resting import RestingFace, resting_faces, resting_pose, up_rotation
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -67,6 +78,10 @@ MAX_CANDIDATES = 400
 """Candidates tried per object before the generator gives up on finding ``count`` grasps."""
 PD_GAINS = (2.0, 0.05)
 """PD gains holding the non-closing joints at the pre-shape: [N*m/rad], [N*m*s/rad]."""
+MAX_TILT = np.radians(60.0)
+"""On a table: largest tilt of the palm normal from straight down [rad]."""
+GENERATOR_TABLE = Table(top=0.0, centre=(0.0, 0.0), size=(0.8, 0.8))
+"""The table of table-top generation; the object rests on it at the world origin."""
 
 
 class ClosingStage(Stage):
@@ -119,9 +134,14 @@ class GraspGenerator:
     """Seeded grasp generation for one hand, one object and one grasp style in MuJoCo."""
 
     def __init__(
-        self, hand: HandModel, obj: ObjectModel, backend: str = "mujoco", style: str = "power"
+        self,
+        hand: HandModel,
+        obj: ObjectModel,
+        backend: str = "mujoco",
+        style: str = "power",
+        on_table: bool = False,
     ) -> None:
-        self.hand, self.obj = hand, obj
+        self.hand, self.obj, self.on_table = hand, obj, on_table
         cfg = hand.config
         if style not in cfg.grasp_styles:
             raise ConfigError(
@@ -142,7 +162,11 @@ class GraspGenerator:
                 "that names the fingers that must touch ([grasping.precision] fingers = [...])"
             )
         self.q_pre, self.tau_close, self.closing = style_arrays(hand, self.style)
-        self.backend = registry.load("backends", backend, hand=hand, obj=obj, q_init=self.q_pre)
+        scene: dict[str, object] = {"base": "mocap", "table": GENERATOR_TABLE} if on_table else {}
+        self.backend = registry.load(
+            "backends", backend, hand=hand, obj=obj, q_init=self.q_pre, **scene
+        )
+        self.faces: list[RestingFace] = resting_faces(obj) if on_table else []
         self.kin = HandKinematics(hand)
         self.loss = GraspLossCheck(hand, obj)
         self.thumb = cfg.thumb
@@ -171,15 +195,36 @@ class GraspGenerator:
         return self.palm.to_palm(centre)
 
     def candidate_pose(self, rng: np.random.Generator) -> FloatArray:
-        """(4, 4) a seeded object pose in front of the palm, in the world.
-
-        In the palm frame (:mod:`wholehand.models.palm`): a random orientation; the object's
-        lowest point along the palm normal at the style's gap from the palm face; for power
-        grasps its centre within 1 cm of the middle of the palm across and 0-4 cm below the
-        top of the palm; for a style that names its fingers, centred (+- 1 cm) on their
-        half-closed distal links.
-        """
+        """(4, 4) a seeded object pose in front of the palm, in the world, the hand at
+        ``hand.wMb``: a random orientation, placed by :meth:`place`."""
         R = Rotation.random(random_state=rng).as_matrix()
+        return self.hand.wMb @ self.place(R, rng)
+
+    def table_candidate(
+        self, rng: np.random.Generator
+    ) -> tuple[FloatArray, FloatArray, RestingFace]:
+        """A seeded table-top candidate: the object's world pose (4, 4) resting on
+        :data:`GENERATOR_TABLE`, the hand base's (4, 4) above it and the resting face (see the
+        module docstring)."""
+        weights = np.array([f.probability for f in self.faces])
+        face = self.faces[int(rng.choice(len(self.faces), p=weights / weights.sum()))]
+        yaw = rng.uniform(0.0, 2.0 * np.pi)
+        tilt, azimuth, spin = rng.uniform(0.0, MAX_TILT), *rng.uniform(0.0, 2.0 * np.pi, 2)
+        down = np.array(
+            [np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), -np.cos(tilt)]
+        )
+        # Palm axes in the world: x (the palm normal, toward the object) along `down`.
+        wRp = Rotation.from_rotvec(spin * down).as_matrix() @ up_rotation(down).T[:, [2, 0, 1]]
+        wMo = resting_pose(self.obj, face.up, yaw, (0.0, 0.0), GENERATOR_TABLE.top)
+        bMo = self.place(wRp.T @ wMo[:3, :3], rng)
+        return wMo, wMo @ inverse(bMo), face
+
+    def place(self, R: FloatArray, rng: np.random.Generator) -> FloatArray:
+        """(4, 4) object pose in the hand base frame for the object turned by ``R`` (3, 3) in
+        the palm frame (:mod:`wholehand.models.palm`): its lowest point along the palm normal
+        at the style's gap from the palm face; for power grasps its centre within 1 cm of the
+        middle of the palm across and 0-4 cm below the top of the palm; for a style that names
+        its fingers, centred (+- 1 cm) on their half-closed distal links."""
         verts = np.asarray(self.obj.mesh.vertices) @ R.T
         palm = self.palm
         x = palm.face - verts[:, 0].min() + rng.uniform(*self.style.palm_gap)
@@ -196,7 +241,13 @@ class GraspGenerator:
         bMo = np.eye(4)
         bMo[:3, :3] = palm.bRp @ R
         bMo[:3, 3] = palm.bRp @ np.array([x, y, z])
-        return self.hand.wMb @ bMo
+        return bMo
+
+    def lowest_point(self, q: FloatArray, wMb: FloatArray) -> float:
+        """Lowest world z of the hand's surface samples at ``q`` (n_q,), base at ``wMb`` [m]."""
+        self.kin.update(q, wMb)
+        samples = self.hand.samples
+        return float(self.kin.transform_points(samples.p_joint, samples.joint)[:, 2].min())
 
     def _fingers_touching(self) -> set[str]:
         """Fingers touching the object; the palm and other unassigned links count as ``""``."""
@@ -235,9 +286,16 @@ class GraspGenerator:
         """One candidate; the grasp, or None when it is rejected (the reason is counted in
         :attr:`rejections`)."""
         rng = np.random.default_rng([seed, index])
-        wMo = self.candidate_pose(rng)
-        b = self.backend
-        b.reset(self.q_pre, wMo)
+        b, face = self.backend, None
+        if self.on_table:
+            wMo, wMb, face = self.table_candidate(rng)
+            b.reset(self.q_pre, wMo, wMb)
+            b.set_table_contact(True)
+            if self.lowest_point(self.q_pre, wMb) < GENERATOR_TABLE.top + HAND_MARGIN:
+                return self._reject("the pre-shape reaches into the table")
+        else:
+            wMo = self.candidate_pose(rng)
+            b.reset(self.q_pre, wMo)
         if np.any(b.ground_truth_contacts().distance < -0.001):
             return self._reject("the pre-shape penetrates the object")
         self._hold(wMo)
@@ -248,6 +306,8 @@ class GraspGenerator:
         self._run(CLOSE_EXTRA)
         before = b.observe().wMo
         b.set_object_spring(None)
+        if self.on_table:
+            b.set_table_contact(False)
         self._run(SETTLE)
         state = b.observe()
         self.kin.update(state.q, state.wMb)
@@ -262,6 +322,13 @@ class GraspGenerator:
             return self._reject("a required finger let go after release (or another link touched)")
         if not self.loss.held(self.kin, state.wMo):
             return self._reject("the grasp-loss criterion fails after release")
+        oMb = inverse(state.wMo) @ state.wMb
+        if face is not None:
+            wMo_rest = resting_pose(self.obj, face.up, 0.0, (0.0, 0.0), GENERATOR_TABLE.top)
+            if self.lowest_point(state.q, wMo_rest @ oMb) < GENERATOR_TABLE.top + HAND_MARGIN:
+                return self._reject(
+                    f"the grasp comes within {1e3 * HAND_MARGIN:g} mm of the table top"
+                )
         hand = self.hand
         q = {
             name: float(state.q[hand.model.joints[hand.model.getJointId(name)].idx_q])
@@ -269,7 +336,7 @@ class GraspGenerator:
         }
         return Grasp(
             id=-1,
-            oMb=inverse(state.wMo) @ state.wMb,
+            oMb=oMb,
             q=q,
             type=self.style.name,
             contacts=len(b.ground_truth_contacts()),
@@ -277,6 +344,7 @@ class GraspGenerator:
                 "candidate": index,
                 "fingers": sorted(fingers),
                 "settle_motion_m": round(moved, 6),
+                **({} if face is None else {"table_up": np.round(face.up, 9).tolist()}),
             },
         )
 
@@ -316,10 +384,11 @@ def generate_grasps(
     max_candidates: int = MAX_CANDIDATES,
     progress: bool = False,
     style: str = "power",
+    on_table: bool = False,
 ) -> tuple[list[Grasp], dict[str, object]]:
     """Grasps and a description of how they were made (for the file's ``generator`` field)."""
     started = time.perf_counter()
-    generator = GraspGenerator(hand, obj, style=style)
+    generator = GraspGenerator(hand, obj, style=style, on_table=on_table)
     grasps = generator.generate(count, seed, max_candidates, progress)
     command = (
         f"wholehand grasps generate --hand {hand.name} --object {obj.name} "
@@ -327,11 +396,14 @@ def generate_grasps(
     )
     if max_candidates != MAX_CANDIDATES:
         command += f" --max-candidates {max_candidates}"
+    if style != "power":
+        command += f" --type {style}"
+    where = "resting on a table, hand from above, " if on_table else ""
     info = {
-        "command": command if style == "power" else f"{command} --type {style}",
+        "command": command + (" --on-table" if on_table else ""),
         "seed": seed,
-        "method": f"{style} pre-shape, closing torques with the object held, settle released "
-        "(wholehand/grasps/generate.py)",
+        "method": f"{style} pre-shape, {where}closing torques with the object held, settle "
+        "released (wholehand/grasps/generate.py)",
         "candidates_tried": generator.candidates_tried,
         "rejected": dict(generator.rejections.most_common()),
         "wall_time_s": round(time.perf_counter() - started, 1),

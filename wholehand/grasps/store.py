@@ -88,22 +88,28 @@ def hand_grasps_dir(hand: str | Path) -> Path:
     return folder / "grasps"
 
 
-def grasp_file(hand: str | Path, obj: str, style: str = "power") -> Path:
+def grasp_file(hand: str | Path, obj: str, style: str = "power", on_table: bool = False) -> Path:
     """The file of a hand's grasps of an object: ``<object>.json`` for power grasps,
     ``<style>/<object>.json`` for another grasp style (e.g. ``precision``), in
-    :func:`hand_grasps_dir`. ``hand`` is a shipped hand's name or a hand folder."""
-    return _style_dir(hand, style) / f"{obj}.json"
+    :func:`hand_grasps_dir`; grasps of the object resting on a table (``on_table``, made with
+    ``wholehand grasps generate --on-table``) in a subfolder ``on_table/`` of those. ``hand`` is
+    a shipped hand's name or a hand folder."""
+    return _style_dir(hand, style, on_table) / f"{obj}.json"
 
 
-def _style_dir(hand: str | Path, style: str) -> Path:
+def _style_dir(hand: str | Path, style: str, on_table: bool = False) -> Path:
     folder = hand_grasps_dir(hand)
-    return folder if style == "power" else folder / style
+    folder = folder if style == "power" else folder / style
+    return folder / ON_TABLE if on_table else folder
+
+
+ON_TABLE = "on_table"
+"""Subfolder of a style's grasp files that holds its table-top grasps."""
 
 
 def shipped_grasp_files() -> list[Path]:
     """Every shipped grasp file, sorted."""
-    root = grasps_dir()
-    return sorted([*root.glob("*/*.json"), *root.glob("*/*/*.json")])
+    return sorted(grasps_dir().rglob("*.json"))
 
 
 def objects_with_grasps(hand: str | Path, style: str = "power") -> list[str]:
@@ -138,19 +144,20 @@ def _joint_angles(raw: Any, where: str) -> dict[str, float]:
 
 
 def load_grasps(
-    path_or_hand: str | Path, obj: str | None = None, style: str = "power"
+    path_or_hand: str | Path, obj: str | None = None, style: str = "power", on_table: bool = False
 ) -> list[Grasp]:
-    """Grasps from a file path, or the stored ones for ``(hand, object name, style)`` (a
-    shipped hand's name or a hand folder, see :func:`grasp_file`)."""
-    path = Path(path_or_hand) if obj is None else grasp_file(path_or_hand, obj, style)
+    """Grasps from a file path, or the stored ones for ``(hand, object name, style,
+    on_table)`` (a shipped hand's name or a hand folder, see :func:`grasp_file`)."""
+    path = Path(path_or_hand) if obj is None else grasp_file(path_or_hand, obj, style, on_table)
     if not path.is_file():
         if obj is None:
             raise ConfigError(f"no grasp file {path}; check the path")
         stored = sorted(p.stem for p in path.parent.glob("*.json"))
+        kind = f"{style} grasps{' on a table' if on_table else ''}"
         raise ConfigError(
-            f"no grasp file {path}: {style} grasps of this hand exist for {stored or 'no object'}. "
+            f"no grasp file {path}: {kind} of this hand exist for {stored or 'no object'}. "
             f"Generate some with `wholehand grasps generate --hand {path_or_hand} --object {obj}"
-            f"{'' if style == 'power' else f' --type {style}'}`"
+            f"{'' if style == 'power' else f' --type {style}'}{' --on-table' if on_table else ''}`"
         )
     try:
         raw = json.loads(path.read_text())

@@ -32,7 +32,7 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand import defaults, registry
-from wholehand.backends.table import Table
+from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
 from wholehand.grasps.styles import style_arrays
@@ -106,8 +106,6 @@ explicitly applied spring stays stable (``2 w dt`` well below 2 at 1 ms steps)."
 
 GAP = 1.0
 """Pause between successive perturbations [s]."""
-TABLE_MARGIN = 0.01
-"""A plan is usable when its grasp and pre-grasp keep the hand this far above the table [m]."""
 TABLE_SIZE = (1.5, 1.5)
 """Side lengths of the episode's table [m]: wide enough that a dropped object pushed about by
 the hand stays on it."""
@@ -285,14 +283,14 @@ def floating_start(
     """(4, 4) start pose of a floating wrist: ``START_LIFT`` above the plan's pre-grasp, moved
     horizontally by a normal draw of ``START_SPREAD`` per axis, drawn again until the hand at
     the pre-grasp's angles clears the object by ``START_CLEARANCE`` and the table by
-    ``TABLE_MARGIN``; after ``START_DRAWS`` draws, the pre-grasp itself (clear by
+    ``HAND_MARGIN``; after ``START_DRAWS`` draws, the pre-grasp itself (clear by
     construction)."""
     oMw = np.linalg.inv(wMo)
     for _ in range(START_DRAWS):
         wMb = wMo @ plan.oMb_pre
         wMb[:3, 3] += np.array([0.0, 0.0, START_LIFT]) + START_SPREAD * np.r_[rng.normal(size=2), 0]
         clear = hand_clearance(hand, obj, plan.q_pre, oMw @ wMb) >= START_CLEARANCE
-        if clear and lowest_point(hand, plan.q_pre, wMb) >= table.top + TABLE_MARGIN:
+        if clear and lowest_point(hand, plan.q_pre, wMb) >= table.top + HAND_MARGIN:
             return wMb
     return wMo @ plan.oMb_pre
 
@@ -330,7 +328,7 @@ def run_episode(
     wMo[2, 3] += spec.hold_height
 
     def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
-        return usable_on_table(grasp_hand, plan, wMo_now, table, TABLE_MARGIN)
+        return usable_on_table(grasp_hand, plan, wMo_now, table, HAND_MARGIN)
 
     start = plans[int(rng.integers(len(plans)))]
     if hand.arm_dofs.any():  # an arm: from its home posture, fingers at the pre-shape

@@ -560,7 +560,8 @@ def test_pushes_and_twists_spare_an_object_the_hand_has_dropped() -> None:
     spec = EpisodeSpec()
     for held in (True, False):
         backend = Pushes()
-        person = Person(spec, backend, np.eye(4), np.random.default_rng(0), (0.1, 1e-5), "palm")
+        rng = np.random.default_rng(0)
+        person = Person(spec, backend, np.eye(4), rng, (0.1, 1e-5), "palm", 0.03)
         person.state, person.since = "released", 0.0
         stage = REGULATE if held else PREGRASP
         t = 0.0
@@ -570,9 +571,10 @@ def test_pushes_and_twists_spare_an_object_the_hand_has_dropped() -> None:
         assert t < 2 * (GAP + spec.pulse) + 0.1
         notes = [e.what for e in person.events]
         if held:
-            assert notes == ["push 3.0 N for 0.3 s", "twist 0.10 N*m for 0.3 s"]
-            twist = (0.0, pytest.approx(0.1))
-            assert backend.wrenches == [(3.0, 0.0), (0.0, 0.0), twist, (0.0, 0.0)]
+            # One weight of the 0.1 kg object, and that force 3 cm from its centre.
+            assert notes == ["push 0.98 N for 0.3 s", "twist 0.029 N*m for 0.3 s"]
+            push, twist = (pytest.approx(0.981), 0.0), (0.0, pytest.approx(0.02943))
+            assert backend.wrenches == [push, (0.0, 0.0), twist, (0.0, 0.0)]
         else:
             assert notes == [
                 "no push: the hand holds no object",
@@ -602,7 +604,8 @@ def test_a_dropped_object_is_carried_back_at_a_persons_pace() -> None:
     backend = Grips()
     held_at = np.eye(4)
     held_at[:3, 3] = [0.0, 0.0, 1.0]
-    person = Person(EpisodeSpec(), backend, held_at, np.random.default_rng(0), (0.1, 1e-5), "p")
+    rng = np.random.default_rng(0)
+    person = Person(EpisodeSpec(), backend, held_at, rng, (0.1, 1e-5), "p", 0.03)
     person.state, person.since = "twisted", 0.0
     fallen = np.eye(4)
     fallen[:3, 3] = [2.0, 2.0, -5.0]
@@ -619,3 +622,13 @@ def test_a_dropped_object_is_carried_back_at_a_persons_pace() -> None:
     steps = np.linalg.norm(np.diff(targets, axis=0), axis=1)
     assert steps.max() <= PICKUP_SPEED * dt + 1e-9
     assert np.linalg.norm(targets[-1] - fallen[:3, 3]) == pytest.approx(PICKUP_SPEED * 399 * dt)
+
+
+def test_the_self_collision_method_reaches_and_grasps_with_the_fingers_kept_apart() -> None:
+    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.studies.reach import METHODS
+
+    assert METHODS["qp+weight+self"].self_collision and METHODS["qp+weight+self"].balance_weight
+    assert not METHODS["qp+weight"].self_collision
+    summary = run_episode(EpisodeSpec(seed=0, self_collision=True, duration=2.5))
+    assert summary["spec"]["self_collision"] and summary["grasps"] == 1

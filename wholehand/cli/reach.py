@@ -20,8 +20,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object", default="077_rubiks_cube", help="object with stored grasps")
     p.add_argument("--seed", type=int, default=0, help="seeds the perturbations and start pose")
     p.add_argument("--duration", type=float, default=14.0, help="longest episode [s]")
-    p.add_argument("--push", type=float, default=None, help="push while held [N] (default 3)")
-    p.add_argument("--twist", type=float, default=None, help="twist while held [N*m] (0.1)")
+    p.add_argument(
+        "--push", type=float, default=None, help="push while held [object weights] (default 1)"
+    )
+    p.add_argument(
+        "--twist",
+        type=float,
+        default=None,
+        help="twist while held [object weights at its rim: m g times half its largest side] (1)",
+    )
     p.add_argument(
         "--no-balance-weight",
         action="store_true",
@@ -53,9 +60,9 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration {args.duration} must be > 0 [s]")
     extra: dict[str, Any] = {}
     if args.push is not None:
-        extra["push_force"] = args.push
+        extra["push"] = args.push
     if args.twist is not None:
-        extra["twist_torque"] = args.twist
+        extra["twist"] = args.twist
     spec = EpisodeSpec(
         hand=args.hand,
         object=args.object,

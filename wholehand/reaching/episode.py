@@ -6,8 +6,8 @@ spring-damper on the object) holds the object out in the air:
 1. while the hand reaches, the person moves the object by ``displace`` in a seeded horizontal
    direction and turns it about the vertical (the hand must follow);
 2. once the hand has held it for ``release_after``, the person lets go (gravity on);
-3. while held: a push (``push_force`` for ``pulse``) and a twist (``twist_torque``), each
-   left out (and cut short) when the hand holds no object;
+3. while held: a push (``push`` times the object's weight, for ``pulse``) and a twist (that
+   push at the object's rim), each left out (and cut short) when the hand holds no object;
 4. the person snatches the object, pulling it ``snatch`` away from the palm, no lower than it
    was first held, and holds it there; if the hand had already dropped it, the person picks it
    up and holds it out ``snatch`` beside where it was first held;
@@ -80,10 +80,13 @@ class EpisodeSpec:
     """When [s]."""
     release_after: float = 0.5
     """Holding time before the person lets go [s]."""
-    push_force: float = 3.0
-    """Push while held [N]."""
-    twist_torque: float = 0.1
-    """Twist while held [N*m]."""
+    push: float = 1.0
+    """Push while held, in the object's weights [-]: a push of ``push * m * g`` [N], horizontal,
+    so that every object is pushed alike per unit of mass."""
+    twist: float = 1.0
+    """Twist while held, in the object's weights at its rim [-]: ``twist * m * g * r`` [N*m]
+    with r half the object's largest side, about a random axis (a push of the same size
+    applied at the rim, tangentially)."""
     pulse: float = 0.3
     """Duration of the push and the twist [s]."""
     snatch: float = 0.15
@@ -93,6 +96,8 @@ class EpisodeSpec:
     balance_weight: bool = True
     """Force regulation balances the object's known weight (``ForceRegulation(weight=...)``);
     False: the paper's quasi-static balance of no external wrench."""
+    self_collision: bool = False
+    """The reacher keeps the fingers apart (the ``mink`` reacher's ``self_collision``)."""
     gravity_compensation: bool = True
     """The hand's actuators hold their own links against gravity, while reaching and while
     regulating (``ForceRegulation(gravity_compensation=True)``); False: the paper's ``tau = J^T
@@ -149,6 +154,8 @@ class Person(Observer):
     mass_inertia: tuple[float, float]
     """Object mass [kg] and its largest principal moment of inertia [kg*m^2]."""
     palm_link: str
+    rim: float
+    """Half the object's largest side [m] (the twist's lever)."""
     events: list[Event] = field(default_factory=list)
     state: str = "holding"
     since: float = 0.0
@@ -215,10 +222,10 @@ class Person(Observer):
         elif state == "released" and t - self.since >= GAP:
             # Pushes and twists test a grip: an object the hand has dropped is left alone (a
             # 0.1 N*m twist on a dropped Lego brick spun it at 1000 rad/s).
-            force = spec.push_force * self._horizontal()
+            push = spec.push * self.mass_inertia[0] * defaults.GRAVITY
             if holding:
-                self.backend.apply_object_wrench(force, np.zeros(3))
-                self._note(t, f"push {spec.push_force:.1f} N for {spec.pulse} s")
+                self.backend.apply_object_wrench(push * self._horizontal(), np.zeros(3))
+                self._note(t, f"push {push:.2f} N for {spec.pulse} s")
             else:
                 self._note(t, "no push: the hand holds no object")
             self.state, self.since = "pushing" if holding else "pushed", t
@@ -227,10 +234,10 @@ class Person(Observer):
             self.state, self.since = "pushed", t
         elif state == "pushed" and t - self.since >= GAP:
             axis = self.rng.normal(size=3)
-            torque = spec.twist_torque * axis / np.linalg.norm(axis)
+            twist = spec.twist * self.mass_inertia[0] * defaults.GRAVITY * self.rim
             if holding:
-                self.backend.apply_object_wrench(np.zeros(3), torque)
-                self._note(t, f"twist {spec.twist_torque:.2f} N*m for {spec.pulse} s")
+                self.backend.apply_object_wrench(np.zeros(3), twist * axis / np.linalg.norm(axis))
+                self._note(t, f"twist {twist:.3f} N*m for {spec.pulse} s")
             else:
                 self._note(t, "no twist: the hand holds no object")
             self.state, self.since = "twisting" if holding else "twisted", t
@@ -357,7 +364,9 @@ def run_episode(
     warm, first = HandKinematics(hand), backend.observe()
     warm.update(first.q, first.wMb)
     estimator.estimate(warm, wMo)
-    reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
+    # Passed only when asked for, so that a reacher without the option still loads.
+    avoid = {"self_collision": True} if spec.self_collision else {}
+    reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table, **avoid)
     planner = ReachPlanner(plans, usable)
     closing = style_arrays(grasp_hand, grasp_hand.config.grasp_styles["power"])[1]
     weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if spec.balance_weight else None
@@ -385,7 +394,8 @@ def run_episode(
         REGULATE: HoldStage(regulation, GraspLossCheck(hand, obj)),
     }
     inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
-    person = Person(spec, backend, wMo, rng, (obj.mass, inertia), hand.palm_link)
+    rim = 0.5 * float(np.max(obj.extents))
+    person = Person(spec, backend, wMo, rng, (obj.mass, inertia), hand.palm_link, rim)
     timer = _CycleTimes()
     watchers: list[Observer] = [person, timer, *observers]
     recorder = None

@@ -2,7 +2,8 @@
 
 Each job is one ``wholehand reach`` episode (:mod:`wholehand.reaching.episode`) on one of the
 paper's five objects, with the force regulation as in the paper (``qp``: no external wrench
-balanced) or balancing the object's known weight (``qp+weight``). Per method: acquisition
+balanced) or balancing the object's known weight (``qp+weight``), and the latter with the
+reacher keeping the fingers apart (``qp+weight+self``). Per method: acquisition
 success (a first grasp was made), time to grasp, losses per perturbation, regrasp success
 (losses followed by a new grasp) and episodes completed (held at the end).
 """
@@ -21,8 +22,21 @@ from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, derive_seed, group_rows
 
-METHODS = {"qp": False, "qp+weight": True}
-"""Method label -> whether force regulation balances the object's weight."""
+
+@dataclass(frozen=True)
+class Method:
+    balance_weight: bool
+    """Force regulation balances the object's weight."""
+    self_collision: bool = False
+    """The reacher keeps the fingers apart."""
+
+
+METHODS = {
+    "qp": Method(False),
+    "qp+weight": Method(True),
+    "qp+weight+self": Method(True, self_collision=True),
+}
+"""Method label -> how the episode runs."""
 
 
 @dataclass(frozen=True)
@@ -45,6 +59,8 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
     from wholehand.reaching.episode import EpisodeSpec, run_episode
 
     s = job.spec
+    # --methods puts plain allocator names in the label: those run the paper's balance
+    method = METHODS.get(job.labels["method"], METHODS["qp"])
     started = time.perf_counter()
     summary = run_episode(
         EpisodeSpec(
@@ -53,8 +69,8 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
             seed=s.seed,
             rate=s.control_rate,
             allocator=str(s.allocator),
-            # --methods puts plain allocator names here: those run the paper's balance
-            balance_weight=METHODS.get(job.labels["method"], False),
+            balance_weight=method.balance_weight,
+            self_collision=method.self_collision,
         )
     )
     warnings = summary["mujoco_warnings"]

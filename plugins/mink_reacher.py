@@ -31,16 +31,18 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.backends.hand_spec import load_hand_spec, weld_locked_joints
-from wholehand.backends.mujoco_poses import mujoco_quat, pose_from_mujoco
-from wholehand.backends.object_spec import add_object_geoms
-from wholehand.backends.scene_options import SceneOptions
 from wholehand.backends.table import TABLE_GEOM, Table
 from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.reaching.base import Reacher, ReachTargets
+
+from .mujoco.hand_spec import load_hand_spec, weld_locked_joints
+from .mujoco.object_spec import add_object_geoms
+from .mujoco.poses import mujoco_quat, pose_from_mujoco
+from .mujoco.scene import add_table
+from .mujoco.scene_options import SceneOptions
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -92,7 +94,7 @@ def build_reach_model(
     for geom in obj_body.geoms:
         geom.contype, geom.conaffinity = _OBJECT, _HAND
     if table is not None:
-        table.add_to(spec.worldbody.add_body(name="table", mocap=True), _TABLE, _HAND)
+        add_table(spec.worldbody.add_body(name="table", mocap=True), table, _TABLE, _HAND)
     return spec.compile(), hand_geoms, object_geoms, arm_geoms
 
 

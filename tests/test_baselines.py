@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from wholehand_plugins.feedforward import FeedforwardBaseline
 from wholehand_plugins.impedance import STIFFNESS, ImpedanceBaseline
-from wholehand_plugins.mujoco_backend import MujocoBackend
+from wholehand_plugins.mujoco.backend import MujocoBackend
 
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus, Allocator

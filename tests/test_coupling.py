@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 from toy_hand import MIMIC, write_toy_hand
-from wholehand_plugins.mujoco_backend import MujocoBackend
+from wholehand_plugins.mujoco.backend import MujocoBackend
 
 from wholehand.allocation.base import hand_keywords
 from wholehand.errors import ConfigError

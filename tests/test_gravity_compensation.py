@@ -11,7 +11,7 @@ import qpsolvers
 from test_allocation import CASES, antipodal, objective, settings_for
 from toy_hand import write_toy_hand
 from wholehand_plugins.fingertip_only import FingertipOnlyAllocator
-from wholehand_plugins.mujoco_backend import MujocoBackend
+from wholehand_plugins.mujoco.backend import MujocoBackend
 from wholehand_plugins.qp import QPAllocator
 
 from wholehand import registry

@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from toy_hand import KNUCKLE, toy_urdf, write_toy_hand
-from wholehand_plugins.mujoco_backend import MujocoBackend
+from wholehand_plugins.mujoco.backend import MujocoBackend
 
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command

@@ -9,7 +9,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import trimesh
-from wholehand_plugins.mujoco_backend import MujocoBackend
+from wholehand_plugins.mujoco.backend import MujocoBackend
 
 from wholehand.grasps.generate import generate_grasps
 from wholehand.grasps.store import load_grasps

@@ -7,7 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from toy_hand import MIMIC, write_toy_hand
-from wholehand_plugins.mujoco_backend import MujocoBackend
+from wholehand_plugins.mujoco.backend import MujocoBackend
 
 from wholehand.loop.command import Command
 from wholehand.models.coupling import Mimic

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from wholehand import registry
-from wholehand.backends.table import Table, resting_pose
+from wholehand.backends.table import Table
 from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
 from wholehand.grasps.generate import style_arrays
@@ -26,10 +26,14 @@ from wholehand.loop.reach import (
 )
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.models.kinematics import HandKinematics
+from wholehand.models.resting import resting_pose
 from wholehand.reaching.base import Reacher, ReachTargets
 from wholehand.reaching.pregrasp import GraspPlan, lowest_point, nearest_plan, plan_pregrasp
 
 OBJECT = "077_rubiks_cube"
+
+UP = np.array([0.0, 0.0, 1.0])
+"""The object frame's z up: the object rests as its mesh was modelled."""
 
 
 @pytest.fixture(scope="module")
@@ -239,7 +243,7 @@ def test_hold_stage_reports_a_loss_only_when_the_object_left_the_hand(allegro, c
 # --- MuJoCo: table and floating wrist -----------------------------------------------------------
 def test_object_comes_to_rest_on_the_table_and_the_wrist_follows_commands(allegro, cube) -> None:
     table = Table(top=0.1)
-    wMo = resting_pose(cube.mesh.bounds, table, (0.0, 0.0))
+    wMo = resting_pose(cube, UP, 0.0, (0.0, 0.0), table.top)
     wMo[2, 3] += 0.02  # dropped from 2 cm
     wMb = np.eye(4)
     wMb[:3, 3] = [0.3, 0.0, 0.5]
@@ -260,7 +264,7 @@ def test_object_comes_to_rest_on_the_table_and_the_wrist_follows_commands(allegr
     backend.step(0.5)
     obs = backend.observe()
     np.testing.assert_allclose(obs.wMb, moved, atol=1e-9)
-    rest = resting_pose(cube.mesh.bounds, table, (0.0, 0.0))
+    rest = resting_pose(cube, UP, 0.0, (0.0, 0.0), table.top)
     assert abs(obs.wMo[2, 3] - rest[2, 3]) < 2e-3  # on the top face, within the penetration
     with pytest.raises(ConfigError, match="Command.base"):
         Command(np.zeros(allegro.nv), base=np.zeros((4, 4)))
@@ -331,7 +335,7 @@ def test_mesh_distance_is_to_the_hull_so_the_object_collides_as_its_parts(allegr
     import mujoco
     from wholehand_plugins.mink_reacher import build_reach_model
 
-    from wholehand.backends.convex import convex_decomposition
+    from wholehand.models.convex import convex_decomposition
     from wholehand.models.object_catalogue import load_object
 
     cup = load_object("065-f_cups")
@@ -426,7 +430,7 @@ def test_a_floating_wrist_holds_the_hand_up_and_yields_when_pressed_on_an_object
 
     table = Table(top=0.0)
     box = ObjectModel.box((0.06, 0.06, 0.06), mass=0.2)
-    wMo = resting_pose(box.mesh.bounds, table, (0.0, 0.0))
+    wMo = resting_pose(box, UP, 0.0, (0.0, 0.0), table.top)
     wMb = np.eye(4)
     wMb[:3, :3] = [[0, 0, -1], [0, 1, 0], [1, 0, 0]]  # palm (x) facing down
     wMb[:3, 3] = [0.0, 0.0, 0.2]

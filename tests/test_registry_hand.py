@@ -11,7 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from toy_hand import write_toy_hand
-from wholehand_plugins.mujoco_backend import MujocoBackend
+from wholehand_plugins.mujoco.backend import MujocoBackend
 
 from wholehand.errors import ConfigError
 from wholehand.grasps.generate import generate_grasps

@@ -8,10 +8,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-from wholehand_plugins.mujoco_backend import MujocoBackend
+from wholehand_plugins.mujoco.backend import MujocoBackend
+from wholehand_plugins.mujoco.scene_options import HAND_BIT
+from wholehand_plugins.mujoco.step_guard import MAX_SPEED
 
-from wholehand.backends.scene_options import HAND_BIT
-from wholehand.backends.step_guard import MAX_SPEED
 from wholehand.loop.command import Command
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel

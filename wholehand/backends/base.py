@@ -25,7 +25,7 @@ from wholehand.loop.command import Command
 from wholehand.loop.observation import Observation
 
 if TYPE_CHECKING:
-    from wholehand.backends.mujoco_contacts import SimContacts
+    from wholehand.backends.ground_truth import SimContacts
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -94,7 +94,7 @@ class HasGroundTruth(abc.ABC):
     @abc.abstractmethod
     def ground_truth_contacts(self) -> SimContacts:
         """Contacts and forces at the current state, world frame (see
-        :class:`~wholehand.backends.mujoco_contacts.SimContacts`)."""
+        :class:`~wholehand.backends.ground_truth.SimContacts`)."""
 
 
 class Resettable(abc.ABC):

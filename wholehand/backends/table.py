@@ -1,12 +1,11 @@
-"""A table: a static box in the world whose top face is the support plane of the object."""
+"""A table: a static box in the world whose top face is the support plane of the object (the
+MuJoCo plug-in adds it to its scenes, :func:`wholehand_plugins.mujoco.scene.add_table`)."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
-import mujoco
 import numpy as np
 import numpy.typing as npt
 
@@ -59,26 +58,3 @@ class Table:
     def box_centre(self) -> FloatArray:
         """(3,) centre of the box, world frame [m]."""
         return np.array([self.centre[0], self.centre[1], self.top - 0.5 * self.thickness])
-
-    def add_to(self, body: Any, contype: int, conaffinity: int, **geom: Any) -> Any:
-        """Add the table to ``body`` (an ``MjsBody`` at the world origin: the world body or a
-        static child of it) as geom :data:`TABLE_GEOM`; returns the geom."""
-        return body.add_geom(
-            name=TABLE_GEOM,
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            size=self.half_extents.tolist(),
-            pos=self.box_centre.tolist(),
-            contype=contype,
-            conaffinity=conaffinity,
-            friction=[self.friction, 0.005, 0.0001],
-            rgba=[0.55, 0.45, 0.35, 1.0],
-            **geom,
-        )
-
-
-def resting_pose(obj_bounds: FloatArray, table: Table, xy: tuple[float, float]) -> FloatArray:
-    """(4, 4) object pose, world axes, with the lowest point of its mesh on the table top at
-    (x, y) = ``xy`` [m]; ``obj_bounds`` is the mesh's (2, 3) axis-aligned box, object frame."""
-    wMo = np.eye(4)
-    wMo[:3, 3] = [xy[0], xy[1], table.top - float(np.asarray(obj_bounds)[0, 2])]
-    return wMo

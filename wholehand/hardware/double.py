@@ -237,7 +237,7 @@ def run_double(
     Raises:
         ConfigError: no torque command within ``wait_for_controller`` [s], or a bad spec.
     """
-    from wholehand_plugins.mujoco_backend import MujocoBackend
+    from wholehand_plugins.mujoco.backend import MujocoBackend
 
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)

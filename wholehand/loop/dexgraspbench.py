@@ -18,7 +18,7 @@ What differs, and why: DexGraspBench drives the hand with position targets (pre-
 then a squeeze pose past the grasp); here each method's own law holds the stored grasp, after a
 settle of :data:`SETTLE_TIME` in place of their closing motion. The pose is checked every
 control cycle (theirs: every 0.2 s). Their torsional friction is 0.02, ours 0.005
-(:mod:`wholehand.backends.object_spec`); their time step 4 ms, ours 1 ms (the Allegro's light
+(:mod:`wholehand_plugins.mujoco.object_spec`); their time step 4 ms, ours 1 ms (the Allegro's light
 links need it).
 """
 

@@ -79,7 +79,7 @@ class TrialSpec:
     allocator_params: dict[str, Any] = field(default_factory=dict)
     backend_params: dict[str, Any] = field(default_factory=dict)
     """Keyword options of the backend, e.g. ``{"self_collision": False}`` for ``mujoco``
-    (:class:`~wholehand.backends.scene_options.SceneOptions`)."""
+    (:class:`~wholehand_plugins.mujoco.scene_options.SceneOptions`)."""
     protocol_params: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`PerturbationProtocol` fields (e.g. shorter stages for tests)."""
     pose_error: dict[str, Any] = field(default_factory=dict)

@@ -42,7 +42,7 @@ from wholehand.studies.models import model
 from wholehand.studies.rows import record_row
 
 if TYPE_CHECKING:
-    from wholehand.backends.mujoco_contacts import SimContacts
+    from wholehand.backends.ground_truth import SimContacts
 
 METHODS = ("qp", "qp_no_consistency")
 GRASP_TYPES = ("power", "precision")

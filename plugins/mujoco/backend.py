@@ -1,7 +1,7 @@
 """The ``mujoco`` backend: a hand and a free object simulated in MuJoCo.
 
 The scene (its contact model, timestep, friction combination and the MuJoCo/Pinocchio index maps)
-is built by :mod:`wholehand.backends.mujoco_scene`; this module wraps it in the
+is built by :mod:`wholehand_plugins.mujoco.scene`; this module wraps it in the
 :class:`~wholehand.backends.base.Backend` interface. Every array crossing this interface is in
 Pinocchio joint order and world-frame 4x4 poses ``aMb``; MuJoCo's own order never leaks out.
 """
@@ -24,10 +24,17 @@ from wholehand.backends.base import (
     ReportsWarnings,
     Resettable,
 )
-from wholehand.backends.mujoco_contacts import SimContacts, hand_object_contacts, warning_counts
-from wholehand.backends.mujoco_poses import mujoco_quat, pose_from_mujoco
-from wholehand.backends.mujoco_scene import HandObjectScene, build_scene
-from wholehand.backends.scene_options import (
+from wholehand.backends.ground_truth import SimContacts
+from wholehand.backends.table import TABLE_GEOM
+from wholehand.errors import ConfigError
+from wholehand.loop.command import Command
+from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
+from wholehand.models.poses import check_pose
+
+from .contacts import hand_object_contacts, warning_counts
+from .poses import mujoco_quat, pose_from_mujoco
+from .scene import HandObjectScene, build_scene
+from .scene_options import (
     DEFAULT_TIMESTEP,
     HAND_BIT,
     OBJECT_BIT,
@@ -36,12 +43,7 @@ from wholehand.backends.scene_options import (
     WRIST_TARGET,
     SceneOptions,
 )
-from wholehand.backends.step_guard import StepGuard
-from wholehand.backends.table import TABLE_GEOM
-from wholehand.errors import ConfigError
-from wholehand.loop.command import Command
-from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
-from wholehand.models.poses import check_pose
+from .step_guard import StepGuard
 
 if TYPE_CHECKING:
     from wholehand.models.hand import HandModel
@@ -55,7 +57,7 @@ _WARNING_MEANING = {
     "bad_qacc": "the simulation diverged and MuJoCo reset it; lower the timestep or stiffen "
     "the contacts",
     "step_retries": "a step's contact solve failed and was taken again with frictionless "
-    "hand-hand contacts (wholehand.backends.step_guard)",
+    "hand-hand contacts (wholehand_plugins.mujoco.step_guard)",
     "step_retries_failed": "a retried step still ended too fast; the simulation may diverge",
 }
 """What a warning of :meth:`MujocoBackend.warnings` means, for the log."""
@@ -137,7 +139,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         timestep: simulation step [s] (default 1 ms).
         history: joint samples kept for :meth:`Observation.q_at` (one per :meth:`observe`).
         wMb: (4, 4) pose of the hand base in the world; default: the mount pose ``hand.wMb``.
-        **options: further :class:`~wholehand.backends.scene_options.SceneOptions` fields
+        **options: further :class:`~wholehand_plugins.mujoco.scene_options.SceneOptions` fields
             (``cone``, ``impratio``, ``condim``, ``friction``, ``solref``, ``solimp``, ``base``,
             ``self_collision``, ``collision``, ``coacd``, ``iterations``, ``visual_mesh``).
 
@@ -257,7 +259,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
 
     def step(self, duration: float) -> None:
         """Advance the simulation by ``ceil(duration / timestep)`` steps (0 for duration 0).
-        Each step goes through :class:`~wholehand.backends.step_guard.StepGuard`: one whose
+        Each step goes through :class:`~wholehand_plugins.mujoco.step_guard.StepGuard`: one whose
         contact solve failed is taken again (counted in :meth:`warnings`)."""
         if not (math.isfinite(duration) and duration >= 0.0):
             raise ConfigError(f"MujocoBackend.step: duration must be >= 0 [s], got {duration!r}")
@@ -435,7 +437,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
     def warnings(self) -> dict[str, int]:
         """MuJoCo warning counts since the last reset, and the steps whose failed contact solve
         was taken again (``step_retries``, ``step_retries_failed``; see
-        :mod:`wholehand.backends.step_guard`). All zero in a healthy simulation."""
+        :mod:`wholehand_plugins.mujoco.step_guard`). All zero in a healthy simulation."""
         return {
             **warning_counts(self.data),
             "step_retries": self._guard.retries,

@@ -1,8 +1,8 @@
 """A MuJoCo scene of one hand and one free object, built with ``mujoco.MjSpec``.
 
-The hand comes from its URDF or MJCF (:mod:`wholehand.backends.hand_spec`: every Pinocchio link
-has a MuJoCo body of the same name, visual-only geometry is discarded) and is then edited in the
-spec:
+The hand comes from its URDF or MJCF (:mod:`wholehand_plugins.mujoco.hand_spec`: every
+Pinocchio link has a MuJoCo body of the same name, visual-only geometry is discarded) and is then
+edited in the spec:
 
 - its root link (the Pinocchio base ``b``) is welded to the world at ``hand.wMb`` (``base="fixed"``)
   or is a mocap body that can be moved kinematically (``base="mocap"``);
@@ -18,9 +18,9 @@ spec:
 - locked joints of hand.toml are removed and their bodies fixed at the locked value.
 
 The object is a body named ``"object"`` with a free joint whose body frame is the object frame
-(:mod:`wholehand.backends.object_spec`).
+(:mod:`wholehand_plugins.mujoco.object_spec`).
 
-The contact model and the scene options: :mod:`wholehand.backends.scene_options`.
+The contact model and the scene options: :mod:`wholehand_plugins.mujoco.scene_options`.
 
 Indexing: MuJoCo's joint order differs from Pinocchio's, so positions, velocities and controls are
 mapped by joint NAME (:attr:`HandObjectScene.qpos_index` etc.), never by position.
@@ -39,14 +39,18 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand import defaults
-from wholehand.backends.hand_spec import (
+from wholehand.backends.table import TABLE_GEOM, Table
+from wholehand.errors import AssetError, ConfigError
+from wholehand.models.poses import check_pose
+
+from .hand_spec import (
     add_declared_couplings,
     load_hand_spec,
     weld_locked_joints,
 )
-from wholehand.backends.mujoco_poses import set_spec_pose
-from wholehand.backends.object_spec import add_object
-from wholehand.backends.scene_options import (
+from .object_spec import add_object
+from .poses import set_spec_pose
+from .scene_options import (
     CONES,
     HAND_BIT,
     OBJECT_BIT,
@@ -57,8 +61,6 @@ from wholehand.backends.scene_options import (
     WRIST_TARGET,
     SceneOptions,
 )
-from wholehand.errors import AssetError, ConfigError
-from wholehand.models.poses import check_pose
 
 if TYPE_CHECKING:
     from wholehand.models.hand import HandModel
@@ -321,8 +323,9 @@ def build_scene(
     _edit_hand(spec, hand, wMb, opts, mu)
     parts = add_object(spec, obj, wMo, opts, mu)
     if opts.table is not None:
-        opts.table.add_to(
+        add_table(
             spec.worldbody,
+            opts.table,
             TABLE_BIT,
             HAND_BIT | OBJECT_BIT,
             condim=opts.condim,
@@ -365,3 +368,20 @@ def default_object_pose(wMb: FloatArray) -> FloatArray:
     wMo = np.eye(4)
     wMo[:3, 3] = np.asarray(wMb)[:3, 3] + np.array([0.0, 0.0, -0.5])
     return wMo
+
+
+def add_table(body: Any, table: Table, contype: int, conaffinity: int, **geom: Any) -> Any:
+    """Add ``table`` to ``body`` (an ``MjsBody`` at the world origin: the world body or a static
+    child of it) as the box geom :data:`~wholehand.backends.table.TABLE_GEOM`; returns the
+    geom."""
+    return body.add_geom(
+        name=TABLE_GEOM,
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=table.half_extents.tolist(),
+        pos=table.box_centre.tolist(),
+        contype=contype,
+        conaffinity=conaffinity,
+        friction=[table.friction, 0.005, 0.0001],
+        rgba=[0.55, 0.45, 0.35, 1.0],
+        **geom,
+    )

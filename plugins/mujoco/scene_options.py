@@ -1,5 +1,5 @@
 """The MuJoCo scene's options, names and collision bits (for
-:func:`~wholehand.backends.mujoco_scene.build_scene`).
+:func:`~wholehand_plugins.mujoco.scene.build_scene`).
 
 Contact model (stated once, see :class:`SceneOptions`):
 
@@ -12,7 +12,7 @@ Contact model (stated once, see :class:`SceneOptions`):
 - timestep 1 ms and contact ``solref=(0.005, 1)``: a 5 ms time constant, 5 timesteps, stiffer
   than MuJoCo's 20 ms default so that fingertips squeezing with ~10 N penetrate by less than 1 mm.
 
-A step whose contact solve fails is taken again (:mod:`wholehand.backends.step_guard`).
+A step whose contact solve fails is taken again (:mod:`wholehand_plugins.mujoco.step_guard`).
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ class SceneOptions:
     collision: Literal["decomposition", "hull"] = "decomposition"
     """Mesh objects: convex parts of a CoACD decomposition, or one convex hull."""
     coacd: dict[str, Any] = field(default_factory=dict)
-    """CoACD parameters overriding :data:`wholehand.backends.convex.DEFAULT_PARAMS`."""
+    """CoACD parameters overriding :data:`wholehand.models.convex.DEFAULT_PARAMS`."""
     iterations: int = 100
     """Newton solver iterations per step (upper bound)."""
     visual_mesh: bool = False

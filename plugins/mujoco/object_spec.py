@@ -3,7 +3,7 @@
 The body frame is the object frame of :class:`~wholehand.models.objects.ObjectModel` (the
 canonical mesh frame); mass, centre of mass and inertia are set explicitly, never inferred from
 the geoms. Primitives collide as MuJoCo primitives of exact size, meshes as the convex parts of a
-CoACD decomposition (:mod:`wholehand.backends.convex`), because MuJoCo collides a single mesh
+CoACD decomposition (:mod:`wholehand.models.convex`), because MuJoCo collides a single mesh
 geom as its convex hull and fills cavities (``collision="hull"`` keeps that behaviour for
 comparison).
 """
@@ -17,15 +17,16 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.backends.mujoco_poses import set_spec_pose
-from wholehand.backends.scene_options import (
+from wholehand.errors import ConfigError
+
+from .poses import set_spec_pose
+from .scene_options import (
     HAND_BIT,
     OBJECT_BIT,
     OBJECT_BODY,
     OBJECT_JOINT,
     SceneOptions,
 )
-from wholehand.errors import ConfigError
 
 if TYPE_CHECKING:
     from wholehand.models.objects import ObjectModel
@@ -99,7 +100,7 @@ def add_object_geoms(
         hull = obj.mesh.convex_hull
         parts = [(np.asarray(hull.vertices), np.asarray(hull.faces))]
     else:
-        from wholehand.backends.convex import convex_decomposition
+        from wholehand.models.convex import convex_decomposition
 
         parts = convex_decomposition(obj.mesh, name=obj.name, **opts.coacd).parts()
     for i, (vertices, faces) in enumerate(parts):

@@ -12,7 +12,7 @@ clamp. A non-convex object therefore collides as a set of convex parts computed 
 faces and of the CoACD parameters, so a changed mesh or parameter never hits a stale entry. Shipped
 files and cache entries are made by the same function, :func:`convex_decomposition`.
 
-Run ``python -m wholehand.backends.convex 006_mustard_bottle ...`` to (re)make shipped files.
+Run ``python -m wholehand.models.convex 006_mustard_bottle ...`` to (re)make shipped files.
 """
 
 from __future__ import annotations

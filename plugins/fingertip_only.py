@@ -11,9 +11,8 @@ import numpy as np
 import numpy.typing as npt
 from wholehand_plugins.qp import QPAllocator
 
-from wholehand.allocation.base import Allocation
+from wholehand.allocation.base import Allocation, checked_jacobians
 from wholehand.contacts.base import ContactSet
-from wholehand.errors import ConfigError
 from wholehand.models.kinematics import HandKinematics
 
 FloatArray = npt.NDArray[np.float64]
@@ -37,12 +36,7 @@ class FingertipOnlyAllocator(QPAllocator):
         An input set without fingertip contacts gives status ``EMPTY``.
         """
         n = len(contacts)
-        J_world = np.asarray(J_world, dtype=np.float64)
-        if J_world.ndim != 3 or J_world.shape[:2] != (n, 3):
-            raise ConfigError(
-                f"{type(self).__name__}: J_world has shape {J_world.shape}, expected "
-                f"({n}, 3, n_v) for the {n} contacts of the set"
-            )
+        J_world = checked_jacobians(J_world, n, type(self).__name__)
         mask = contacts.fingertip
         extra = {"external_wrench": external_wrench, "tau_bias": tau_bias}
         if mask.all():

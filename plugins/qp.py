@@ -26,7 +26,12 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand import defaults
-from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
+from wholehand.allocation.base import (
+    Allocation,
+    AllocationStatus,
+    Allocator,
+    checked_jacobians,
+)
 from wholehand.allocation.problem import (
     N_EDGES,
     REG,
@@ -235,12 +240,7 @@ class QPAllocator(Allocator):
         """
         owner = type(self).__name__
         n = len(contacts)
-        J_world = np.asarray(J_world, dtype=np.float64)
-        if J_world.ndim != 3 or J_world.shape[:2] != (n, 3):
-            raise ConfigError(
-                f"{owner}: J_world has shape {J_world.shape}, expected ({n}, 3, n_v) for the "
-                f"{n} contacts of the set"
-            )
+        J_world = checked_jacobians(J_world, n, owner)
         n_v = J_world.shape[2]
         self.params.dofs_and_limits(n_v, owner)  # shape errors raise even without contacts
         if n == 0:

@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from wholehand import defaults
 from wholehand.contacts.base import ContactSet
+from wholehand.errors import ConfigError
 
 if TYPE_CHECKING:
     from wholehand.loop.stage import CycleContext
@@ -87,6 +88,18 @@ def is_balanced(residual_wrench: npt.ArrayLike, f_world: npt.ArrayLike) -> bool:
         and np.linalg.norm(w[:3]) <= defaults.BALANCE_TOL_FORCE
         and np.linalg.norm(w[3:]) <= defaults.BALANCE_TOL_TORQUE
     )
+
+
+def checked_jacobians(J_world: npt.ArrayLike, n_contacts: int, owner: str) -> FloatArray:
+    """``J_world`` as a float64 array, checked to be (n_contacts, 3, n_v): the stacked point
+    Jacobians of the contacts, world axes; anything else raises ConfigError naming ``owner``."""
+    J = np.asarray(J_world, dtype=np.float64)
+    if J.ndim != 3 or J.shape[:2] != (n_contacts, 3):
+        raise ConfigError(
+            f"{owner}: J_world has shape {J.shape}, expected ({n_contacts}, 3, n_v) for the "
+            f"{n_contacts} contacts of the set"
+        )
+    return J
 
 
 def hand_keywords(hand: HandModel) -> dict[str, Any]:

@@ -63,6 +63,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand import defaults
+from wholehand.allocation.base import checked_jacobians
 from wholehand.allocation.grasp import contact_frames, wrench_map
 from wholehand.allocation.null_space import ActuationNullSpace
 from wholehand.errors import ConfigError
@@ -356,11 +357,7 @@ def build_allocation_qp(
             the contacts or the number of joints.
     """
     n = len(contacts)
-    J_world = np.asarray(J_world, dtype=np.float64)
-    if J_world.ndim != 3 or J_world.shape[:2] != (n, 3):
-        raise ConfigError(
-            f"{owner}: J_world has shape {J_world.shape}, expected ({n}, 3, n_v) for {n} contacts"
-        )
+    J_world = checked_jacobians(J_world, n, owner)
     p_com_world = np.asarray(p_com_world, dtype=np.float64)
     if p_com_world.shape != (3,):
         raise ConfigError(f"{owner}: p_com_world has shape {p_com_world.shape}, expected (3,)")

@@ -56,6 +56,7 @@ from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
 from wholehand.models.poses import inverse
 from wholehand.models.resting import RestingFace, resting_faces, resting_pose, up_rotation
+from wholehand.reaching.pregrasp import lowest_point
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -82,6 +83,8 @@ MAX_TILT = np.radians(60.0)
 """On a table: largest tilt of the palm normal from straight down [rad]."""
 GENERATOR_TABLE = Table(top=0.0, centre=(0.0, 0.0), size=(0.8, 0.8))
 """The table of table-top generation; the object rests on it at the world origin."""
+TABLE_CLEAR = GENERATOR_TABLE.top + HAND_MARGIN
+"""Lowest height a table-top candidate's hand may reach [m]."""
 
 
 class ClosingStage(Stage):
@@ -243,12 +246,6 @@ class GraspGenerator:
         bMo[:3, 3] = palm.bRp @ np.array([x, y, z])
         return bMo
 
-    def lowest_point(self, q: FloatArray, wMb: FloatArray) -> float:
-        """Lowest world z of the hand's surface samples at ``q`` (n_q,), base at ``wMb`` [m]."""
-        self.kin.update(q, wMb)
-        samples = self.hand.samples
-        return float(self.kin.transform_points(samples.p_joint, samples.joint)[:, 2].min())
-
     def _fingers_touching(self) -> set[str]:
         """Fingers touching the object; the palm and other unassigned links count as ``""``."""
         contacts = self.backend.ground_truth_contacts()
@@ -291,7 +288,10 @@ class GraspGenerator:
             wMo, wMb, face = self.table_candidate(rng)
             b.reset(self.q_pre, wMo, wMb)
             b.set_table_contact(True)
-            if self.lowest_point(self.q_pre, wMb) < GENERATOR_TABLE.top + HAND_MARGIN:
+            if (
+                lowest_point(self.hand, self.q_pre, wMb, self.kin)
+                < GENERATOR_TABLE.top + HAND_MARGIN
+            ):
                 return self._reject("the pre-shape reaches into the table")
         else:
             wMo = self.candidate_pose(rng)
@@ -325,7 +325,10 @@ class GraspGenerator:
         oMb = inverse(state.wMo) @ state.wMb
         if face is not None:
             wMo_rest = resting_pose(self.obj, face.up, 0.0, (0.0, 0.0), GENERATOR_TABLE.top)
-            if self.lowest_point(state.q, wMo_rest @ oMb) < GENERATOR_TABLE.top + HAND_MARGIN:
+            if (
+                lowest_point(self.hand, state.q, wMo_rest @ oMb, self.kin)
+                < GENERATOR_TABLE.top + HAND_MARGIN
+            ):
                 return self._reject(
                     f"the grasp comes within {1e3 * HAND_MARGIN:g} mm of the table top"
                 )

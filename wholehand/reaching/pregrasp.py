@@ -99,9 +99,12 @@ def plan_pregrasp(
     return None
 
 
-def lowest_point(hand: HandModel, q: FloatArray, wMb: FloatArray) -> float:
-    """Lowest world z of the hand's surface samples at ``q``, base at ``wMb`` [m]."""
-    kin = HandKinematics(hand)
+def lowest_point(
+    hand: HandModel, q: FloatArray, wMb: FloatArray, kinematics: HandKinematics | None = None
+) -> float:
+    """Lowest world z of the hand's surface samples at ``q``, base at ``wMb`` [m]; updates
+    ``kinematics`` (of ``hand``) if given, else a new one."""
+    kin = HandKinematics(hand) if kinematics is None else kinematics
     kin.update(q, wMb)
     return float(kin.transform_points(hand.samples.p_joint, hand.samples.joint)[:, 2].min())
 

@@ -636,3 +636,15 @@ def test_the_self_collision_method_reaches_and_grasps_with_the_fingers_kept_apar
     assert not METHODS["qp+weight"].self_collision
     summary = run_episode(EpisodeSpec(seed=0, self_collision=True, duration=2.5))
     assert summary["spec"]["self_collision"] and summary["grasps"] == 1
+
+
+def test_reach_cli_passes_the_episode_options(capsys) -> None:
+    import json
+
+    from wholehand.cli.main import main
+
+    args = ["reach", "--duration", "1.0", "--self-collision", "--push", "0.5", "--json"]
+    assert main(args) == 0
+    spec = json.loads(capsys.readouterr().out)["spec"]
+    assert spec["self_collision"] and spec["push"] == 0.5 and spec["twist"] == 1.0
+    assert spec["balance_weight"] and spec["gravity_compensation"]

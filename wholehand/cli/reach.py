@@ -39,6 +39,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="the paper's tau = J^T f: the fingers do not hold their own links' weight",
     )
+    p.add_argument(
+        "--self-collision",
+        action="store_true",
+        help="the reacher keeps the fingers apart (every pair of fingers' links 2 mm)",
+    )
     p.add_argument("--reacher", default="mink", help="reacher plug-in")
     p.add_argument("--allocator", default="qp", help="allocator plug-in")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -72,6 +77,7 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         allocator=args.allocator,
         balance_weight=not args.no_balance_weight,
         gravity_compensation=not args.no_gravity_compensation,
+        self_collision=args.self_collision,
         **extra,
     )
     recording = bool(args.record or args.record_html)

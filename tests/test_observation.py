@@ -265,3 +265,32 @@ def test_the_compiled_check_agrees_with_check_pose():
         except ObservationError:
             got = False
         assert got == expected, M
+
+
+def test_is_rigid_against_poses_of_known_validity():
+    from wholehand.models.poses import check_pose, is_rigid
+
+    M = _pose(7)
+    assert is_rigid(M) and check_pose(M) is not None
+    near = M.copy()
+    near[:3, :3] *= 1 + 1e-8  # within the 1e-6 orthonormality tolerance
+    assert is_rigid(near)
+    bad = {
+        "scaled": (1 + 1e-5, None, "proper rotation"),
+        "reflected": (None, (slice(0, 3), 0), "proper rotation"),
+        "last row": (None, (3, 1), "last row"),
+        "nan": (None, (1, 3), "NaN"),
+    }
+    for what, (scale, index, message) in bad.items():
+        B = M.copy()
+        if scale is not None:
+            B[:3, :3] *= scale
+        elif what == "reflected":
+            B[index] *= -1.0
+        elif what == "last row":
+            B[index] = 1e-9
+        else:
+            B[index] = np.nan
+        assert not is_rigid(B), what
+        with pytest.raises(ConfigError, match=message):
+            check_pose(B, "wMb")

@@ -20,7 +20,7 @@ import pinocchio as pin
 
 from wholehand.errors import ConfigError, ObservationError
 from wholehand.jit import CACHE
-from wholehand.models.poses import check_pose
+from wholehand.models.poses import check_pose, is_rigid
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -161,37 +161,15 @@ class Observation:
 def _usable(
     q: FloatArray, dq: FloatArray, wMb: FloatArray, wMo: FloatArray
 ) -> bool:  # pragma: no cover - jit
-    """True when q and dq are finite and both (4, 4) poses are finite rigid transforms (the
-    tolerances of :func:`~wholehand.models.poses.check_pose`)."""
+    """True when q and dq are finite and both (4, 4) poses are finite rigid transforms
+    (:func:`~wholehand.models.poses.is_rigid`)."""
     for x in q:
         if not np.isfinite(x):
             return False
     for x in dq:
         if not np.isfinite(x):
             return False
-    for M in (wMb, wMo):
-        for i in range(4):
-            for j in range(4):
-                if not np.isfinite(M[i, j]):
-                    return False
-        for i in range(3):
-            for j in range(3):
-                dot = M[i, 0] * M[j, 0] + M[i, 1] * M[j, 1] + M[i, 2] * M[j, 2]
-                if abs(dot - (1.0 if i == j else 0.0)) > 1e-6:
-                    return False
-        det = (
-            M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
-            - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
-            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0])
-        )
-        if det < 0.0:
-            return False
-        for j in range(3):
-            if abs(M[3, j]) > 1e-12:
-                return False
-        if abs(M[3, 3] - 1.0) > 1e-12:
-            return False
-    return True
+    return is_rigid(wMb) and is_rigid(wMo)
 
 
 def _is_vector(x: object, n: int) -> bool:

@@ -99,7 +99,9 @@ def _cmd_reach(args: argparse.Namespace) -> int:
     cycle: dict[str, list[float]] = {}
     reacher: list[float] = []
     for seed in range(args.seed, args.seed + args.episodes):
-        spec = EpisodeSpec(hand=args.hand, object=args.object, seed=seed)
+        spec = EpisodeSpec(
+            hand=args.hand, object=args.object, seed=seed, self_collision=args.self_collision
+        )
         summary = run_episode(spec, samples=True)
         for kind, values in summary["cycle_samples_us"].items():
             cycle.setdefault(kind, []).extend(values)
@@ -109,6 +111,7 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         "hand": args.hand,
         "object": args.object,
         "episodes": args.episodes,
+        "self_collision": args.self_collision,
         "reacher_step_us": percentiles(reacher),
         "cycle_us": {kind: percentiles(v) for kind, v in cycle.items()},
     }
@@ -236,6 +239,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object", default="077_rubiks_cube")
     p.add_argument("--episodes", type=int, default=3, help="seeded episodes")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
+    p.add_argument(
+        "--self-collision", action="store_true", help="the reacher keeps the fingers apart"
+    )
     p.set_defaults(func=_cmd_reach)
 
     p = bsub.add_parser(

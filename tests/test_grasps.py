@@ -201,3 +201,33 @@ def test_a_power_grasp_without_a_thumb_is_refused_with_the_fix(tmp_path):
     hand = load_hand(folder)
     with pytest.raises(ConfigError, match="this hand names no thumb; set thumb ="):
         GraspGenerator(hand, load_object("sphere:0.03"))
+
+
+def test_any_named_grasp_style_and_its_errors(tmp_path):
+    """[grasping.<name>] may be any style; without fingers it is judged like a power grasp."""
+    from toy_hand import write_toy_hand
+
+    from wholehand.grasps.generate import GraspGenerator
+    from wholehand.models.hand import load_hand
+
+    folder = write_toy_hand(tmp_path / "toy")
+    toml = folder / "hand.toml"
+    base = toml.read_text()
+    top = "\n[grasping.top]\npreshape = { f1_j1 = 0.1 }\nclose_torque = { f1_j1 = 0.1 }\n"
+    toml.write_text(base + top)
+    hand = load_hand(folder)
+    style = hand.config.grasp_styles["top"]
+    assert style.fingers == () and style.preshape == {"f1_j1": 0.1}
+    assert GraspGenerator(hand, load_object("sphere:0.03"), style="top").style is style
+    cases = {
+        "\n[grasping.top]\nreach = 1\n": r"unknown keys \['reach'\]",
+        "\n[grasping.power]\nclose_torque = { f1_j1 = 0.1 }\n": "name of the main style",
+        "\n[grasping.top]\nfingers = ['nope']\n": "must name the thumb",
+    }
+    for extra, message in cases.items():
+        toml.write_text(base + extra)
+        with pytest.raises(ConfigError, match=message):
+            load_hand(folder)
+    toml.write_text(base.replace("[grasping]\n", "[grasping]\nlateral = 1\n", 1))
+    with pytest.raises(ConfigError, match="unknown keys \\['lateral'\\] in \\[grasping\\]"):
+        load_hand(folder)

@@ -30,10 +30,12 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     [grasping]                                  # for the grasp generator: power grasps
     preshape = { j1 = 0.0 }                     # open pose [rad]; others 0, clipped to limits
     close_torque = { j1 = 0.15 }                # closing torque [N*m]; others hold the pre-shape
-    [grasping.precision]                        # optional: fingertip grasps, palm free
+    [grasping.precision]                        # optional, any name: another grasp style
     preshape = { j1 = 0.0 }
     close_torque = { j1 = 0.15 }
     fingers = ["thumb", "index", "middle"]      # keys of [fingers]: exactly these must touch
+                                                # (left out: the thumb and two others, palm free
+                                                # or not, as for power grasps)
     palm_gap = [0.015, 0.035]                   # object-to-palm gap range at placement [m]
 
 An arm with a hand on its flange is a hand.toml with only ``name``, ``[assembly]`` and ``[mount]``
@@ -283,13 +285,17 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         "joints": {"actuated", "locked", "torque_limit", "coupled"},
         "simulation": {"damping", "armature"},
         "mount": {"xyz", "rpy"},
-        "grasping": {"preshape", "close_torque", *_GRASP_SUBSTYLES},
+        "grasping": {"preshape", "close_torque"},
     }
     for table, allowed in sub_keys.items():
         value = raw.get(table, {})
         if not isinstance(value, dict):
             raise ConfigError(f"{path}: [{table}] must be a table, got {value!r}")
-        extra = sorted(set(value) - allowed)
+        # [grasping.<name>] sub-tables are further grasp styles, checked by _grasp_styles.
+        styles = (
+            {k for k, v in value.items() if isinstance(v, dict)} if table == "grasping" else set()
+        )
+        extra = sorted(set(value) - allowed - styles)
         if extra:
             raise ConfigError(
                 f"{path}: unknown keys {extra} in [{table}]; valid keys are {sorted(allowed)}"
@@ -344,10 +350,6 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         mount_xyz=xyz,
         mount_rpy=rpy,
     )
-
-
-_GRASP_SUBSTYLES = ("precision",)
-"""Names of the optional ``[grasping.<name>]`` sub-tables."""
 
 
 def three_numbers(
@@ -411,10 +413,15 @@ def _grasp_styles(
             _joint_numbers(grasping.get("close_torque", {}), "grasping.close_torque", path),
         )
     }
-    for name in _GRASP_SUBSTYLES:
-        if name not in grasping:
+    for name, table in grasping.items():
+        if name in ("preshape", "close_torque"):
             continue
-        table, where = grasping[name], f"grasping.{name}"
+        where = f"grasping.{name}"
+        if name == "power":
+            raise ConfigError(
+                f"{path}: [{where}] is the name of the main style; the power grasp is [grasping] "
+                "itself (its preshape and close_torque), so name this style otherwise"
+            )
         allowed = {"preshape", "close_torque", "fingers", "palm_gap"}
         if not isinstance(table, dict) or set(table) - allowed:
             extra = sorted(set(table) - allowed) if isinstance(table, dict) else table
@@ -423,10 +430,14 @@ def _grasp_styles(
             )
         style_fingers = _str_list(table, "fingers", path, [])
         unknown = [f for f in style_fingers if f not in fingers]
-        if unknown or not style_fingers or (thumb is not None and thumb not in style_fingers):
+        named = "fingers" in table  # left out: judged as a power grasp
+        if unknown or (
+            named and (not style_fingers or (thumb is not None and thumb not in style_fingers))
+        ):
             raise ConfigError(
                 f"{path}: {where}.fingers = {list(style_fingers)} must name the thumb "
-                f"{thumb!r} and other keys of [fingers] {sorted(fingers)}"
+                f"{thumb!r} and other keys of [fingers] {sorted(fingers)} (or be left out: the "
+                "thumb and two other fingers, as for power grasps)"
             )
         gap = table.get("palm_gap", list(POWER_GAP))
         if (

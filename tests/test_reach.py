@@ -648,3 +648,40 @@ def test_reach_cli_passes_the_episode_options(capsys) -> None:
     spec = json.loads(capsys.readouterr().out)["spec"]
     assert spec["self_collision"] and spec["push"] == 0.5 and spec["twist"] == 1.0
     assert spec["balance_weight"] and spec["gravity_compensation"]
+
+
+def test_an_episode_from_the_table_regrasps_the_object_where_it_lies(allegro) -> None:
+    """start="table": the box rests on the table, is slid while the hand reaches, grasped from
+    above, pushed and twisted, pulled out from under the hand along the table and put down;
+    the hand regrasps it there. Neither the hand nor the box goes into the table."""
+    import pinocchio as pin
+
+    from wholehand.models.object_catalogue import load_object
+    from wholehand.reaching.episode import EpisodeSpec, episode_table, run_episode
+
+    spec = EpisodeSpec(seed=0, object="003_cracker_box", start="table")
+    summary = run_episode(spec, record=True)
+    rows = summary.pop("record").rows
+    events = [e["what"] for e in summary["events"]]
+    assert (
+        events[0].startswith("person moves")
+        and events[1] == "person leaves the object on the table"
+    )
+    assert any(
+        e.startswith("person snatches the object") and "along the table" in e for e in events
+    )
+    assert events[-1] == "person leaves the object on the table"
+    assert summary["losses"] == 1 and summary["recovered"] == 1 and summary["complete"]
+    assert summary["loop"]["n_errors"] == 0 and not any(summary["mujoco_warnings"].values())
+    top = episode_table(allegro).top
+    box = np.asarray(load_object("003_cracker_box").mesh.vertices)
+    kin = HandKinematics(allegro)
+    for i in range(0, len(rows["q"]), 10):
+        wMb = np.eye(4)
+        wMb[:3, :3], wMb[:3, 3] = pin.exp3(rows["r_base"][i]), rows["p_base"][i]
+        kin.update(rows["q"][i], wMb)
+        hand = kin.transform_points(allegro.samples.p_joint, allegro.samples.joint)
+        assert hand[:, 2].min() > top  # the grasps come from above
+        R = pin.exp3(rows["r_object"][i])
+        lowest = (box @ R.T + rows["p_object"][i])[:, 2].min()
+        assert top - 1e-3 < lowest < top + 0.01  # on the table throughout, within 1 mm

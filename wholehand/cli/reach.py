@@ -40,6 +40,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="the paper's tau = J^T f: the fingers do not hold their own links' weight",
     )
     p.add_argument(
+        "--start",
+        choices=("held", "table"),
+        default="held",
+        help="the object starts held out by a person (default) or resting on the table (needs "
+        "the hand's table-top grasps: wholehand grasps generate --on-table)",
+    )
+    p.add_argument(
         "--self-collision",
         action="store_true",
         help="the reacher keeps the fingers apart (every pair of fingers' links 2 mm)",
@@ -78,6 +85,7 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         balance_weight=not args.no_balance_weight,
         gravity_compensation=not args.no_gravity_compensation,
         self_collision=args.self_collision,
+        start=args.start,
         **extra,
     )
     recording = bool(args.record or args.record_html)

@@ -47,6 +47,7 @@ from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
+from wholehand.models.resting import resting_pose
 from wholehand.reaching.pregrasp import (
     GraspPlan,
     hand_clearance,
@@ -72,6 +73,9 @@ class EpisodeSpec:
     reacher: str = "mink"
     estimator: str = "mesh_sdf"
     allocator: str = "qp"
+    start: str = "held"
+    """Where the object starts: ``held`` out by the person, or resting on the ``table`` (needs
+    the hand's table-top grasps, ``wholehand grasps generate --on-table``)."""
     hold_height: float = 0.25
     """Height of the object's frame above the table top where the person holds it [m]."""
     displace: float = 0.04
@@ -133,6 +137,10 @@ START_CLEARANCE = defaults.PREGRASP_CLEARANCE
 third did on the mustard bottle, starts the simulation by ejecting it at hundreds of rad/s)."""
 START_DRAWS = 20
 """Draws tried before starting at the pre-grasp itself."""
+SLIDE_TIME = 0.5
+"""On a table: how long the person pushes the object to its new place before leaving it [s]."""
+STARTS = ("held", "table")
+"""Values of :attr:`EpisodeSpec.start`."""
 PERTURBATIONS = ("person moves", "push", "twist", "person snatches")
 """Events that count as perturbations."""
 
@@ -156,6 +164,9 @@ class Person(Observer):
     palm_link: str
     rim: float
     """Half the object's largest side [m] (the twist's lever)."""
+    on_table: bool = False
+    """The object rests on the table: the person slides it and puts it down instead of holding
+    it out (:attr:`EpisodeSpec.start`)."""
     events: list[Event] = field(default_factory=list)
     state: str = "holding"
     since: float = 0.0
@@ -165,7 +176,8 @@ class Person(Observer):
     """A pick-up under way: (object pose at its start, pose to hold it out at, start time)."""
 
     def on_start(self, loop: ControlLoop) -> None:
-        self._grip(self.wMo_hold)
+        if not self.on_table:
+            self._grip(self.wMo_hold)
 
     def _grip(self, wMo: FloatArray, w: float = PERSON_BANDWIDTH) -> None:
         mass, inertia = self.mass_inertia
@@ -200,17 +212,29 @@ class Person(Observer):
         self.held_since = (self.held_since or t) if holding else None
         held_for = t - self.held_since if self.held_since is not None else 0.0
         if state == "holding" and t >= spec.displace_at:
-            target = self.wMo_hold.copy()
+            assert cycle.truth.wMo is not None  # the episode's backend always has the pose
+            target = (cycle.truth.wMo if self.on_table else self.wMo_hold).copy()
             target[:3, 3] += spec.displace * self._horizontal()
             target[:3, :3] = pin.exp3(np.array([0.0, 0.0, np.radians(20.0)])) @ target[:3, :3]
             self._grip(target)
             self._note(t, f"person moves the object by {100 * spec.displace:.0f} cm and 20 deg")
             self.state, self.since = "moved", t
-        elif state == "moved" and held_for >= spec.release_after:
+        elif state == "moved" and self.on_table and t - self.since >= SLIDE_TIME:
+            self.backend.set_object_spring(None)
+            self._note(t, "person leaves the object on the table")
+            self.state, self.since = "resting", t
+        elif state == "resting" and held_for >= spec.release_after:
+            self.state, self.since = "released", t  # held off the table's support: pushes next
+        elif state == "moved" and not self.on_table and held_for >= spec.release_after:
             self.backend.set_object_spring(None)
             self._note(t, "person lets go")
             self.state, self.since = "released", t
-        elif state == "snatched" and held_for >= spec.release_after and self.held_since is not None:
+        elif (
+            state == "snatched"
+            and not self.on_table
+            and held_for >= spec.release_after
+            and self.held_since is not None
+        ):
             if self.held_since > self.since:  # a grasp made after the snatch
                 self.backend.set_object_spring(None)
                 self._note(t, "person lets go")
@@ -244,6 +268,15 @@ class Person(Observer):
         elif state == "twisting" and (t - self.since >= spec.pulse or not holding):
             self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
             self.state, self.since = "twisted", t
+        elif state == "twisted" and t - self.since >= GAP and self.on_table:
+            self._snatch_on_table(cycle)
+        elif state == "snatched" and self.on_table and t - self.since >= SLIDE_TIME:
+            self.backend.set_object_spring(None)
+            self._note(t, "person leaves the object on the table")
+            self.state, self.since = "put down", t
+        elif state == "put down" and held_for >= spec.hold_after:
+            self.done = True
+            return "episode complete"
         elif state == "twisted" and t - self.since >= GAP:
             assert cycle.truth.wMo is not None  # the episode's backend always has the pose
             target = cycle.truth.wMo.copy()
@@ -272,6 +305,26 @@ class Person(Observer):
             self.done = True
             return "episode complete"
         return None
+
+    def _snatch_on_table(self, cycle: Cycle) -> None:
+        """On a table: pull the object along the table, away from the palm, by ``snatch`` plus
+        its largest side (so that it leaves the hand however large it is), and put it down
+        there (:data:`SLIDE_TIME` later); the hand must regrasp it where it lies."""
+        t, spec = cycle.t, self.spec
+        if cycle.stage == REGULATE:
+            assert cycle.truth.wMo is not None
+            target = cycle.truth.wMo.copy()
+            palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
+            away = target[:3, 3] - palm
+            away[2] = 0.0
+            norm = float(np.linalg.norm(away))
+            distance = spec.snatch + 2.0 * self.rim
+            target[:3, 3] += distance * (away / norm if norm > 1e-6 else self._horizontal())
+            self._grip(target, SNATCH_BANDWIDTH)
+            self._note(t, f"person snatches the object {100 * distance:.0f} cm along the table")
+        else:
+            self._note(t, "no snatch: the hand holds no object")
+        self.state, self.since = "snatched", t
 
 
 def episode_table(hand: HandModel) -> Table:
@@ -302,13 +355,19 @@ def floating_start(
     return wMo @ plan.oMb_pre
 
 
-def _plans(hand: HandModel, obj: ObjectModel) -> list[GraspPlan]:
+def _plans(
+    hand: HandModel, obj: ObjectModel, on_table: bool
+) -> tuple[list[GraspPlan], dict[int, FloatArray]]:
+    """The plans of the hand's stored power grasps (table-top ones if ``on_table``), and the
+    resting face (``table_up``, object frame) each table-top grasp was made on, by grasp id."""
     q_open = style_arrays(hand, hand.config.grasp_styles["power"])[0]
-    plans = [plan_pregrasp(hand, obj, g, q_open) for g in load_grasps(hand.name, obj.name, "power")]
+    grasps = load_grasps(hand.name, obj.name, "power", on_table=on_table)
+    plans = [plan_pregrasp(hand, obj, g, q_open) for g in grasps]
     found = [p for p in plans if p is not None]
     if not found:
         raise ConfigError(f"no stored grasp of {obj.name!r} for {hand.name!r} has a pre-grasp")
-    return found
+    faces = {g.id: np.asarray(g.extra["table_up"], dtype=float) for g in grasps if on_table}
+    return found, faces
 
 
 def run_episode(
@@ -323,21 +382,32 @@ def run_episode(
     (``record``, not JSON) if ``record``. ``observers`` see every cycle too (a viewer)."""
     if not (math.isfinite(spec.rate) and spec.rate > 0):
         raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
+    if spec.start not in STARTS:
+        raise ConfigError(f"EpisodeSpec: start must be one of {STARTS}, got {spec.start!r}")
+    for name in ("push", "twist"):
+        value = getattr(spec, name)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ConfigError(f"EpisodeSpec: {name} must be >= 0 [object weights], got {value!r}")
+    on_table = spec.start == "table"
     hand, obj = load_hand(spec.hand), load_object(spec.object)
     # An assembly's grasps, pre-grasps and targets are those of its hand alone.
     grasp_hand = load_hand(hand.config.hand_toml) if hand.config.hand_toml else hand
     rng = np.random.default_rng(spec.seed)
     table = episode_table(hand)
     held_at = table.centre
-    plans = _plans(grasp_hand, obj)
-    wMo = np.eye(4)
-    wMo[:3, 3] = [*held_at, table.top]
-    wMo[2, 3] += spec.hold_height
+    plans, faces = _plans(grasp_hand, obj, on_table)
 
     def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
         return usable_on_table(grasp_hand, plan, wMo_now, table, HAND_MARGIN)
 
     start = plans[int(rng.integers(len(plans)))]
+    if on_table:  # resting on the face the first plan was made on, turned at random
+        yaw = rng.uniform(0.0, 2.0 * np.pi)
+        wMo = resting_pose(obj, faces[start.grasp_id], yaw, held_at, table.top)
+    else:
+        wMo = np.eye(4)
+        wMo[:3, 3] = [*held_at, table.top]
+        wMo[2, 3] += spec.hold_height
     if hand.arm_dofs.any():  # an arm: from its home posture, fingers at the pre-shape
         q0 = np.zeros(hand.nq)
         for name, value in zip(hand.config.arm_joints, hand.config.arm_home, strict=True):
@@ -395,7 +465,7 @@ def run_episode(
     }
     inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
     rim = 0.5 * float(np.max(obj.extents))
-    person = Person(spec, backend, wMo, rng, (obj.mass, inertia), hand.palm_link, rim)
+    person = Person(spec, backend, wMo, rng, (obj.mass, inertia), hand.palm_link, rim, on_table)
     timer = _CycleTimes()
     watchers: list[Observer] = [person, timer, *observers]
     recorder = None

@@ -356,19 +356,15 @@ def floating_start(
     return wMo @ plan.oMb_pre
 
 
-def _plans(
-    hand: HandModel, obj: ObjectModel, on_table: bool
-) -> tuple[list[GraspPlan], dict[int, FloatArray]]:
-    """The plans of the hand's stored power grasps (table-top ones if ``on_table``), and the
-    resting face (``table_up``, object frame) each table-top grasp was made on, by grasp id."""
+def _plans(hand: HandModel, obj: ObjectModel, on_table: bool = False) -> list[GraspPlan]:
+    """The plans of the hand's stored power grasps (its table-top ones if ``on_table``)."""
     q_open = style_arrays(hand, hand.config.grasp_styles["power"])[0]
     grasps = load_grasps(hand.name, obj.name, "power", on_table=on_table)
     plans = [plan_pregrasp(hand, obj, g, q_open) for g in grasps]
     found = [p for p in plans if p is not None]
     if not found:
         raise ConfigError(f"no stored grasp of {obj.name!r} for {hand.name!r} has a pre-grasp")
-    faces = {g.id: np.asarray(g.extra["table_up"], dtype=float) for g in grasps if on_table}
-    return found, faces
+    return found
 
 
 def run_episode(
@@ -396,7 +392,7 @@ def run_episode(
     rng = np.random.default_rng(spec.seed)
     table = episode_table(hand)
     held_at = table.centre
-    plans, faces = _plans(grasp_hand, obj, on_table)
+    plans = _plans(grasp_hand, obj, on_table)
 
     def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
         return usable_on_table(grasp_hand, plan, wMo_now, table, HAND_MARGIN)
@@ -404,7 +400,13 @@ def run_episode(
     start = plans[int(rng.integers(len(plans)))]
     if on_table:  # resting on the face the first plan was made on, turned at random
         yaw = rng.uniform(0.0, 2.0 * np.pi)
-        wMo = resting_pose(obj, faces[start.grasp_id], yaw, held_at, table.top)
+        if start.table_up is None:
+            raise ConfigError(
+                f"grasp {start.grasp_id} of {obj.name!r} for {grasp_hand.name!r} is in the "
+                "table-top folder but has no table_up (its resting face); generate it with "
+                "`wholehand grasps generate --on-table`"
+            )
+        wMo = resting_pose(obj, start.table_up, yaw, held_at, table.top)
     else:
         wMo = np.eye(4)
         wMo[:3, 3] = [*held_at, table.top]

@@ -53,6 +53,9 @@ class GraspPlan:
     """(n_q,) joint angles of the pre-grasp [rad]."""
     retreat: float
     """How far the pre-grasp's base is backed off from the grasp's [m]."""
+    table_up: FloatArray | None = None
+    """(3,) for a table-top grasp, the object-frame direction that was up when it was made
+    (the face the object rested on); None for a grasp made in the air."""
 
 
 def _min_distance(kin: HandKinematics, hand: HandModel, obj: ObjectModel) -> float:
@@ -95,7 +98,9 @@ def plan_pregrasp(
         q = q_grasp + min(1.0, s / OPEN_DISTANCE) * (q_open - q_grasp)
         kin.update(q, oMb)
         if _min_distance(kin, hand, obj) >= clearance:
-            return GraspPlan(grasp.id, grasp.oMb.copy(), q_grasp, oMb, q, float(s))
+            up = grasp.extra.get("table_up")
+            face = None if up is None else np.asarray(up, dtype=float)
+            return GraspPlan(grasp.id, grasp.oMb.copy(), q_grasp, oMb, q, float(s), face)
     return None
 
 

@@ -685,3 +685,23 @@ def test_an_episode_from_the_table_regrasps_the_object_where_it_lies(allegro) ->
         R = pin.exp3(rows["r_object"][i])
         lowest = (box @ R.T + rows["p_object"][i])[:, 2].min()
         assert top - 1e-3 < lowest < top + 0.01  # on the table throughout, within 1 mm
+
+
+def test_a_table_top_grasp_without_its_face_is_named(monkeypatch) -> None:
+    import dataclasses
+
+    import wholehand.reaching.episode as episode
+
+    real = episode.load_grasps
+
+    def faceless(*args: object, **kwargs: object) -> list:
+        return [dataclasses.replace(g, extra={}) for g in real(*args, **kwargs)]
+
+    monkeypatch.setattr(episode, "load_grasps", faceless)
+    spec = episode.EpisodeSpec(object="003_cracker_box", start="table")
+    with pytest.raises(ConfigError, match="has no table_up.*--on-table"):
+        episode.run_episode(spec)
+    with pytest.raises(ConfigError, match="start must be one of"):
+        episode.run_episode(episode.EpisodeSpec(start="floor"))
+    with pytest.raises(ConfigError, match="push must be >= 0"):
+        episode.run_episode(episode.EpisodeSpec(push=-1.0))

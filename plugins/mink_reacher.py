@@ -200,7 +200,10 @@ class MinkReacher(Reacher):
             joint [rad/s]), finger joints [rad/s].
         clearance: least hand-table and hand-object distance [m] (mink's
             ``minimum_distance_from_collisions``).
-        detection: distance below which a pair is constrained [m].
+        detection: distance below which a pair (and a hand sample over the table) is
+            constrained [m]. Within one 5 ms cycle the speed limits move a point a few mm at most
+            (about 6 mm for a hand at the end of a 0.8 m arm turning at 1.5 rad/s), so 2 cm
+            leaves a margin; 4 cm constrained more pairs and made the reacher's tail longer.
         solver: a qpsolvers solver name.
         damping: Levenberg-Marquardt damping of the IK QP.
         self_collision: keep the fingers ``SELF_CLEARANCE`` apart (each pair of fingers' links;
@@ -222,7 +225,7 @@ class MinkReacher(Reacher):
         gain: float = 1.0,
         max_speed: tuple[float, float, float] = (0.3, 1.5, 3.0),
         clearance: float = 0.005,
-        detection: float = 0.04,
+        detection: float = 0.02,
         solver: str = "daqp",
         damping: float = 1e-3,
         self_collision: bool = False,

@@ -549,7 +549,8 @@ def test_pushes_and_twists_spare_an_object_the_hand_has_dropped() -> None:
     # A twist of 0.1 N*m on a dropped Lego brick (a few 1e-5 kg*m^2) spun it at 1000 rad/s.
     from types import SimpleNamespace
 
-    from wholehand.reaching.episode import GAP, EpisodeSpec, Person
+    from wholehand.reaching.episode import EpisodeSpec
+    from wholehand.reaching.person import GAP, Person
 
     class Pushes:
         def __init__(self) -> None:
@@ -592,7 +593,8 @@ def test_a_dropped_object_is_carried_back_at_a_persons_pace() -> None:
     # 300 m/s. The grip's target now starts at the object and moves at PICKUP_SPEED.
     from types import SimpleNamespace
 
-    from wholehand.reaching.episode import GAP, PICKUP_SPEED, EpisodeSpec, Person
+    from wholehand.reaching.episode import EpisodeSpec
+    from wholehand.reaching.person import GAP, PICKUP_SPEED, Person
 
     class Grips:
         def __init__(self) -> None:

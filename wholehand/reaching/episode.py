@@ -24,12 +24,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import pinocchio as pin
 
 from wholehand import defaults, registry
 from wholehand.backends.table import HAND_MARGIN, Table
@@ -48,6 +47,7 @@ from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.models.resting import resting_pose
+from wholehand.reaching.person import PERTURBATIONS, Person, loss_cause
 from wholehand.reaching.pregrasp import (
     GraspPlan,
     hand_clearance,
@@ -109,26 +109,11 @@ class EpisodeSpec:
     f``, the fingers' weight left to the grip."""
 
 
-PERSON_BANDWIDTH = 50.0
-"""Natural frequency of the person's grip on the object [rad/s]: stiffness ``m w^2`` (``I w^2``
-about the axes), critically damped, so that light and heavy objects follow alike and the
-explicitly applied spring stays stable (``2 w dt`` well below 2 at 1 ms steps)."""
-
-GAP = 1.0
-"""Pause between successive perturbations [s]."""
 TABLE_SIZE = (1.5, 1.5)
 """Side lengths of the episode's table [m]: wide enough that a dropped object pushed about by
 the hand stays on it."""
 ARM_REACH_XY = (0.45, 0.0)
 """Where the person holds the object for an arm, in front of the arm's base [m]."""
-SNATCH_BANDWIDTH = 150.0
-"""The snatch's grip [rad/s]: three times stiffer than the holding grip, so it pulls any of the
-paper's objects out of a 0.2 N*m hand (the pull at 15 cm is 0.15 m * m * w^2: 170 N for 50 g);
-``2 w dt`` = 0.3 keeps the explicit spring stable."""
-PICKUP_SPEED = 1.0
-"""How fast the person carries a dropped object to where it is held out [m/s]."""
-SNATCH_GIVE_UP = 2.0
-"""If the hand still holds the object this long after the snatch, the person lets go [s]."""
 START_LIFT = 0.1
 """A floating wrist starts this far above its first pre-grasp [m] ..."""
 START_SPREAD = 0.1
@@ -138,194 +123,8 @@ START_CLEARANCE = defaults.PREGRASP_CLEARANCE
 third did on the mustard bottle, starts the simulation by ejecting it at hundreds of rad/s)."""
 START_DRAWS = 20
 """Draws tried before starting at the pre-grasp itself."""
-SLIDE_TIME = 0.5
-"""On a table: how long the person pushes the object to its new place before leaving it [s]."""
 STARTS = ("held", "table")
 """Values of :attr:`EpisodeSpec.start`."""
-PERTURBATIONS = ("person moves", "push", "twist", "person snatches")
-"""Events that count as perturbations."""
-
-
-@dataclass
-class Event:
-    t: float
-    what: str
-
-
-@dataclass
-class Person(Observer):
-    """Scripts the perturbations of :class:`EpisodeSpec` on a backend that pushes objects."""
-
-    spec: EpisodeSpec
-    backend: Any
-    wMo_hold: FloatArray
-    rng: np.random.Generator
-    mass_inertia: tuple[float, float]
-    """Object mass [kg] and its largest principal moment of inertia [kg*m^2]."""
-    palm_link: str
-    rim: float
-    """Half the object's largest side [m] (the twist's lever)."""
-    on_table: bool = False
-    """The object rests on the table: the person slides it and puts it down instead of holding
-    it out (:attr:`EpisodeSpec.start`)."""
-    events: list[Event] = field(default_factory=list)
-    state: str = "holding"
-    since: float = 0.0
-    held_since: float | None = None
-    done: bool = False
-    _pickup: tuple[FloatArray, FloatArray, float] | None = None
-    """A pick-up under way: (object pose at its start, pose to hold it out at, start time)."""
-
-    def on_start(self, loop: ControlLoop) -> None:
-        if not self.on_table:
-            self._grip(self.wMo_hold)
-
-    def _grip(self, wMo: FloatArray, w: float = PERSON_BANDWIDTH) -> None:
-        mass, inertia = self.mass_inertia
-        stiffness = (mass * w**2, inertia * w**2)
-        damping = (2.0 * mass * w, 2.0 * inertia * w)
-        self.backend.set_object_spring(wMo, stiffness, damping)
-
-    def _note(self, t: float, what: str) -> None:
-        self.events.append(Event(round(t, 4), what))
-
-    def _horizontal(self) -> FloatArray:
-        angle = self.rng.uniform(0.0, 2.0 * np.pi)
-        return np.array([np.cos(angle), np.sin(angle), 0.0])
-
-    def _carry(self, t: float) -> None:
-        """Move the grip's target of a pick-up toward its goal at :data:`PICKUP_SPEED`."""
-        assert self._pickup is not None
-        start, goal, t0 = self._pickup
-        distance = float(np.linalg.norm(goal[:3, 3] - start[:3, 3]))
-        s = min(1.0, (t - t0) * PICKUP_SPEED / max(distance, 1e-9))
-        target = goal.copy()
-        target[:3, 3] = start[:3, 3] + s * (goal[:3, 3] - start[:3, 3])
-        self._grip(target)
-        if s >= 1.0:
-            self._pickup = None
-
-    def on_cycle(self, cycle: Cycle) -> str | None:
-        t, spec, state = cycle.t, self.spec, self.state
-        if self._pickup is not None and state == "snatched":  # until the person lets go
-            self._carry(t)
-        holding = cycle.stage == REGULATE
-        self.held_since = (self.held_since or t) if holding else None
-        held_for = t - self.held_since if self.held_since is not None else 0.0
-        if state == "holding" and t >= spec.displace_at:
-            assert cycle.truth.wMo is not None  # the episode's backend always has the pose
-            target = (cycle.truth.wMo if self.on_table else self.wMo_hold).copy()
-            target[:3, 3] += spec.displace * self._horizontal()
-            target[:3, :3] = pin.exp3(np.array([0.0, 0.0, np.radians(20.0)])) @ target[:3, :3]
-            self._grip(target)
-            self._note(t, f"person moves the object by {100 * spec.displace:.0f} cm and 20 deg")
-            self.state, self.since = "moved", t
-        elif state == "moved" and self.on_table and t - self.since >= SLIDE_TIME:
-            self.backend.set_object_spring(None)
-            self._note(t, "person leaves the object on the table")
-            self.state, self.since = "resting", t
-        elif state == "resting" and held_for >= spec.release_after:
-            self.state, self.since = "released", t  # held off the table's support: pushes next
-        elif state == "moved" and not self.on_table and held_for >= spec.release_after:
-            self.backend.set_object_spring(None)
-            self._note(t, "person lets go")
-            self.state, self.since = "released", t
-        elif (
-            state == "snatched"
-            and not self.on_table
-            and held_for >= spec.release_after
-            and self.held_since is not None
-        ):
-            if self.held_since > self.since:  # a grasp made after the snatch
-                self.backend.set_object_spring(None)
-                self._note(t, "person lets go")
-                self.state, self.since = "regrasped", t
-            elif t - self.since >= SNATCH_GIVE_UP:
-                self.backend.set_object_spring(None)
-                self._note(t, "person lets go: the hand kept the object through the snatch")
-                self.state, self.since = "regrasped", t
-        elif state == "released" and t - self.since >= GAP:
-            # Pushes and twists test a grip: an object the hand has dropped is left alone (a
-            # 0.1 N*m twist on a dropped Lego brick spun it at 1000 rad/s).
-            push = spec.push * self.mass_inertia[0] * defaults.GRAVITY
-            if holding:
-                self.backend.apply_object_wrench(push * self._horizontal(), np.zeros(3))
-                self._note(t, f"push {push:.2f} N for {spec.pulse} s")
-            else:
-                self._note(t, "no push: the hand holds no object")
-            self.state, self.since = "pushing" if holding else "pushed", t
-        elif state == "pushing" and (t - self.since >= spec.pulse or not holding):
-            self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
-            self.state, self.since = "pushed", t
-        elif state == "pushed" and t - self.since >= GAP:
-            axis = self.rng.normal(size=3)
-            twist = spec.twist * self.mass_inertia[0] * defaults.GRAVITY * self.rim
-            if holding:
-                self.backend.apply_object_wrench(np.zeros(3), twist * axis / np.linalg.norm(axis))
-                self._note(t, f"twist {twist:.3f} N*m for {spec.pulse} s")
-            else:
-                self._note(t, "no twist: the hand holds no object")
-            self.state, self.since = "twisting" if holding else "twisted", t
-        elif state == "twisting" and (t - self.since >= spec.pulse or not holding):
-            self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
-            self.state, self.since = "twisted", t
-        elif state == "twisted" and t - self.since >= GAP and self.on_table:
-            self._snatch_on_table(cycle)
-        elif state == "snatched" and self.on_table and t - self.since >= SLIDE_TIME:
-            self.backend.set_object_spring(None)
-            self._note(t, "person leaves the object on the table")
-            self.state, self.since = "put down", t
-        elif state == "put down" and held_for >= spec.hold_after:
-            self.done = True
-            return "episode complete"
-        elif state == "twisted" and t - self.since >= GAP:
-            assert cycle.truth.wMo is not None  # the episode's backend always has the pose
-            target = cycle.truth.wMo.copy()
-            if cycle.stage == REGULATE:  # pulled out of the hand, away from the palm (a pull
-                # into the palm would be held by the wrist, not the grip), not downward
-                palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
-                away = target[:3, 3] - palm
-                away[2] = max(away[2], 0.0)
-                norm = float(np.linalg.norm(away))
-                target[:3, 3] += spec.snatch * (away / norm if norm > 1e-6 else self._horizontal())
-                target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
-                self._grip(target, SNATCH_BANDWIDTH)
-            else:  # dropped earlier: picked up and held out beside where it was first held,
-                # the grip's target carried there at PICKUP_SPEED (a spring stretched to an
-                # object flung off the table yanked it to 300 m/s)
-                goal = target.copy()
-                goal[:3, 3] = self.wMo_hold[:3, 3] + spec.snatch * self._horizontal()
-                self._pickup = (target, goal, t)
-                self._carry(t)
-            if cycle.stage == REGULATE:
-                self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
-            else:
-                self._note(t, "person picks the dropped object up and holds it out")
-            self.state, self.since = "snatched", t
-        elif state == "regrasped" and held_for >= spec.hold_after:
-            self.done = True
-            return "episode complete"
-        return None
-
-    def _snatch_on_table(self, cycle: Cycle) -> None:
-        """On a table: pull the object along the table, away from the palm, by ``snatch`` plus
-        its largest side (so that it leaves the hand however large it is), and put it down
-        there (:data:`SLIDE_TIME` later); the hand must regrasp it where it lies."""
-        t, spec = cycle.t, self.spec
-        if cycle.stage == REGULATE:
-            assert cycle.truth.wMo is not None
-            target = cycle.truth.wMo.copy()
-            palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
-            away = target[:3, 3] - palm
-            away[2] = 0.0
-            norm = float(np.linalg.norm(away))
-            distance = spec.snatch + 2.0 * self.rim
-            target[:3, 3] += distance * (away / norm if norm > 1e-6 else self._horizontal())
-            self._grip(target, SNATCH_BANDWIDTH)
-            self._note(t, f"person snatches the object {100 * distance:.0f} cm along the table")
-        else:
-            self._note(t, "no snatch: the hand holds no object")
-        self.state, self.since = "snatched", t
 
 
 def episode_table(hand: HandModel) -> Table:
@@ -486,7 +285,7 @@ def run_episode(
     grasps = [t for t in report.transitions if t.target == REGULATE]
     recovered = sum(any(g.t > loss.t for g in grasps) for loss in losses)
     reacher_us = [1e6 * t for stage in reaching for t in stage.reacher_times]
-    causes = [_cause(person.events, loss.t) for loss in losses]
+    causes = [loss_cause(person.events, loss.t) for loss in losses]
     summary: dict[str, Any] = {
         "spec": asdict(spec),
         "complete": person.done,
@@ -511,26 +310,6 @@ def run_episode(
     if recorder is not None:
         summary["record"] = recorder.record
     return summary
-
-
-CAUSES = {
-    "person lets go": "gravity",
-    "push": "push",
-    "twist": "twist",
-    "person snatches": "snatch",
-    "person moves": "move",
-    "person picks": "pickup",
-}
-"""Event text prefix -> the cause a loss after it is put down to."""
-
-
-def _cause(events: list[Event], t: float) -> str:
-    """The kind of the latest event before ``t`` [s] ("none" if there was none)."""
-    before = [e for e in events if e.t <= t]
-    if not before:
-        return "none"
-    what = before[-1].what
-    return next((cause for prefix, cause in CAUSES.items() if what.startswith(prefix)), "other")
 
 
 class _CycleTimes(Observer):

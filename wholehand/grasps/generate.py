@@ -288,10 +288,7 @@ class GraspGenerator:
             wMo, wMb, face = self.table_candidate(rng)
             b.reset(self.q_pre, wMo, wMb)
             b.set_table_contact(True)
-            if (
-                lowest_point(self.hand, self.q_pre, wMb, self.kin)
-                < GENERATOR_TABLE.top + HAND_MARGIN
-            ):
+            if lowest_point(self.hand, self.q_pre, wMb, self.kin) < TABLE_CLEAR:
                 return self._reject("the pre-shape reaches into the table")
         else:
             wMo = self.candidate_pose(rng)
@@ -325,10 +322,7 @@ class GraspGenerator:
         oMb = inverse(state.wMo) @ state.wMb
         if face is not None:
             wMo_rest = resting_pose(self.obj, face.up, 0.0, (0.0, 0.0), GENERATOR_TABLE.top)
-            if (
-                lowest_point(self.hand, state.q, wMo_rest @ oMb, self.kin)
-                < GENERATOR_TABLE.top + HAND_MARGIN
-            ):
+            if lowest_point(self.hand, state.q, wMo_rest @ oMb, self.kin) < TABLE_CLEAR:
                 return self._reject(
                     f"the grasp comes within {1e3 * HAND_MARGIN:g} mm of the table top"
                 )

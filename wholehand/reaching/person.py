@@ -178,11 +178,7 @@ class Person(Observer):
             target = cycle.truth.wMo.copy()
             if cycle.stage == REGULATE:  # pulled out of the hand, away from the palm (a pull
                 # into the palm would be held by the wrist, not the grip), not downward
-                palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
-                away = target[:3, 3] - palm
-                away[2] = max(away[2], 0.0)
-                norm = float(np.linalg.norm(away))
-                target[:3, 3] += spec.snatch * (away / norm if norm > 1e-6 else self._horizontal())
+                target[:3, 3] += spec.snatch * self._away_from_palm(cycle, target, upward=True)
                 target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
                 self._grip(target, SNATCH_BANDWIDTH)
             else:  # dropped earlier: picked up and held out beside where it was first held,
@@ -202,6 +198,16 @@ class Person(Observer):
             return "episode complete"
         return None
 
+    def _away_from_palm(self, cycle: Cycle, wMo: FloatArray, upward: bool) -> FloatArray:
+        """(3,) unit direction of a snatch: from the palm to the object at ``wMo``, never
+        downward (``upward``: its upward part kept) or horizontal (else); a random horizontal
+        one when the object sits on the palm's centre."""
+        palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
+        away = wMo[:3, 3] - palm
+        away[2] = max(away[2], 0.0) if upward else 0.0
+        norm = float(np.linalg.norm(away))
+        return away / norm if norm > 1e-6 else self._horizontal()
+
     def _snatch_on_table(self, cycle: Cycle) -> None:
         """On a table: pull the object along the table, away from the palm, by ``snatch`` plus
         its largest side (so that it leaves the hand however large it is), and put it down
@@ -210,12 +216,8 @@ class Person(Observer):
         if cycle.stage == REGULATE:
             assert cycle.truth.wMo is not None
             target = cycle.truth.wMo.copy()
-            palm = cycle.context.kinematics.frame_pose(self.palm_link)[:3, 3]
-            away = target[:3, 3] - palm
-            away[2] = 0.0
-            norm = float(np.linalg.norm(away))
             distance = spec.snatch + 2.0 * self.rim
-            target[:3, 3] += distance * (away / norm if norm > 1e-6 else self._horizontal())
+            target[:3, 3] += distance * self._away_from_palm(cycle, target, upward=False)
             self._grip(target, SNATCH_BANDWIDTH)
             self._note(t, f"person snatches the object {100 * distance:.0f} cm along the table")
         else:

@@ -1,4 +1,5 @@
-"""Whether the compiled kernels can keep numba's machine-code cache.
+"""Shared pieces of the compiled kernels: whether numba can keep its machine-code cache, and a
+fused multiply-add.
 
 Kernels are compiled with ``cache=CACHE``. Numba writes its cache to ``$NUMBA_CACHE_DIR``, else
 to ``__pycache__`` beside the module, else to the user's cache folder; where none is writable
@@ -10,8 +11,12 @@ fix.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from typing import Any, cast
 
 import numba
+from numba import types
+from numba.extending import intrinsic
 
 log = logging.getLogger(__name__)
 
@@ -36,3 +41,16 @@ def cache_writable() -> bool:
 
 CACHE: bool = cache_writable()
 """``cache=`` of every ``numba.njit`` in wholehand."""
+
+
+def _fma_typing(typingctx: Any, a: Any, b: Any, c: Any) -> Any:  # pragma: no cover - jit
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        return builder.fma(*args)
+
+    return sig, codegen
+
+
+fma = cast(Callable[[float, float, float], float], intrinsic(_fma_typing))
+"""``a * b + c`` rounded once (LLVM's ``llvm.fma.f64``), for float64 arguments; jit code only."""

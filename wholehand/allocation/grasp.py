@@ -25,6 +25,8 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.allocation import kernels
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -39,22 +41,7 @@ def contact_frames(n_world: FloatArray) -> FloatArray:
         (into the object), columns 1 and 2 the tangents ``t_1``, ``t_2``; right-handed,
         so ``f_world = wRc @ [f_n, f_t1, f_t2]``.
     """
-    e = -np.asarray(n_world, dtype=np.float64)
-    x, y, z = e[:, 0], e[:, 1], e[:, 2]
-    sign = np.where(z >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    R = np.empty((e.shape[0], 3, 3))
-    R[:, :, 0] = e
-    # t_1
-    R[:, 0, 1] = 1.0 + sign * x * x * a
-    R[:, 1, 1] = sign * b
-    R[:, 2, 1] = -sign * x
-    # t_2 = e_n x t_1
-    R[:, 0, 2] = b
-    R[:, 1, 2] = sign + y * y * a
-    R[:, 2, 2] = -y
-    return R
+    return cast(FloatArray, kernels.contact_frames(np.ascontiguousarray(n_world, dtype=np.float64)))
 
 
 def skew(v: FloatArray) -> FloatArray:
@@ -101,15 +88,8 @@ def wrench_map(r_world: FloatArray, V: FloatArray) -> FloatArray:
         (6, kN) matrix mapping the stacked coefficients ``[a_0 (k); ...; a_{N-1} (k)]`` of
         ``f_world_i = V_i a_i`` to ``[sum f; sum r x f]`` [N; N*m].
     """
-    n, _, k = V.shape
-    M = np.empty((6, n, k))
-    Vt = V.transpose(1, 0, 2)  # (3, N, k)
-    M[0:3] = Vt
-    rx, ry, rz = r_world[:, 0, None], r_world[:, 1, None], r_world[:, 2, None]
-    M[3] = ry * Vt[2] - rz * Vt[1]
-    M[4] = rz * Vt[0] - rx * Vt[2]
-    M[5] = rx * Vt[1] - ry * Vt[0]
-    return M.reshape(6, k * n)
+    r = np.ascontiguousarray(r_world, dtype=np.float64)
+    return cast(FloatArray, kernels.wrench_map(r, np.ascontiguousarray(V, dtype=np.float64)))
 
 
 def grasp_matrix(

@@ -64,7 +64,8 @@ import numpy.typing as npt
 
 from wholehand import defaults
 from wholehand.allocation.base import checked_jacobians
-from wholehand.allocation.grasp import contact_frames, wrench_map
+from wholehand.allocation.grasp import wrench_map
+from wholehand.allocation.kernels import edge_forces, structured_terms
 from wholehand.allocation.null_space import ActuationNullSpace
 from wholehand.errors import ConfigError
 
@@ -268,13 +269,14 @@ class AllocationQP:
 
     def f_world(self, lam: FloatArray) -> FloatArray:
         """(N, 3) world-axis forces of the hand on the object [N] from (4N,) edge weights."""
-        return cast(FloatArray, np.einsum("nij,nj->ni", self.W, lam.reshape(-1, N_EDGES)))
+        forces = edge_forces(self.W, np.ascontiguousarray(lam), np.arange(self.n_contacts))
+        return cast(FloatArray, forces)
 
     def f_act(self, lam: FloatArray) -> FloatArray:
         """(3 N_act,) stacked world-axis forces of the actuated contacts [N]."""
-        W = self.W[self.act_idx]
-        forces = np.einsum("nij,nj->ni", W, lam.reshape(-1, N_EDGES)[self.act_idx])
-        return cast(FloatArray, forces.ravel())
+        return cast(
+            FloatArray, edge_forces(self.W, np.ascontiguousarray(lam), self.act_idx).ravel()
+        )
 
     def tau(self, lam: FloatArray) -> FloatArray:
         """(n_v,) joint torques ``J_act^T f_act`` [N*m]; zero on joints not commanded."""
@@ -363,27 +365,19 @@ def build_allocation_qp(
         raise ConfigError(f"{owner}: p_com_world has shape {p_com_world.shape}, expected (3,)")
     n_v = J_world.shape[2]
     dofs, tau_max = params.dofs_and_limits(n_v, owner)
-    wRc = contact_frames(contacts.n_world)
-    E = friction_edges(params.mu)
-    r_world = contacts.p_world - p_com_world
-    W = wRc @ E  # (N, 3, 4) pyramid edges in world axes
-    G_lam = wrench_map(r_world, W)
-
-    act = contacts.actuated
-    act_idx = np.flatnonzero(act)
-    Ja3 = J_world[act_idx]
-    if dofs.size != n_v:
-        Ja3 = Ja3[:, :, dofs]
-    J_act = Ja3.reshape(-1, dofs.size)
-    # tau = sum_i J_i^T W_i lambda_i: (N_act, n_a, 4) blocks, laid out as (n_a, 4N) rows.
-    JW = np.matmul(Ja3.transpose(0, 2, 1), W[act_idx]).transpose(1, 0, 2)
-    if act_idx.size == n:
-        T = JW.reshape(dofs.size, -1)
-    else:
-        T = np.zeros((dofs.size, n, N_EDGES))
-        T[:, act_idx, :] = JW
-        T = T.reshape(dofs.size, -1)
-    nonzero = np.any(J_act != 0.0, axis=0)
+    act_idx = np.flatnonzero(contacts.actuated)
+    wRc, r_world, W, G_lam, T, nonzero = structured_terms(
+        np.ascontiguousarray(contacts.n_world, dtype=np.float64),
+        np.ascontiguousarray(contacts.p_world, dtype=np.float64),
+        p_com_world,
+        friction_edges(params.mu),
+        np.ascontiguousarray(J_world),
+        act_idx,
+        dofs,
+    )
+    J_act = (J_world[act_idx] if dofs.size == n_v else J_world[act_idx][:, :, dofs]).reshape(
+        -1, dofs.size
+    )
     moved = nonzero & np.isfinite(tau_max)
     if moved.all():
         torque_rows = np.arange(dofs.size, dtype=np.intp)

@@ -9,16 +9,21 @@ from __future__ import annotations
 
 from typing import cast
 
+import numba
 import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand.errors import ConfigError
+from wholehand.jit import CACHE, fma
 from wholehand.models.hand import HandModel
 from wholehand.models.poses import check_pose
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
+
+
+_IDENTITY = np.eye(4)
 
 
 class HandKinematics:
@@ -74,10 +79,8 @@ class HandKinematics:
         Args:
             fMw: (4, 4) pose of the world in frame f (e.g. ``oMw`` for the object frame).
         """
-        fMb = fMw @ self.wMb
-        R = np.einsum("ab,jbc->jac", fMb[:3, :3], self.bRj)
-        t = self.bp_j @ fMb[:3, :3].T + fMb[:3, 3]
-        return R, t
+        fMw = np.ascontiguousarray(fMw, dtype=np.float64)
+        return cast(tuple[FloatArray, FloatArray], _joint_poses(fMw, self.wMb, self.bRj, self.bp_j))
 
     def transform_points(
         self, p_joint: FloatArray, joint: IntArray, fMw: FloatArray | None = None
@@ -89,8 +92,10 @@ class HandKinematics:
             joint: (P,) joint index of each point.
             fMw: (4, 4) pose of the world in the target frame.
         """
-        R, t = self.joint_poses_in(np.eye(4) if fMw is None else fMw)
-        return cast(FloatArray, np.einsum("pab,pb->pa", R[joint], p_joint) + t[joint])
+        fMw = _IDENTITY if fMw is None else np.ascontiguousarray(fMw, dtype=np.float64)
+        R, t = _joint_poses(fMw, self.wMb, self.bRj, self.bp_j)
+        p_joint = np.ascontiguousarray(p_joint, dtype=np.float64)
+        return cast(FloatArray, _transform(R, t, p_joint, np.asarray(joint, dtype=np.intp)))
 
     def frame_pose(self, link: str) -> FloatArray:
         """(4, 4) world pose of a URDF link frame."""
@@ -112,18 +117,11 @@ class HandKinematics:
         if not self._jacobians_fresh:
             pin.computeJointJacobians(self.model, self.data, self.q)
             self._jacobians_fresh = True
-        J = self.data.J  # (6, n_v) spatial Jacobian in the base frame (Pinocchio WORLD)
-        wRb = self.wMb[:3, :3]
-        p = (p_world - self.wMb[:3, 3]) @ wRb  # points in the base frame
-        px, py, pz = p[:, 0:1], p[:, 1:2], p[:, 2:3]
-        wx, wy, wz = J[3], J[4], J[5]
-        # v_p = v_0 + omega x p in the base frame, restricted to the joints that move the point.
-        v = np.empty((p.shape[0], 3, J.shape[1]))
-        v[:, 0] = J[0] + wy * pz - wz * py
-        v[:, 1] = J[1] + wz * px - wx * pz
-        v[:, 2] = J[2] + wx * py - wy * px
-        v *= self._support[joint][:, None, :]
-        return cast(FloatArray, np.einsum("ab,nbk->nak", wRb, v))
+        p_world = np.ascontiguousarray(p_world, dtype=np.float64)
+        joint = np.asarray(joint, dtype=np.intp)
+        return cast(
+            FloatArray, _point_jacobians(self.data.J, self.wMb, p_world, joint, self._support)
+        )
 
     def actuation_jacobians(self, joint: IntArray, p_world: FloatArray) -> FloatArray:
         """Point Jacobians in the coordinates allocators work in (see
@@ -136,3 +134,85 @@ class HandKinematics:
         """
         J = self.point_jacobians(joint, p_world)
         return J @ self.hand.coupling if self.hand.coupled else J
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def _point_jacobians(
+    J: FloatArray, wMb: FloatArray, p_world: FloatArray, joint: IntArray, support: FloatArray
+) -> FloatArray:  # pragma: no cover - jit
+    """(N, 3, n_v) world-axis Jacobians of points ``p_world`` (N, 3) [m] on joints ``joint``:
+    ``v_p = v_0 + omega x p`` from the (6, n_v) spatial Jacobian ``J`` in the base frame, masked
+    by ``support[joint]`` (the joints that move each point) and rotated to the world by ``wMb``.
+
+    Rounded as the numpy form it replaced: the base-frame point as a BLAS product (a fused
+    multiply-add chain from zero, :func:`wholehand.jit.fma`), the rotation as ``einsum`` sums:
+    from zero, in index order.
+    """
+    n, n_v = p_world.shape[0], J.shape[1]
+    out = np.empty((n, 3, n_v))
+    v = np.empty((3, n_v))
+    for i in range(n):
+        d0 = p_world[i, 0] - wMb[0, 3]
+        d1 = p_world[i, 1] - wMb[1, 3]
+        d2 = p_world[i, 2] - wMb[2, 3]
+        # p = (p_world - t) @ wRb: the point in the base frame.
+        px = fma(d2, wMb[2, 0], fma(d1, wMb[1, 0], fma(d0, wMb[0, 0], 0.0)))
+        py = fma(d2, wMb[2, 1], fma(d1, wMb[1, 1], fma(d0, wMb[0, 1], 0.0)))
+        pz = fma(d2, wMb[2, 2], fma(d1, wMb[1, 2], fma(d0, wMb[0, 2], 0.0)))
+        row = support[joint[i]]
+        for k in range(n_v):
+            s = row[k]
+            v[0, k] = (J[0, k] + J[4, k] * pz - J[5, k] * py) * s
+            v[1, k] = (J[1, k] + J[5, k] * px - J[3, k] * pz) * s
+            v[2, k] = (J[2, k] + J[3, k] * py - J[4, k] * px) * s
+        for a in range(3):
+            r0, r1, r2 = wMb[a, 0], wMb[a, 1], wMb[a, 2]
+            for k in range(n_v):
+                out[i, a, k] = 0.0 + r0 * v[0, k] + r1 * v[1, k] + r2 * v[2, k]
+    return out
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def _joint_poses(
+    fMw: FloatArray, wMb: FloatArray, bRj: FloatArray, bp_j: FloatArray
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - jit
+    """Rotations (J, 3, 3) and positions (J, 3) [m] of the joint frames ``bRj``, ``bp_j`` (base
+    frame) in frame f: ``fMb = fMw wMb``, then ``fRj = fRb bRj``, ``fp_j = fRb bp_j + fp_b``.
+
+    Rounded as the numpy form it replaced: ``fMb`` and ``fRb bp_j`` as BLAS products (fused
+    multiply-add chains from zero), ``fRb bRj`` as ``einsum`` sums them (from zero, in order).
+    """
+    fMb = np.empty((4, 4))
+    for a in range(4):
+        for c in range(4):
+            s = 0.0
+            for b in range(4):
+                s = fma(fMw[a, b], wMb[b, c], s)
+            fMb[a, c] = s
+    n = bRj.shape[0]
+    R = np.empty((n, 3, 3))
+    t = np.empty((n, 3))
+    for j in range(n):
+        for a in range(3):
+            r0, r1, r2 = fMb[a, 0], fMb[a, 1], fMb[a, 2]
+            for c in range(3):
+                R[j, a, c] = 0.0 + r0 * bRj[j, 0, c] + r1 * bRj[j, 1, c] + r2 * bRj[j, 2, c]
+            s = fma(bp_j[j, 0], r0, 0.0)
+            s = fma(bp_j[j, 1], r1, s)
+            t[j, a] = fma(bp_j[j, 2], r2, s) + fMb[a, 3]
+    return R, t
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def _transform(
+    R: FloatArray, t: FloatArray, p_joint: FloatArray, joint: IntArray
+) -> FloatArray:  # pragma: no cover - jit
+    """(P, 3) points ``R[joint] p_joint + t[joint]``; the three products summed as numpy's
+    ``einsum`` sums them here (two lanes: ``(x0 + x2) + x1``)."""
+    out = np.empty((p_joint.shape[0], 3))
+    for i in range(p_joint.shape[0]):
+        j = joint[i]
+        x, y, z = p_joint[i, 0], p_joint[i, 1], p_joint[i, 2]
+        for a in range(3):
+            out[i, a] = (R[j, a, 0] * x + R[j, a, 2] * z) + R[j, a, 1] * y + t[j, a]
+    return out

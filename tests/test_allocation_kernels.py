@@ -1,0 +1,61 @@
+"""The compiled build of the allocation QP against its definitions in plain numpy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wholehand.allocation.kernels import edge_forces, structured_terms
+from wholehand.allocation.problem import friction_edges
+
+
+def _case(seed: int, n: int, n_v: int = 16):
+    rng = np.random.default_rng(seed)
+    n_world = rng.normal(size=(n, 3))
+    n_world /= np.linalg.norm(n_world, axis=1, keepdims=True)
+    n_world[0] = (0.0, 0.0, -1.0)  # the frame construction's seam
+    p_world = rng.normal(size=(n, 3)) * 0.05
+    J = rng.normal(size=(n, 3, n_v)) * 0.1
+    J[:, :, 3] = 0.0  # a joint no contact moves
+    return n_world, p_world, rng.normal(size=3) * 0.05, J
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_terms_match_their_numpy_definitions(seed: int) -> None:
+    n = 9
+    n_world, p_world, p_com, J = _case(seed, n)
+    E = friction_edges(0.7)
+    act_idx = np.array([0, 2, 3, 7], dtype=np.intp)
+    dofs = np.array([1, 3, 4, 9, 15], dtype=np.intp)
+    wRc, r, W, G, T, moved = structured_terms(n_world, p_world, p_com, E, J, act_idx, dofs)
+
+    # Frames: orthonormal, right-handed, first column into the object.
+    np.testing.assert_allclose(
+        np.einsum("nji,njk->nik", wRc, wRc), np.broadcast_to(np.eye(3), (n, 3, 3)), atol=1e-14
+    )
+    np.testing.assert_allclose(np.linalg.det(wRc), 1.0, atol=1e-14)
+    np.testing.assert_array_equal(wRc[:, :, 0], -n_world)
+    np.testing.assert_array_equal(r, p_world - p_com)
+    np.testing.assert_allclose(W, wRc @ E, rtol=0, atol=1e-15)
+    # Wrench columns: [w; r x w] of each edge.
+    for i in range(n):
+        for e in range(4):
+            col = G[:, 4 * i + e]
+            np.testing.assert_array_equal(col[:3], W[i, :, e])
+            np.testing.assert_allclose(col[3:], np.cross(r[i], W[i, :, e]), atol=1e-16)
+    # Torques: J_i^T W_i for actuated contacts, zero columns for the others.
+    expected = np.zeros((dofs.size, n, 4))
+    for i in act_idx:
+        expected[:, i, :] = J[i][:, dofs].T @ W[i]
+    np.testing.assert_allclose(T, expected.reshape(dofs.size, -1), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(moved, [True, False, True, True, True])
+
+
+def test_edge_forces_are_the_edges_weighted() -> None:
+    n_world, p_world, p_com, J = _case(5, 6)
+    E = friction_edges(0.5)
+    W = structured_terms(n_world, p_world, p_com, E, J, np.arange(6), np.arange(16))[2]
+    lam = np.random.default_rng(1).random(24)
+    rows = np.array([4, 1], dtype=np.intp)
+    expected = np.einsum("nij,nj->ni", W[rows], lam.reshape(-1, 4)[rows])
+    np.testing.assert_allclose(edge_forces(W, lam, rows), expected, rtol=0, atol=1e-15)

@@ -1,0 +1,164 @@
+"""Numba kernels of the allocation QP's per-cycle build (:mod:`wholehand.allocation.problem`).
+
+The structured problem of one cycle is a few small products per contact: its frame, its four
+pyramid edges in world axes, their wrenches about the centre of mass and their joint torques.
+Posed as numpy calls (one batched matmul per contact for the torques among them) they cost about
+50 us of Python overhead at 70 contacts; :func:`structured_terms` builds all of them in one
+compiled pass.
+
+Rounding. Each term is computed with the operations, and in the order, that the numpy form it
+replaced used, so a seeded trial gives the same rows to the last bit:
+
+- element-wise terms (frames, wrenches): plain multiplies and adds (numba fuses nothing without
+  ``fastmath``); sums that numpy took from ``einsum``: in the order its loops add them;
+- terms numpy took from a BLAS ``matmul`` (the edges ``wRc @ E`` and the torques ``J^T W``): a
+  fused multiply-add chain over the inner index from zero, ``s = fma(a0, b0, 0); s = fma(a1, b1,
+  s); ...``, which is what OpenBLAS's x86-64 kernels compute for these inner sizes of 3. A BLAS
+  that sums otherwise rounds differently; the results agree to about 1e-16 relative either way.
+
+Compilation as in :mod:`wholehand.contacts.kernels` (``cache=CACHE``, ``error_model="numpy"``).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.jit import CACHE, fma
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
+def _frame(nx: float, ny: float, nz: float, R: FloatArray) -> None:  # pragma: no cover - jit
+    """Write the contact frame of outward normal ``(nx, ny, nz)`` into the (3, 3) ``R``
+    (:func:`wholehand.allocation.grasp.contact_frames` says which frame)."""
+    x, y, z = -nx, -ny, -nz
+    sign = 1.0 if z >= 0.0 else -1.0
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    R[0, 0], R[1, 0], R[2, 0] = x, y, z
+    R[0, 1] = 1.0 + sign * x * x * a
+    R[1, 1] = sign * b
+    R[2, 1] = -sign * x
+    R[0, 2] = b
+    R[1, 2] = sign + y * y * a
+    R[2, 2] = -y
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def contact_frames(n_world: FloatArray) -> FloatArray:  # pragma: no cover - jit
+    """(N, 3, 3) contact frames of (N, 3) outward normals (see the grasp module)."""
+    n = n_world.shape[0]
+    R = np.empty((n, 3, 3))
+    for i in range(n):
+        _frame(n_world[i, 0], n_world[i, 1], n_world[i, 2], R[i])
+    return R
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
+def _wrench_columns(
+    r: FloatArray, V: FloatArray, M: FloatArray, col: int
+) -> None:  # pragma: no cover - jit
+    """Write the wrenches ``[v; r x v]`` of the k columns of the (3, k) ``V`` applied at ``r``
+    into columns ``col .. col + k`` of the (6, .) ``M``."""
+    rx, ry, rz = r[0], r[1], r[2]
+    for c in range(V.shape[1]):
+        vx, vy, vz = V[0, c], V[1, c], V[2, c]
+        M[0, col + c] = vx
+        M[1, col + c] = vy
+        M[2, col + c] = vz
+        M[3, col + c] = ry * vz - rz * vy
+        M[4, col + c] = rz * vx - rx * vz
+        M[5, col + c] = rx * vy - ry * vx
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def wrench_map(r_world: FloatArray, V: FloatArray) -> FloatArray:  # pragma: no cover - jit
+    """(6, kN) wrench map of (N, 3, k) per-contact force directions applied at (N, 3) points
+    ``r_world`` (see :func:`wholehand.allocation.grasp.wrench_map`)."""
+    n, k = V.shape[0], V.shape[2]
+    M = np.empty((6, k * n))
+    for i in range(n):
+        _wrench_columns(r_world[i], V[i], M, k * i)
+    return M
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def structured_terms(
+    n_world: FloatArray,
+    p_world: FloatArray,
+    p_com: FloatArray,
+    E: FloatArray,
+    J_world: FloatArray,
+    act_idx: IntArray,
+    dofs: IntArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray]:
+    """The per-contact terms of the structured allocation QP, in one pass.
+
+    Args:
+        n_world: (N, 3) outward unit normals, world axes.
+        p_world: (N, 3) contact points, world frame [m].
+        p_com: (3,) object centre of mass, world frame [m].
+        E: (3, 4) friction-pyramid edges in local axes (``friction_edges(mu)``).
+        J_world: (N, 3, n_v) point Jacobians, world axes [m/rad or -].
+        act_idx: (N_act,) contacts on actuated links, increasing.
+        dofs: (n_a,) commanded joints, increasing.
+
+    Returns:
+        ``wRc`` (N, 3, 3) frames; ``r_world`` (N, 3) points about the COM [m]; ``W`` (N, 3, 4)
+        edges in world axes; ``G_lam`` (6, 4N) their wrenches; ``T`` (n_a, 4N) their joint
+        torques, ``T[a, 4 i + e] = J_i[:, dofs[a]] . W_i[:, e]`` (zero columns for contacts
+        not actuated) [m]; ``moved`` (n_a,) joints some actuated contact's Jacobian moves.
+    """
+    n = n_world.shape[0]
+    n_e = E.shape[1]
+    n_a = dofs.size
+    wRc = np.empty((n, 3, 3))
+    r_world = np.empty((n, 3))
+    W = np.empty((n, 3, n_e))
+    G_lam = np.empty((6, n_e * n))
+    for i in range(n):
+        R = wRc[i]
+        _frame(n_world[i, 0], n_world[i, 1], n_world[i, 2], R)
+        for c in range(3):
+            r_world[i, c] = p_world[i, c] - p_com[c]
+        for row in range(3):
+            for e in range(n_e):
+                s = fma(R[row, 0], E[0, e], 0.0)
+                s = fma(R[row, 1], E[1, e], s)
+                W[i, row, e] = fma(R[row, 2], E[2, e], s)
+        _wrench_columns(r_world[i], W[i], G_lam, n_e * i)
+    T = np.zeros((n_a, n_e * n))
+    moved = np.zeros(n_a, dtype=np.bool_)
+    for i in act_idx:
+        for a in range(n_a):
+            d = dofs[a]
+            j0, j1, j2 = J_world[i, 0, d], J_world[i, 1, d], J_world[i, 2, d]
+            if j0 != 0.0 or j1 != 0.0 or j2 != 0.0:
+                moved[a] = True
+            for e in range(n_e):
+                s = fma(j0, W[i, 0, e], 0.0)
+                s = fma(j1, W[i, 1, e], s)
+                T[a, n_e * i + e] = fma(j2, W[i, 2, e], s)
+    return wRc, r_world, W, G_lam, T, moved
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def edge_forces(W: FloatArray, lam: FloatArray, rows: IntArray) -> FloatArray:
+    """(len(rows), 3) world-axis forces ``W_i lambda_i`` of the contacts ``rows`` [N], from
+    (N, 3, 4) edges and (4N,) edge weights. The four products are summed as numpy's ``einsum``
+    sums them (two lanes: ``(p0 + p2) + (p1 + p3)``)."""
+    out = np.empty((rows.size, 3))
+    for k in range(rows.size):
+        i = rows[k]
+        l0, l1, l2, l3 = lam[4 * i], lam[4 * i + 1], lam[4 * i + 2], lam[4 * i + 3]
+        for c in range(3):
+            out[k, c] = (W[i, c, 0] * l0 + W[i, c, 2] * l2) + (W[i, c, 1] * l1 + W[i, c, 3] * l3)
+    return out
+
+
+__all__ = ["contact_frames", "edge_forces", "structured_terms", "wrench_map"]

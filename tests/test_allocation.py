@@ -14,6 +14,7 @@ from wholehand_plugins.qp import QPAllocator, QPNoConsistencyAllocator
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus
 from wholehand.allocation.bench import run_allocation_benchmark, synthetic_grasp
+from wholehand.allocation.kernels import sigma_min_lower_bound
 from wholehand.allocation.null_space import ActuationNullSpace
 from wholehand.allocation.problem import (
     N_EDGES,
@@ -471,6 +472,33 @@ def test_null_space_basis_is_numpys_svd_basis_when_full_rank() -> None:
         np.testing.assert_allclose(np.abs(U.T @ ns.basis()), np.eye(m - k), atol=1e-10)
         v = rng.normal(size=m)
         np.testing.assert_allclose(np.abs(ns.project(v)), np.abs(U.T @ v), atol=1e-12)
+
+
+def test_rank_certificate_bounds_the_smallest_singular_value() -> None:
+    rng = np.random.default_rng(11)
+    for cond in (1.0, 1e3, 1e8, 1e14):
+        for _ in range(20):
+            U, _ = np.linalg.qr(rng.normal(size=(16, 16)))
+            V, _ = np.linalg.qr(rng.normal(size=(16, 16)))
+            s = np.geomspace(1.0, 1.0 / cond, 16)
+            R = np.linalg.qr((U * s) @ V.T)[1]
+            bound = sigma_min_lower_bound(
+                np.asfortranarray(R + np.tril(rng.normal(size=(16, 16)), -1)), 16
+            )
+            sigma_min = np.linalg.svd(R, compute_uv=False).min()
+            assert bound <= sigma_min * (1.0 + 1e-12)
+            assert bound >= sigma_min / 4.0  # 1/||R^-1||_F >= sigma_min / sqrt(k)
+    assert sigma_min_lower_bound(np.triu(np.ones((3, 3))) - np.diag([0.0, 1.0, 0.0]), 3) == 0.0
+
+
+def test_rank_near_the_tolerance_is_the_svds() -> None:
+    rng = np.random.default_rng(12)
+    U, _ = np.linalg.qr(rng.normal(size=(30, 6)))
+    V, _ = np.linalg.qr(rng.normal(size=(6, 6)))
+    for smallest, rank in ((1.0005e-6, 6), (0.9995e-6, 5)):  # inside the certificate's margin
+        ns = ActuationNullSpace((U * np.r_[np.ones(5), smallest]) @ V.T, svd_tol=1e-6)
+        assert ns.rank == rank and ns.dim == 30 - rank
+        assert np.count_nonzero(ns.singular_values > 1e-6) == rank
 
 
 @pytest.mark.parametrize(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wholehand.allocation.kernels import edge_forces, structured_terms
+from wholehand.allocation.kernels import consistency_rows, edge_forces, structured_terms
 from wholehand.allocation.problem import friction_edges
 
 
@@ -59,3 +59,20 @@ def test_edge_forces_are_the_edges_weighted() -> None:
     rows = np.array([4, 1], dtype=np.intp)
     expected = np.einsum("nij,nj->ni", W[rows], lam.reshape(-1, 4)[rows])
     np.testing.assert_allclose(edge_forces(W, lam, rows), expected, rtol=0, atol=1e-15)
+
+
+def test_consistency_rows_are_basis_components_times_edges() -> None:
+    rng = np.random.default_rng(6)
+    n, k = 7, 5
+    W = rng.normal(size=(n, 3, 4))
+    act_idx = np.array([1, 2, 6], dtype=np.intp)
+    Nc = rng.normal(size=(act_idx.size, 3, k))
+    rows = consistency_rows(Nc, W, act_idx)
+    assert rows.shape == (k, 4 * n)
+    for j in range(k):
+        lam = rng.random(4 * n)
+        f_act = np.einsum("nce,ne->nc", W[act_idx], lam.reshape(-1, 4)[act_idx])
+        # Row j applied to lambda is basis column j applied to the actuated contacts' forces.
+        assert rows[j] @ lam == pytest.approx(np.sum(Nc[:, :, j] * f_act), rel=1e-12)
+    not_act = np.setdiff1d(np.arange(n), act_idx)
+    assert np.all(rows.reshape(k, n, 4)[:, not_act] == 0.0)

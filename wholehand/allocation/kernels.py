@@ -161,4 +161,56 @@ def edge_forces(W: FloatArray, lam: FloatArray, rows: IntArray) -> FloatArray:
     return out
 
 
-__all__ = ["contact_frames", "edge_forces", "structured_terms", "wrench_map"]
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def consistency_rows(Nc: FloatArray, W: FloatArray, act_idx: IntArray) -> FloatArray:
+    """(k, 4N) consistency rows on the edge weights: row j, columns of contact ``act_idx[a]``:
+    ``Nc[a, :, j] . W[act_idx[a]]`` (the basis columns' components at that contact times its
+    edges), zero for contacts not actuated. ``Nc`` (N_act, 3, k): basis columns by contact;
+    ``W`` (N, 3, 4): edges in world axes. Summed as ``einsum`` sums it (from zero, in order)."""
+    n_e = W.shape[2]
+    k = Nc.shape[2]
+    out = np.zeros((k, n_e * W.shape[0]))
+    for j in range(k):
+        for a in range(act_idx.size):
+            i = act_idx[a]
+            n0, n1, n2 = Nc[a, 0, j], Nc[a, 1, j], Nc[a, 2, j]
+            for e in range(n_e):
+                out[j, n_e * i + e] = 0.0 + n0 * W[i, 0, e] + n1 * W[i, 1, e] + n2 * W[i, 2, e]
+    return out
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def sigma_min_lower_bound(qr: FloatArray, k: int) -> float:  # pragma: no cover - jit
+    """A lower bound of the smallest singular value of the upper-triangular ``R``, the upper
+    triangle of ``qr[:k, :k]`` (as LAPACK's ``dgeqrf`` leaves it): ``1 / ||R^-1||_F``, from
+    ``R^-1`` by back substitution (``sigma_min = 1 / ||R^-1||_2 >= 1 / ||R^-1||_F``). Zero when
+    ``R`` is singular or not finite. About 1e-13 relative rounding error for well-conditioned
+    ``R``; callers compare it with a margin."""
+    X = np.zeros((k, k))
+    for j in range(k):
+        d = qr[j, j]
+        if d == 0.0 or not np.isfinite(d):
+            return 0.0
+        X[j, j] = 1.0 / d
+        for i in range(j - 1, -1, -1):
+            s = 0.0
+            for m in range(i + 1, j + 1):
+                s += qr[i, m] * X[m, j]
+            X[i, j] = -s / qr[i, i]
+    total = 0.0
+    for j in range(k):
+        for i in range(j + 1):
+            total += X[i, j] * X[i, j]
+    if not np.isfinite(total) or total == 0.0:
+        return 0.0
+    return float(1.0 / np.sqrt(total))
+
+
+__all__ = [
+    "consistency_rows",
+    "contact_frames",
+    "edge_forces",
+    "sigma_min_lower_bound",
+    "structured_terms",
+    "wrench_map",
+]

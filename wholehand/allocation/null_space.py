@@ -8,7 +8,10 @@ the basis LAPACK's full SVD of a tall matrix produces (a Householder QR first, t
 the small triangular factor): when ``J_act`` has full column rank it equals
 ``numpy.linalg.svd(J_act)[0][:, n:]`` up to column signs, which leave the symmetric box
 unchanged. It is kept as Householder reflectors and applied in O(m n), never formed as an
-(m, m) matrix in the control loop.
+(m, m) matrix in the control loop. The rank needs no SVD when ``J_act`` has full column rank with
+room to spare (the common case): a lower bound of the smallest singular value from the QR's
+triangle (:func:`~wholehand.allocation.kernels.sigma_min_lower_bound`) certifies it, and the SVD
+decides otherwise.
 """
 
 from __future__ import annotations
@@ -20,9 +23,16 @@ import numpy.typing as npt
 from scipy.linalg import lapack
 
 from wholehand import defaults
+from wholehand.allocation.kernels import sigma_min_lower_bound
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
+
+
+RANK_MARGIN: float = 1.001
+"""Full column rank is taken without the SVD when a lower bound of the smallest singular value
+exceeds ``svd_tol`` by this factor, far beyond the bound's rounding (about 1e-13 relative); below
+it the SVD decides, as it always did."""
 
 
 class ActuationNullSpace:
@@ -57,8 +67,9 @@ class ActuationNullSpace:
         self._qr: FloatArray | None = None
         self._tau: FloatArray | None = None
         self._head: FloatArray | None = None
+        self._s: FloatArray | None = None
         if k == 0:
-            self.singular_values = np.zeros(0)
+            self._s = np.zeros(0)
             self.rank = 0
             self._explicit = np.eye(m)
         elif m > k:
@@ -67,25 +78,43 @@ class ActuationNullSpace:
             qr, tau, _, info = lapack.dgeqrf(Jc)
             if info != 0:  # pragma: no cover - LAPACK argument error
                 raise ValueError(f"dgeqrf failed with info={info}")
-            R = np.triu(qr[:k])
-            _, s, _, info = lapack.dgesdd(R, compute_uv=0)
-            if info != 0:  # pragma: no cover - no convergence
-                s = np.linalg.svd(R, compute_uv=False)
-            r = int(np.count_nonzero(s > svd_tol))
-            self.singular_values = s
-            self.rank = r
             self._qr, self._tau = qr, tau
-            if r < k:
-                U_R = np.linalg.svd(R)[0]
-                self._head = np.ascontiguousarray(U_R[:, r:])
+            if sigma_min_lower_bound(qr, k) > svd_tol * RANK_MARGIN:
+                self.rank = k  # certified full column rank: the SVD would count every value
+            else:
+                s = self._r_singular_values()
+                r = int(np.count_nonzero(s > svd_tol))
+                self.rank = r
+                if r < k:
+                    U_R = np.linalg.svd(np.triu(qr[:k]))[0]
+                    self._head = np.ascontiguousarray(U_R[:, r:])
         else:
             U, s, _ = np.linalg.svd(J_act[:, cols], full_matrices=True)
             r = int(np.count_nonzero(s > svd_tol))
-            self.singular_values = s
+            self._s = s
             self.rank = r
             self._explicit = np.ascontiguousarray(U[:, r:])
         self.dim = m - self.rank
         """Dimension of ``Null(J_act^T)``: the number of consistency rows."""
+
+    @property
+    def singular_values(self) -> FloatArray:
+        """Singular values of ``J_act``'s nonzero columns, descending (computed on first use
+        when the rank was certified without them)."""
+        if self._s is None:
+            self._s = self._r_singular_values()
+        return self._s
+
+    def _r_singular_values(self) -> FloatArray:
+        """Singular values of the QR's triangular factor (those of ``J_act``'s nonzero
+        columns)."""
+        assert self._qr is not None
+        R = np.triu(self._qr[: self._k])
+        _, s, _, info = lapack.dgesdd(R, compute_uv=0)
+        if info != 0:  # pragma: no cover - no convergence
+            s = np.linalg.svd(R, compute_uv=False)
+        self._s = s
+        return cast(FloatArray, s)
 
     def _apply_q(self, C: FloatArray, trans: str) -> FloatArray:
         assert self._qr is not None and self._tau is not None

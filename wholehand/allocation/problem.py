@@ -65,7 +65,7 @@ import numpy.typing as npt
 from wholehand import defaults
 from wholehand.allocation.base import checked_jacobians
 from wholehand.allocation.grasp import wrench_map
-from wholehand.allocation.kernels import edge_forces, structured_terms
+from wholehand.allocation.kernels import consistency_rows, edge_forces, structured_terms
 from wholehand.allocation.null_space import ActuationNullSpace
 from wholehand.errors import ConfigError
 
@@ -311,9 +311,7 @@ class AllocationQP:
         """(len(idx), 4N) consistency rows ``(N_u^T f_act)[idx]`` as functions of ``lambda``."""
         assert self.null is not None
         Nc = self.null.columns(idx).reshape(-1, 3, len(idx))  # (N_act, 3, k)
-        rows = np.zeros((len(idx), self.n_contacts, N_EDGES))
-        rows[:, self.act_idx, :] = np.einsum("ncj,nce->jne", Nc, self.W[self.act_idx])
-        return rows.reshape(len(idx), -1)
+        return cast(FloatArray, consistency_rows(Nc, self.W, self.act_idx))
 
     def violation(self, x: FloatArray) -> float:
         """Largest violation of any constraint at ``x`` (4N + 6,) or ``lambda`` (4N,) [N, N*m].

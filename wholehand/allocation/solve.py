@@ -264,11 +264,6 @@ def solve_allocation(
     guess: ActiveSet | None = None
     x_relaxed: FloatArray | None = None  # the last round's solution, for a deadline
     while True:
-        time_limit = None
-        if deadline_ns is not None:
-            time_limit = (deadline_ns - time.perf_counter_ns()) * 1e-9
-            if time_limit <= 0.0:
-                return _deadline(rounds, iterations, t_in, n_in, x_relaxed)
         rounds += 1
         full = rounds > max_rounds
         if full:
@@ -279,8 +274,14 @@ def solve_allocation(
         if x0 is not None and solver.primal_warm_start:
             start = x0 if e_in is None else np.concatenate((x0[e_in], x0[nl:]))
         rows = _rows(qp, t_in, n_in)
+        problem = _restrict(qp, *rows, t_in, n_in, e_in, guess)
+        time_limit = None
+        if deadline_ns is not None:  # the time left once the problem is built
+            time_limit = (deadline_ns - time.perf_counter_ns()) * 1e-9
+            if time_limit <= 0.0:
+                return _deadline(rounds - 1, iterations, t_in, n_in, x_relaxed)
         res = solver.solve(
-            _restrict(qp, *rows, t_in, n_in, e_in, guess),
+            problem,
             start,
             warm=warm or x0 is not None,
             time_limit=time_limit,

@@ -8,7 +8,12 @@ from scipy.optimize import linprog
 from scipy.spatial.transform import Rotation
 
 from wholehand.grasps.store import load_grasps
-from wholehand.loop.grasp_loss import LINEAR_SUPPORT_MAX_POINTS, GraspLossCheck
+from wholehand.loop.grasp_loss import (
+    CLEAR_MARGIN,
+    LINEAR_SUPPORT_MAX_POINTS,
+    GraspLossCheck,
+    clear_verdict,
+)
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 
@@ -49,8 +54,31 @@ def test_held_matches_the_exact_hull_box_intersection(allegro, scan_only):
         wMo[:3, 3] = points.mean(axis=0) + rng.normal(scale=0.06, size=3) - wMo[:3, :3] @ cube.com
         expected = hull_meets_box(points, wMo, lo, hi)
         assert check.held(kin, wMo) == expected
+        assert check._gjk(points, wMo @ check._oMbox) == expected  # without the clear cases
         outcomes.append(expected)
     assert 0.2 < np.mean(outcomes) < 0.8
+
+
+def test_clear_verdicts_are_the_exact_ones_and_common(allegro):
+    cube = load_object("077_rubiks_cube")
+    check = GraspLossCheck(allegro, cube)
+    kin = HandKinematics(allegro)
+    lo, hi = cube.mesh.bounds
+    rng = np.random.default_rng(8)
+    verdicts = []
+    for _ in range(300):
+        kin.update(rng.uniform(allegro.q_lower, allegro.q_upper), allegro.wMb)
+        points = check.hull_points(kin)
+        wMo = np.eye(4)
+        wMo[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+        wMo[:3, 3] = points.mean(axis=0) + rng.normal(scale=0.06, size=3) - wMo[:3, :3] @ cube.com
+        wMbox = wMo @ check._oMbox
+        verdict = clear_verdict(points, wMbox, check._half, check._n_tips, CLEAR_MARGIN)
+        if verdict >= 0:
+            assert bool(verdict) == hull_meets_box(points, wMo, lo, hi)
+        verdicts.append(verdict)
+    # Both answers are given without GJK, and some cases are left to it.
+    assert {-1, 0, 1} <= set(verdicts)
 
 
 def test_a_stored_grasp_is_held_and_a_removed_object_is_not(allegro):

@@ -180,9 +180,13 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         _check_arm_servo(hand, opts.timestep)
         self.scene: HandObjectScene = build_scene(hand, obj, wMo_init, opts, wMb)
         self.model = self.scene.model
+        dofs = np.flatnonzero(self.scene.ctrl_index >= 0)
+        self._ctrl_map = (dofs, self.scene.ctrl_index[dofs], self.scene.tau_max[dofs])
+        """Joints with a motor, their MuJoCo actuators and torque limits [N*m]."""
         self.data = mujoco.MjData(self.model)
         self._guard = StepGuard(self.model, self.model.geom_contype == HAND_BIT)
         self._warned: set[str] = set()
+        self._warnings_seen = 0
         self.history = JointHistory(hand.nq, history)
         self._wrist_q = -1
         if opts.base == "floating":
@@ -239,10 +243,8 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         self._set_ctrl(tau if self._targets is None else self._pd_torque())
 
     def _set_ctrl(self, tau: FloatArray) -> None:
-        s = self.scene
-        act = s.ctrl_index >= 0
-        clipped = np.clip(tau[act], -s.tau_max[act], s.tau_max[act])
-        self.data.ctrl[s.ctrl_index[act]] = clipped
+        dofs, ctrl, limit = self._ctrl_map
+        self.data.ctrl[ctrl] = np.clip(tau[dofs], -limit, limit)
 
     def _pd_torque(self) -> FloatArray:
         """The commanded torques with every target group's PD term at the current state."""
@@ -289,7 +291,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         until changed (MuJoCo ``xfrc_applied``)."""
         force = _vector(force_world, 3, "force_world")
         torque = _vector(torque_world, 3, "torque_world")
-        self._wrench = np.r_[force, torque]
+        self._wrench = np.concatenate((force, torque))
         self.data.xfrc_applied[self.scene.object_body] = self._wrench
 
     def set_object_spring(
@@ -326,7 +328,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         v_com = v_origin + np.cross(omega, r_com)
         force = k_lin * (p_target - (d.qpos[a : a + 3] + r_com)) - d_lin * v_com
         torque = k_rot * pin.log3(R_target @ R.T) - d_rot * omega
-        return np.r_[force, torque]
+        return np.concatenate((force, torque))
 
     # --- extras -------------------------------------------------------------------------------
     @property
@@ -359,6 +361,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
             self.set_base_pose(wMb)
         mujoco.mj_forward(self.model, d)
         self._warned.clear()
+        self._warnings_seen = 0
         self._guard.clear()
 
     def set_kinematic_hand(self, q: FloatArray) -> None:
@@ -445,6 +448,11 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         }
 
     def _check_warnings(self) -> None:
+        # Counts only grow between resets: the names are looked at only when one has changed.
+        total = int(self.data.warning.number.sum()) + self._guard.retries
+        if total == self._warnings_seen:
+            return
+        self._warnings_seen = total
         for name, count in self.warnings().items():
             if count and name not in self._warned:
                 self._warned.add(name)

@@ -10,14 +10,22 @@ hull's support function, the farthest point along a direction, and coal evaluate
 scan over all points for a convex of at most :data:`LINEAR_SUPPORT_MAX_POINTS` points. For such
 hands the points are handed to coal as they are, without computing their hull (qhull per cycle
 cost a large share of a simulated trial); with more points the hull is computed.
+
+Most cycles need no GJK: a cheap test (:func:`clear_verdict`) settles the cases far from the
+border, where GJK cannot disagree. The hull meets the box when a point of it (a hull point, the
+fingertips' centroid, the centroid of all points) lies inside the box by :data:`CLEAR_MARGIN`;
+it misses the box when every point lies beyond one face of the box by that margin. Only the
+cases between go to coal.
 """
 
 from __future__ import annotations
 
 import coal
+import numba
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.jit import CACHE
 from wholehand.loop.control_loop import Cycle, Observer
 from wholehand.loop.stage import LoopStatus
 from wholehand.models.hand import HandModel
@@ -25,6 +33,10 @@ from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 
 FloatArray = npt.NDArray[np.float64]
+
+CLEAR_MARGIN = 1e-4
+"""Depth [m] inside or beyond the box at which :func:`clear_verdict` decides without GJK: a
+hundred times coal's GJK tolerance (1e-6), so GJK's answer there is the same."""
 
 LINEAR_SUPPORT_MAX_POINTS = 32
 """Largest convex coal supports by a scan over all its points (coal 3's
@@ -50,7 +62,9 @@ class GraspLossCheck:
             joints.append(int(hand.link_joint[palm]))
         self._p_joint = np.asarray(points)
         self._joint = np.asarray(joints, dtype=np.intp)
+        self._n_tips = int(np.count_nonzero(hand.link_fingertip))
         lo, hi = obj.mesh.bounds
+        self._half = 0.5 * (hi - lo)
         self._box = coal.Box(*(hi - lo))
         self._oMbox = np.eye(4)
         self._oMbox[:3, 3] = 0.5 * (lo + hi)
@@ -66,19 +80,68 @@ class GraspLossCheck:
 
     def held(self, kinematics: HandKinematics, wMo: FloatArray) -> bool:
         """True while the hull of fingertips and palm intersects the object's bounding box."""
+        points = self.hull_points(kinematics)
+        wMbox = wMo @ self._oMbox
+        verdict = clear_verdict(points, wMbox, self._half, self._n_tips, CLEAR_MARGIN)
+        if verdict >= 0:
+            return bool(verdict)
+        return self._gjk(points, wMbox)
+
+    def _gjk(self, points: FloatArray, wMbox: FloatArray) -> bool:
+        """coal's verdict: the hull of ``points`` (M, 3) [m] meets the box at ``wMbox``."""
         vertices = coal.StdVec_Vec3s()
-        for p in self.hull_points(kinematics):
+        for p in points:
             vertices.append(p)
         if self._scan_only:
             hull = coal.Convex(vertices, self._faces)
         else:
             hull = coal.Convex.convexHull(vertices, False, "")
-        wMbox = wMo @ self._oMbox
         tf_box = coal.Transform3s(wMbox[:3, :3].copy(), wMbox[:3, 3].copy())
         result = coal.CollisionResult()
         return bool(
             coal.collide(hull, coal.Transform3s(), self._box, tf_box, self._request, result)
         )
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def clear_verdict(
+    points: FloatArray, wMbox: FloatArray, half: FloatArray, n_tips: int, margin: float
+) -> int:  # pragma: no cover - jit
+    """1 when the hull of ``points`` (M, 3, world) [m] clearly meets the box of half sides
+    ``half`` (3,) [m] at pose ``wMbox``, 0 when it clearly misses it, -1 when neither is clear
+    (see the module docstring). The first ``n_tips`` points are the fingertips."""
+    m = points.shape[0]
+    local = np.empty((m, 3))
+    for i in range(m):
+        for a in range(3):
+            local[i, a] = (
+                wMbox[0, a] * (points[i, 0] - wMbox[0, 3])
+                + wMbox[1, a] * (points[i, 1] - wMbox[1, 3])
+                + wMbox[2, a] * (points[i, 2] - wMbox[2, 3])
+            )
+    for a in range(3):
+        above = below = True
+        for i in range(m):
+            above = above and local[i, a] >= half[a] + margin
+            below = below and local[i, a] <= -half[a] - margin
+        if above or below:
+            return 0
+    # Points of the hull: each point, the fingertips' centroid, the centroid of all points.
+    tips = np.zeros(3)
+    every = np.zeros(3)
+    for i in range(m):
+        for a in range(3):
+            every[a] += local[i, a] / m
+            if i < n_tips:
+                tips[a] += local[i, a] / n_tips
+    for c in range(m + 2):
+        inside = True
+        for a in range(3):
+            x = local[c, a] if c < m else tips[a] if c == m else every[a]
+            inside = inside and abs(x) <= half[a] - margin
+        if inside:
+            return 1
+    return -1
 
 
 LOST = "grasp lost"

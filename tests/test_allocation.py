@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 import qpsolvers
 from wholehand_plugins.fingertip_only import FingertipOnlyAllocator
-from wholehand_plugins.qp import QPAllocator, QPNoConsistencyAllocator
+from wholehand_plugins.qp import SOLVE_SHARE, QPAllocator, QPNoConsistencyAllocator
 
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus
@@ -282,6 +283,32 @@ def test_a_deadline_cycle_hands_its_progress_to_the_next() -> None:
     again = alloc.allocate(cs, J, com)
     assert again.status is AllocationStatus.OK
     np.testing.assert_allclose(again.tau, exact.tau, rtol=1e-6, atol=1e-8)
+
+
+class _TimeLimits:
+    """DAQP that records the time limit of each solve."""
+
+    def __init__(self) -> None:
+        self.inner = make_solver("daqp")
+        self.limits: list[float] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def solve(self, qp: Any, x0: Any = None, warm: bool = False, time_limit: Any = None) -> Any:
+        self.limits.append(time_limit)
+        return self.inner.solve(qp, x0, warm, time_limit)
+
+
+def test_the_solver_gets_its_share_of_the_deadline() -> None:
+    cs, J, com = near_loss()
+    alloc = QPAllocator(deadline=10.0)
+    alloc.qp_solver = solver = _TimeLimits()  # type: ignore[assignment]
+    assert alloc.allocate(cs, J, com).status is AllocationStatus.OK
+    # Each round's limit is what is left of SOLVE_SHARE of the budget once it is built.
+    assert solver.limits and all(0.0 < t <= 10.0 * SOLVE_SHARE for t in solver.limits)
+    assert solver.limits[0] > 10.0 * SOLVE_SHARE - 0.5
+    assert all(a > b for a, b in pairwise(solver.limits))
 
 
 def test_warm_start_matches_cold_over_a_control_sequence() -> None:

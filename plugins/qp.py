@@ -32,6 +32,7 @@ from wholehand.allocation.base import (
     Allocator,
     checked_jacobians,
 )
+from wholehand.allocation.kernels import finite_inputs
 from wholehand.allocation.problem import (
     N_EDGES,
     REG,
@@ -261,10 +262,7 @@ class QPAllocator(Allocator):
         t0 = time.perf_counter_ns()
         p_com = np.asarray(p_com_world, dtype=np.float64)
         if not (
-            np.isfinite(contacts.p_world).all()
-            and np.isfinite(contacts.n_world).all()
-            and np.isfinite(J_world).all()
-            and np.isfinite(p_com).all()
+            finite_inputs(contacts.p_world, contacts.n_world, J_world, p_com)
             and (tau_bias is None or np.isfinite(tau_bias).all())
         ):
             self._warm.clear()

@@ -161,6 +161,23 @@ def edge_forces(W: FloatArray, lam: FloatArray, rows: IntArray) -> FloatArray:
     return out
 
 
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
+def _finite(a: FloatArray) -> bool:  # pragma: no cover - jit
+    for x in a.ravel():
+        if not np.isfinite(x):
+            return False
+    return True
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def finite_inputs(
+    p_world: FloatArray, n_world: FloatArray, J_world: FloatArray, p_com: FloatArray
+) -> bool:  # pragma: no cover - jit
+    """True when the contact points and normals (N, 3), the Jacobians (N, 3, n_v) and the centre
+    of mass (3,) hold no NaN or inf."""
+    return _finite(p_world) and _finite(n_world) and _finite(J_world) and _finite(p_com)
+
+
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def consistency_rows(Nc: FloatArray, W: FloatArray, act_idx: IntArray) -> FloatArray:
     """(k, 4N) consistency rows on the edge weights: row j, columns of contact ``act_idx[a]``:
@@ -210,6 +227,7 @@ __all__ = [
     "consistency_rows",
     "contact_frames",
     "edge_forces",
+    "finite_inputs",
     "sigma_min_lower_bound",
     "structured_terms",
     "wrench_map",

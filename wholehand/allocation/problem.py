@@ -169,10 +169,14 @@ class AllocationParams:
     def dofs_and_limits(
         self, n_v: int, owner: str = "AllocationParams"
     ) -> tuple[IntArray, FloatArray]:
-        """Actuated joint indices (n_a,) and their torque limits (n_a,) [N*m] for ``n_v`` joints.
+        """Actuated joint indices (n_a,) and their torque limits (n_a,) [N*m] for ``n_v`` joints
+        (read-only arrays, kept for the next call with the same ``n_v``).
 
         A mask or limit array whose length is not ``n_v`` raises :class:`ConfigError`.
         """
+        kept = self.__dict__.get("_limits")
+        if kept is not None and kept[0] == n_v:
+            return kept[1], kept[2]
         if self.actuated_dofs is None:
             dofs = np.arange(n_v, dtype=np.intp)
         else:
@@ -192,7 +196,18 @@ class AllocationParams:
                     f"pass a scalar or an array of shape ({n_v},)"
                 )
             limits = tmax[dofs]
+        dofs, limits = dofs.copy(), np.array(limits, dtype=np.float64)
+        dofs.setflags(write=False)
+        limits.setflags(write=False)
+        object.__setattr__(self, "_limits", (n_v, dofs, limits))  # frozen: a memo, not a field
         return dofs, limits
+
+    @functools.cached_property
+    def edges(self) -> FloatArray:
+        """(3, 4) pyramid edges of :func:`friction_edges` at :attr:`mu` (read-only)."""
+        E = friction_edges(self.mu)
+        E.setflags(write=False)
+        return E
 
 
 @dataclass(frozen=True)
@@ -264,8 +279,7 @@ class AllocationQP:
 
     def f_local(self, lam: FloatArray) -> FloatArray:
         """(N, 3) local forces ``[f_n, f_t1, f_t2]`` [N] from (4N,) edge weights."""
-        E = friction_edges(self.params.mu)
-        return cast(FloatArray, lam.reshape(-1, N_EDGES) @ E.T)
+        return cast(FloatArray, lam.reshape(-1, N_EDGES) @ self.params.edges.T)
 
     def f_world(self, lam: FloatArray) -> FloatArray:
         """(N, 3) world-axis forces of the hand on the object [N] from (4N,) edge weights."""
@@ -368,7 +382,7 @@ def build_allocation_qp(
         np.ascontiguousarray(contacts.n_world, dtype=np.float64),
         np.ascontiguousarray(contacts.p_world, dtype=np.float64),
         p_com_world,
-        friction_edges(params.mu),
+        params.edges,
         np.ascontiguousarray(J_world),
         act_idx,
         dofs,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -608,6 +609,13 @@ def test_solver_failure_and_nan_input_give_no_torque() -> None:
     J_nan = J.copy()
     J_nan[3, 1, 2] = np.nan
     out = alloc.allocate(cs, J_nan, com)
+    assert out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
+    for bad_com in (np.r_[com[:2], np.inf], np.r_[np.nan, com[1:]]):
+        out = alloc.allocate(cs, J, bad_com)
+        assert out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
+    p_nan = cs.p_world.copy()
+    p_nan[0, 2] = np.nan
+    out = alloc.allocate(dataclasses.replace(cs, p_world=p_nan), J, com)
     assert out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
     starved = QPAllocator(solver_settings={"iter_limit": 1})
     out = starved.allocate(cs, J, com)

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import copy as copy_module
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from wholehand.errors import ConfigError
+from wholehand.models.hand import load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.poses import pose_from_xyz_rpy
 
@@ -66,3 +69,27 @@ def test_bad_configuration_is_rejected(allegro):
         kin.update(np.full(allegro.nq, np.nan))
     with pytest.raises(ConfigError, match="wMb"):
         kin.update(allegro.neutral(), np.ones((4, 4)))
+
+
+@pytest.mark.parametrize("name", ["allegro_right", "robotis_hx5_d20_right"])
+def test_joint_placements_are_pinocchios(name):
+    hand = load_hand(name)
+    kin = HandKinematics(hand)
+    assert kin._placements is not None  # the strided views, on this Pinocchio
+    copy = copy_module.deepcopy(kin)
+    assert copy._placements is not None
+    slow = HandKinematics(hand)
+    slow._placements = None  # read one by one
+    data = hand.model.createData()
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        q = pin.randomConfiguration(hand.model)
+        for k in (kin, copy, slow):
+            k.update(q)
+        pin.forwardKinematics(hand.model, data, q)
+        expected = np.array([M.homogeneous for M in data.oMi])
+        for k in (kin, copy, slow):
+            np.testing.assert_array_equal(k.bRj, expected[:, :3, :3])
+            np.testing.assert_array_equal(k.bp_j, expected[:, :3, 3])
+        copy.update(q + rng.normal(scale=0.1, size=q.shape))  # the copy has its own data
+        np.testing.assert_array_equal(kin.bRj, expected[:, :3, :3])

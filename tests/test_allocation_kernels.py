@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wholehand.allocation.kernels import consistency_rows, edge_forces, structured_terms
+from wholehand.allocation.kernels import (
+    consistency_rows,
+    edge_forces,
+    solved_rows,
+    structured_terms,
+)
 from wholehand.allocation.problem import friction_edges
 
 
@@ -76,3 +81,19 @@ def test_consistency_rows_are_basis_components_times_edges() -> None:
         assert rows[j] @ lam == pytest.approx(np.sum(Nc[:, :, j] * f_act), rel=1e-12)
     not_act = np.setdiff1d(np.arange(n), act_idx)
     assert np.all(rows.reshape(k, n, 4)[:, not_act] == 0.0)
+
+
+def test_solved_rows_stack_the_wrench_squeeze_torque_and_consistency_rows() -> None:
+    rng = np.random.default_rng(9)
+    nl = 8
+    G, T, N = rng.normal(size=(6, nl)), rng.normal(size=(5, nl)), rng.normal(size=(2, nl))
+    w_ext, sel = rng.normal(size=6), np.array([4, 1], dtype=np.intp)
+    t_lo, t_hi = -rng.random(2), rng.random(2)
+    A, lower, upper = solved_rows(G, T, sel, N, w_ext, 10.0, t_lo, t_hi, 0.5)
+    expected = np.zeros((11, nl + 6))
+    expected[:6, :nl], expected[:6, nl:] = G, -np.eye(6)  # G lambda - w
+    expected[6, :nl] = 1.0  # sum(lambda)
+    expected[7:9, :nl], expected[9:, :nl] = T[sel], N
+    np.testing.assert_array_equal(A, expected)
+    np.testing.assert_array_equal(lower, np.r_[-w_ext, 10.0, t_lo, -0.5, -0.5])
+    np.testing.assert_array_equal(upper, np.r_[-w_ext, np.inf, t_hi, 0.5, 0.5])

@@ -197,6 +197,47 @@ def consistency_rows(Nc: FloatArray, W: FloatArray, act_idx: IntArray) -> FloatA
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def solved_rows(
+    G_lam: FloatArray,
+    T_lam: FloatArray,
+    torque_sel: IntArray,
+    null_rows: FloatArray,
+    w_ext: FloatArray,
+    f_n_min: float,
+    t_lower: FloatArray,
+    t_upper: FloatArray,
+    eps: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - jit
+    """The rows of the solved form over ``x = [lambda (nl); w (6)]`` and their bounds: the
+    wrench equality ``G_lam lambda - w = -w_ext``, the minimum squeeze ``sum(lambda) >=
+    f_n_min``, the torque rows ``T_lam[torque_sel]`` within ``[t_lower, t_upper]`` and the
+    consistency rows ``null_rows`` (nn, nl) within ``+-eps``.
+
+    Returns:
+        ``A`` (7 + nt + nn, nl + 6), ``lower`` and ``upper`` (7 + nt + nn,).
+    """
+    nl = G_lam.shape[1]
+    nt, nn = torque_sel.size, null_rows.shape[0]
+    m = 7 + nt + nn
+    A = np.zeros((m, nl + 6))
+    lower = np.empty(m)
+    upper = np.empty(m)
+    for r in range(6):
+        A[r, :nl] = G_lam[r]
+        A[r, nl + r] = -1.0
+        lower[r] = upper[r] = -w_ext[r]
+    A[6, :nl] = 1.0
+    lower[6], upper[6] = f_n_min, np.inf
+    for k in range(nt):
+        A[7 + k, :nl] = T_lam[torque_sel[k]]
+        lower[7 + k], upper[7 + k] = t_lower[k], t_upper[k]
+    for k in range(nn):
+        A[7 + nt + k, :nl] = null_rows[k]
+        lower[7 + nt + k], upper[7 + nt + k] = -eps, eps
+    return A, lower, upper
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def sigma_min_lower_bound(qr: FloatArray, k: int) -> float:  # pragma: no cover - jit
     """A lower bound of the smallest singular value of the upper-triangular ``R``, the upper
     triangle of ``qr[:k, :k]`` (as LAPACK's ``dgeqrf`` leaves it): ``1 / ||R^-1||_F``, from
@@ -229,6 +270,7 @@ __all__ = [
     "edge_forces",
     "finite_inputs",
     "sigma_min_lower_bound",
+    "solved_rows",
     "structured_terms",
     "wrench_map",
 ]

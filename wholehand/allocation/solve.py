@@ -29,12 +29,15 @@ The warm start between cycles is :mod:`wholehand.allocation.warm_start`.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.allocation.kernels import solved_rows
 from wholehand.allocation.problem import N_WRENCH, AllocationQP
 from wholehand.allocation.solvers import QPSolver
 from wholehand.allocation.solvers.base import DenseQP, QPResult
@@ -167,11 +170,21 @@ def _restrict(
     n_edges = nl if edge_sel is None else edge_sel.size
     if edge_sel is not None:
         A = np.concatenate((A[:, edge_sel], A[:, nl:]), axis=1)
-    p_diag = np.concatenate((np.full(n_edges, qp.params.reg), np.ones(N_WRENCH)))
-    lb = np.concatenate((np.zeros(n_edges), np.full(N_WRENCH, -np.inf)))
-    ub = np.full(n_edges + N_WRENCH, np.inf)
+    p_diag, lb, ub = _variable_terms(n_edges, qp.params.reg)
     active = None if guess is None else guess.vector(torque_sel, null_sel, edge_sel)
     return DenseQP(p_diag, A, lower, upper, N_WRENCH, lb, ub, active)
+
+
+@functools.lru_cache(maxsize=256)
+def _variable_terms(n_edges: int, reg: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Hessian diagonal and variable bounds of ``[lambda (n_edges); w (6)]`` (read-only; a
+    problem's size recurs from cycle to cycle)."""
+    p_diag = np.concatenate((np.full(n_edges, reg), np.ones(N_WRENCH)))
+    lb = np.concatenate((np.zeros(n_edges), np.full(N_WRENCH, -np.inf)))
+    ub = np.full(n_edges + N_WRENCH, np.inf)
+    for a in (p_diag, lb, ub):
+        a.setflags(write=False)
+    return p_diag, lb, ub
 
 
 def _rows(
@@ -179,24 +192,23 @@ def _rows(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """(m, 4N + 6) rows of the solved form with the selected torque and consistency rows, and
     their (m,) lower and upper bounds."""
-    nl, n = qp.n_lambda, qp.n_x
-    nt, nn = torque_sel.size, null_sel.size
-    m = N_WRENCH + 1 + nt + nn
-    A = np.zeros((m, n))
-    A[:N_WRENCH, :nl] = qp.G_lam
-    A[:N_WRENCH, nl:] = -np.eye(N_WRENCH)
-    A[N_WRENCH, :nl] = 1.0
-    k = N_WRENCH + 1
     t_lower, t_upper = qp.torque_bounds(torque_sel)
-    if nt:
-        A[k : k + nt, :nl] = qp.T_lam[torque_sel]
-    eps = np.full(nn, qp.params.eps_margin)
-    if nn:
-        A[k + nt :, :nl] = qp.null_rows(null_sel)
+    null = qp.null_rows(null_sel) if null_sel.size else np.zeros((0, qp.n_lambda))
     # G lambda - w = -w_ext: w is then the net wrench G f + w_ext, whose norm is minimised.
-    lower = np.concatenate((-qp.w_ext, [qp.params.f_n_min], t_lower, -eps))
-    upper = np.concatenate((-qp.w_ext, [np.inf], t_upper, eps))
-    return A, lower, upper
+    return cast(
+        tuple[FloatArray, FloatArray, FloatArray],
+        solved_rows(
+            qp.G_lam,
+            qp.T_lam,
+            torque_sel,
+            null,
+            qp.w_ext,
+            qp.params.f_n_min,
+            t_lower,
+            t_upper,
+            qp.params.eps_margin,
+        ),
+    )
 
 
 def solve_allocation(

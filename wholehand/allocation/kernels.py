@@ -238,6 +238,26 @@ def solved_rows(
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def rows_over(
+    values: FloatArray, limits: FloatArray, included: BoolArray, tol: float
+) -> tuple[IntArray, float]:
+    """Two-sided rows ``|values| <= limits`` at a relaxed solution: the left-out ones
+    (``included`` False) violated by more than ``tol``, increasing, and the largest
+    ``|values| - limits`` over all rows (0 for none) [N or N*m]."""
+    add = np.empty(values.size, dtype=np.intp)
+    n_add = 0
+    worst = 0.0
+    for i in range(values.size):
+        over = abs(values[i]) - limits[i]
+        if over > worst or np.isnan(over):
+            worst = over
+        if over > tol and not included[i]:
+            add[n_add] = i
+            n_add += 1
+    return add[:n_add], worst
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def sigma_min_lower_bound(qr: FloatArray, k: int) -> float:  # pragma: no cover - jit
     """A lower bound of the smallest singular value of the upper-triangular ``R``, the upper
     triangle of ``qr[:k, :k]`` (as LAPACK's ``dgeqrf`` leaves it): ``1 / ||R^-1||_F``, from
@@ -269,6 +289,7 @@ __all__ = [
     "contact_frames",
     "edge_forces",
     "finite_inputs",
+    "rows_over",
     "sigma_min_lower_bound",
     "solved_rows",
     "structured_terms",

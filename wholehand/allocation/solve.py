@@ -37,7 +37,7 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.kernels import solved_rows
+from wholehand.allocation.kernels import rows_over, solved_rows
 from wholehand.allocation.problem import N_WRENCH, AllocationQP
 from wholehand.allocation.solvers import QPSolver
 from wholehand.allocation.solvers.base import DenseQP, QPResult
@@ -270,6 +270,7 @@ def solve_allocation(
             e_mask[edge_sel[edge_sel < nl]] = True
     t_in, n_in = np.flatnonzero(t_mask), np.flatnonzero(n_mask)
     limits = qp.tau_max[qp.torque_rows]
+    eps_limits = np.full(n_null, eps)
     rounds = iterations = 0
     res = QPResult(None, "failed")
     x = np.zeros(qp.n_x)
@@ -325,16 +326,11 @@ def solve_allocation(
         x_relaxed = x
         lam = x[:nl]
         t_val = qp.T_lam @ lam
-        t_over = np.abs(qp.torque_totals(t_val)) - limits
-        if n_null:
-            z_val = qp.null_values(lam)
-            z_over = np.abs(z_val) - eps
-        else:
-            z_val = z_over = np.zeros(0)
+        add_t, t_worst = rows_over(qp.torque_totals(t_val), limits, t_mask, screen_tol)
+        z_val = qp.null_values(lam) if n_null else np.zeros(0)
+        add_n, z_worst = rows_over(z_val, eps_limits, n_mask, screen_tol)
         if full:
             break
-        add_t = np.flatnonzero((t_over > screen_tol) & ~t_mask)
-        add_n = np.flatnonzero((z_over > screen_tol) & ~n_mask)
         add_e = np.zeros(0, dtype=np.intp)
         if e_in is not None:
             if res.duals is None:  # no multipliers to price the left-out edges with
@@ -356,8 +352,8 @@ def solve_allocation(
         0.0,
         -lam.min(),
         qp.params.f_n_min - lam.sum(),
-        t_over.max(initial=0.0),
-        z_over.max(initial=0.0),
+        t_worst,
+        z_worst,
     )
     return AllocationSolution(
         x=x,

@@ -16,6 +16,7 @@ from wholehand.models.poses import check_pose
 from wholehand.models.surface import farthest_point_sampling
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
 
 
 CLUSTER_SIZE = 24
@@ -111,6 +112,8 @@ class MeshSDFEstimator(ContactEstimator):
         assert np.array_equal(self._joint, self._cluster_joint[self._cluster])
         self._grid = grid_arguments(self.sdf)
         self._n_joints = int(hand.model.njoints)
+        # Load the compiled kernel now (milliseconds on its first call), not in a cycle.
+        self._kernel(HandKinematics(hand), np.eye(4))
 
     @property
     def n_clusters(self) -> int:
@@ -127,7 +130,23 @@ class MeshSDFEstimator(ContactEstimator):
                 f"({kinematics.bRj.shape[0]} joints) given to an estimator built for hand "
                 f"{self.hand.name!r} ({self._n_joints} joints)"
             )
-        p_world, n_world, link, distance = mesh_sdf_contacts(
+        p_world, n_world, link, distance = self._kernel(kinematics, wMo)
+        hand = self.hand
+        return ContactSet(
+            p_world=p_world,
+            n_world=n_world,
+            link=link,
+            distance=distance,
+            link_actuated=hand.link_actuated,
+            link_fingertip=hand.link_fingertip,
+            stamp=stamp,
+        )
+
+    def _kernel(
+        self, kinematics: HandKinematics, wMo: FloatArray
+    ) -> tuple[FloatArray, FloatArray, IntArray, FloatArray]:
+        """Points, normals, links and distances of the kept contacts (the compiled pass)."""
+        return mesh_sdf_contacts(
             np.ascontiguousarray(wMo),
             np.ascontiguousarray(kinematics.wMb),
             kinematics.bRj,
@@ -141,14 +160,4 @@ class MeshSDFEstimator(ContactEstimator):
             *self._grid,
             self.d_thresh,
             self.k,
-        )
-        hand = self.hand
-        return ContactSet(
-            p_world=p_world,
-            n_world=n_world,
-            link=link,
-            distance=distance,
-            link_actuated=hand.link_actuated,
-            link_fingertip=hand.link_fingertip,
-            stamp=stamp,
         )

@@ -45,6 +45,7 @@ from wholehand.allocation.solve import (
     SCREEN_TOL,
     AllocationSolution,
     binding_rows,
+    load_kernels,
     rows_at_bounds,
     solve_allocation,
 )
@@ -178,6 +179,7 @@ class QPAllocator(Allocator):
         """Allocations per status since construction (or :meth:`reset`)."""
         self.last_solution: AllocationSolution | None = None
         """Solver outcome of the last cycle that reached the solver, for debugging."""
+        load_kernels(self.params, self.qp_solver)  # here, not in the first control cycle
 
     # --------------------------------------------------------------------------------------------
     def reset(self) -> None:

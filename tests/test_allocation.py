@@ -14,7 +14,7 @@ from wholehand_plugins.fingertip_only import FingertipOnlyAllocator
 from wholehand_plugins.qp import SOLVE_SHARE, QPAllocator, QPNoConsistencyAllocator
 
 from wholehand import registry
-from wholehand.allocation.base import Allocation, AllocationStatus
+from wholehand.allocation.base import Allocation, AllocationStatus, hand_keywords
 from wholehand.allocation.bench import run_allocation_benchmark, synthetic_grasp
 from wholehand.allocation.kernels import sigma_min_lower_bound
 from wholehand.allocation.null_space import ActuationNullSpace
@@ -26,7 +26,7 @@ from wholehand.allocation.problem import (
     friction_edges,
 )
 from wholehand.allocation.reference import direct_problem, solved_problem
-from wholehand.allocation.solve import binding_rows, dense_qp, solve_allocation
+from wholehand.allocation.solve import binding_rows, dense_qp, load_kernels, solve_allocation
 from wholehand.allocation.solvers import NATIVE_SOLVERS, available_solvers, make_solver
 from wholehand.allocation.solvers.base import QPResult
 from wholehand.contacts.base import ContactSet
@@ -896,3 +896,11 @@ def test_a_solver_stops_itself_at_its_time_limit(solver: str) -> None:
 def test_deadline_must_be_positive() -> None:
     with pytest.raises(ConfigError, match="deadline=0"):
         QPAllocator(deadline=0)
+
+
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_loading_the_kernels_solves_a_problem_with_every_row_kind(solver: str, allegro) -> None:
+    params = AllocationParams.checked("test", **hand_keywords(allegro))
+    sol = load_kernels(params, make_solver(solver))
+    assert sol.status == "optimal" and sol.violation < 1e-6
+    assert sol.torque_sel.size > 0 and sol.null_sel.size == 1  # torque and consistency rows

@@ -29,6 +29,7 @@ The warm start between cycles is :mod:`wholehand.allocation.warm_start`.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -37,10 +38,16 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.kernels import rows_over, solved_rows
-from wholehand.allocation.problem import N_WRENCH, AllocationQP
+from wholehand.allocation.kernels import finite_inputs, rows_over, solved_rows
+from wholehand.allocation.problem import (
+    N_WRENCH,
+    AllocationParams,
+    AllocationQP,
+    build_allocation_qp,
+)
 from wholehand.allocation.solvers import QPSolver
 from wholehand.allocation.solvers.base import DenseQP, QPResult
+from wholehand.contacts.base import ContactSet
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -415,8 +422,53 @@ def rows_at_bounds(
     return t, z
 
 
+def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSolution:
+    """Run every compiled kernel of building and solving the allocation QP once, then forget
+    the solver's state; returns the solution of the synthetic problem it solved.
+
+    A kernel's first call in a process loads its machine code (tens of milliseconds for all of
+    them, seconds when it is compiled); allocators call this at construction so that this
+    never falls in a control cycle. The problem has the parameters' joints and, so that it is
+    solved with torque and consistency rows in it, loose limits: more contact rows than joints,
+    every torque row and one consistency row from the start.
+    """
+    n_v = 2
+    if params.actuated_dofs is not None and params.actuated_dofs.size:
+        n_v = int(params.actuated_dofs[-1]) + 1
+    if np.ndim(params.tau_max) == 1:
+        n_v = np.shape(params.tau_max)[0]
+    loose = dataclasses.replace(
+        params,
+        tau_max=np.full(n_v, 1e3) if np.ndim(params.tau_max) == 1 else 1e3,
+        eps_margin=1e3,
+    )
+    n = n_v // 3 + 2  # 3 n rows > n_v joints: the rows of J_act^T have a null space
+    rng = np.random.default_rng(0)
+    normals = rng.normal(size=(n, 3))
+    contacts = ContactSet(
+        p_world=rng.normal(scale=0.05, size=(n, 3)),
+        n_world=normals / np.linalg.norm(normals, axis=1, keepdims=True),
+        link=np.zeros(n, dtype=np.intp),
+        distance=np.zeros(n),
+        link_actuated=np.ones(1, dtype=bool),
+        link_fingertip=np.zeros(1, dtype=bool),
+    )
+    J = rng.normal(scale=0.05, size=(n, 3, n_v))
+    finite_inputs(contacts.p_world, contacts.n_world, J, np.zeros(3))
+    qp = build_allocation_qp(contacts, J, np.zeros(3), loose, "load_kernels")
+    every_t = np.arange(qp.torque_rows.size, dtype=np.intp)
+    some_n = np.arange(min(qp.n_null, 1), dtype=np.intp)
+    sol = solve_allocation(qp, solver, torque_sel=every_t, null_sel=some_n)
+    if sol.x is not None:
+        lam = sol.x[: qp.n_lambda]
+        qp.tau(lam), qp.f_world(lam)
+    solver.reset()
+    return sol
+
+
 __all__ = [
     "FEAS_TOL",
+    "load_kernels",
     "ActiveSet",
     "SCREEN_TOL",
     "AllocationSolution",

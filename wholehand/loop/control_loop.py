@@ -43,7 +43,7 @@ from wholehand.errors import ConfigError, ObservationError
 from wholehand.loop.command import Command
 from wholehand.loop.filters import ObservationFilter
 from wholehand.loop.gate import ObservationGate
-from wholehand.loop.observation import Observation, check_observation
+from wholehand.loop.observation import Observation, check_observation, load_observation_check
 from wholehand.loop.stage import END, CycleContext, LoopStatus, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
@@ -218,6 +218,7 @@ class ControlLoop:
         self._kin_now = HandKinematics(hand)
         self._kin_then = HandKinematics(hand)
         self._started: set[str] = set()
+        load_observation_check(hand.nq, hand.nv)  # now rather than in the first cycle
 
     # --------------------------------------------------------------------------------------------
     def run(self, duration: float | None = None) -> LoopReport:

@@ -73,6 +73,7 @@ class GraspLossCheck:
         self._scan_only = len(self._p_joint) <= LINEAR_SUPPORT_MAX_POINTS
         self._faces = coal.StdVec_Triangle()
         self._faces.append(coal.Triangle(0, 1, 2))
+        clear_verdict(self._p_joint, np.eye(4), self._half, self._n_tips, CLEAR_MARGIN)  # load it
 
     def hull_points(self, kinematics: HandKinematics) -> FloatArray:
         """(M, 3) world points whose convex hull stands for the grasping hand [m]."""

@@ -52,6 +52,9 @@ class HandKinematics:
         self._jacobians_fresh = False
         self._placements = placement_views(self.data)
         self.update(self.q, self.wMb)
+        # Load the compiled kernels now rather than in a control cycle.
+        origin = self.transform_points(np.zeros((1, 3)), np.zeros(1, dtype=np.intp))
+        self.point_jacobians(np.zeros(1, dtype=np.intp), origin)
 
     def __getstate__(self) -> dict[str, object]:
         state = self.__dict__.copy()

@@ -19,8 +19,11 @@ without failed solves is bit-identical with or without the guard.
 from __future__ import annotations
 
 import mujoco
+import numba
 import numpy as np
 import numpy.typing as npt
+
+from wholehand.jit import CACHE
 
 MAX_SPEED = 100.0
 """Fastest joint or object speed [rad/s or m/s] a step may end with. The Allegro's joints move
@@ -56,6 +59,7 @@ class StepGuard:
         self._limits = speed_limits(model)
         self.retries = 0
         self.failed_retries = 0
+        _within(np.zeros(model.nv), self._limits)  # load the compiled check now
 
     def clear(self) -> None:
         """Zero the counts (at a simulation reset)."""
@@ -83,7 +87,16 @@ class StepGuard:
 
     def _calm(self, data: mujoco.MjData) -> bool:
         """Every speed within its limit (False for NaN)."""
-        return bool((np.abs(data.qvel) <= self._limits).all())
+        return bool(_within(data.qvel, self._limits))
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def _within(v: npt.NDArray[np.float64], limits: npt.NDArray[np.float64]) -> bool:
+    """``|v| <= limits`` everywhere (False for NaN); compiled, since it runs after every step."""
+    for i in range(v.size):
+        if not abs(v[i]) <= limits[i]:
+            return False
+    return True
 
 
 def speed_limits(model: mujoco.MjModel) -> npt.NDArray[np.float64]:

@@ -1,10 +1,14 @@
-"""Numba kernels of the allocation QP's per-cycle build (:mod:`wholehand.allocation.problem`).
+"""Numba kernels of the allocation QP's per-cycle work (:mod:`wholehand.allocation.problem`,
+:mod:`wholehand.allocation.solve`).
 
 The structured problem of one cycle is a few small products per contact: its frame, its four
 pyramid edges in world axes, their wrenches about the centre of mass and their joint torques.
 Posed as numpy calls (one batched matmul per contact for the torques among them) they cost about
 50 us of Python overhead at 70 contacts; :func:`structured_terms` builds all of them in one
-compiled pass.
+compiled pass. The other kernels do the same for the rest of a cycle's small array work: the
+check that the inputs are finite, the consistency rows, a screening round's rows and bounds, the
+left-out rows a solution violates, the forces of the edge weights and the rank certificate of
+the null-space basis.
 
 Rounding. Each term is computed with the operations, and in the order, that the numpy form it
 replaced used, so a seeded trial gives the same rows to the last bit:

@@ -468,12 +468,12 @@ def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSoluti
 
 __all__ = [
     "FEAS_TOL",
-    "load_kernels",
     "ActiveSet",
     "SCREEN_TOL",
     "AllocationSolution",
     "binding_rows",
     "rows_at_bounds",
     "dense_qp",
+    "load_kernels",
     "solve_allocation",
 ]

@@ -8,6 +8,7 @@ import pytest
 from wholehand.allocation.kernels import (
     consistency_rows,
     edge_forces,
+    selection,
     solved_rows,
     structured_terms,
 )
@@ -97,3 +98,21 @@ def test_solved_rows_stack_the_wrench_squeeze_torque_and_consistency_rows() -> N
     np.testing.assert_array_equal(A, expected)
     np.testing.assert_array_equal(lower, np.r_[-w_ext, 10.0, t_lo, -0.5, -0.5])
     np.testing.assert_array_equal(upper, np.r_[-w_ext, np.inf, t_hi, 0.5, 0.5])
+
+
+def test_selection_is_a_mask_and_its_sorted_indices() -> None:
+    mask, idx = selection(np.array([4, 1, 4, 9, 0], dtype=np.intp), 6)
+    np.testing.assert_array_equal(mask, [True, True, False, False, True, False])
+    np.testing.assert_array_equal(idx, [0, 1, 4])
+    mask, idx = selection(np.zeros(0, dtype=np.intp), 3)
+    assert not mask.any() and idx.size == 0
+
+
+def test_daqp_bounds_clip_infinities_and_keep_nan() -> None:
+    from wholehand.allocation.solvers.daqp_solver import _bounds
+
+    ub, upper = np.array([np.inf, 2.0]), np.array([-1.0, np.nan])
+    lb, lower = np.array([0.0, -np.inf]), np.array([-np.inf, 3.0])
+    bu, bl = _bounds(ub, upper, lb, lower, 1e30)
+    np.testing.assert_array_equal(bu, np.minimum(np.r_[ub, upper], 1e30))
+    np.testing.assert_array_equal(bl, np.maximum(np.r_[lb, lower], -1e30))

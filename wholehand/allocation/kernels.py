@@ -262,6 +262,17 @@ def rows_over(
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def selection(sel: IntArray, size: int) -> tuple[BoolArray, IntArray]:
+    """The (size,) mask of the indices ``sel`` below ``size``, and those indices sorted without
+    repeats."""
+    mask = np.zeros(size, dtype=np.bool_)
+    for i in sel:
+        if i < size:
+            mask[i] = True
+    return mask, np.flatnonzero(mask)
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def sigma_min_lower_bound(qr: FloatArray, k: int) -> float:  # pragma: no cover - jit
     """A lower bound of the smallest singular value of the upper-triangular ``R``, the upper
     triangle of ``qr[:k, :k]`` (as LAPACK's ``dgeqrf`` leaves it): ``1 / ||R^-1||_F``, from
@@ -294,6 +305,7 @@ __all__ = [
     "edge_forces",
     "finite_inputs",
     "rows_over",
+    "selection",
     "sigma_min_lower_bound",
     "solved_rows",
     "structured_terms",

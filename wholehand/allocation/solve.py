@@ -38,7 +38,7 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.kernels import finite_inputs, rows_over, solved_rows
+from wholehand.allocation.kernels import finite_inputs, rows_over, selection, solved_rows
 from wholehand.allocation.problem import (
     N_WRENCH,
     AllocationParams,
@@ -54,6 +54,8 @@ IntArray = npt.NDArray[np.intp]
 
 SCREEN_TOL: float = 1e-9
 """A left-out row violated by more than this is added to the working set [N or N*m]."""
+
+_NONE = np.zeros(0, dtype=np.intp)
 
 FEAS_TOL: float = 1e-5
 """Largest constraint violation of an accepted solution [N or N*m]; beyond it: solver failure."""
@@ -261,21 +263,16 @@ def solve_allocation(
     eps = qp.params.eps_margin
     n_null = qp.n_null if np.isfinite(eps) else 0
     all_n = np.arange(n_null, dtype=np.intp)
-    t_mask = np.zeros(all_t.size, bool)
-    n_mask = np.zeros(n_null, bool)
     e_mask = np.ones(nl, bool)
     if not screening:
-        t_mask[:] = True
-        n_mask[:] = True
+        t_mask, t_in = np.ones(all_t.size, bool), all_t
+        n_mask, n_in = np.ones(n_null, bool), all_n
     else:
-        if torque_sel is not None:
-            t_mask[torque_sel[torque_sel < all_t.size]] = True
-        if null_sel is not None:
-            n_mask[null_sel[null_sel < n_null]] = True
+        t_mask, t_in = selection(_NONE if torque_sel is None else torque_sel, all_t.size)
+        n_mask, n_in = selection(_NONE if null_sel is None else null_sel, n_null)
         if screen_edges and edge_sel is not None:
             e_mask[:] = False
             e_mask[edge_sel[edge_sel < nl]] = True
-    t_in, n_in = np.flatnonzero(t_mask), np.flatnonzero(n_mask)
     limits = qp.tau_max[qp.torque_rows]
     eps_limits = np.full(n_null, eps)
     rounds = iterations = 0

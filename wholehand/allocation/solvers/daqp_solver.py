@@ -7,9 +7,11 @@ from collections import OrderedDict
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+import numba
 import numpy as np
 
 from wholehand.allocation.solvers.base import BIG, DenseQP, FloatArray, QPResult, QPSolver
+from wholehand.jit import CACHE
 
 _EXIT_TIMELIMIT = -7
 """DAQP's exit flag for a solve stopped at its time limit."""
@@ -56,8 +58,7 @@ class DaqpSolver(QPSolver):
 
         n = qp.p_diag.size
         key = (n, qp.A.shape[0], qp.n_eq)
-        bu = np.minimum(np.concatenate((qp.ub, qp.upper)), BIG)
-        bl = np.maximum(np.concatenate((qp.lb, qp.lower)), -BIG)
+        bu, bl = _bounds(qp.ub, qp.upper, qp.lb, qp.lower, BIG)
         sense = np.zeros(bu.size, dtype=np.intc)
         sense[n : n + qp.n_eq] = _ACTIVE | _IMMUTABLE  # equality
         entry = self._models.get(key)
@@ -106,6 +107,23 @@ class DaqpSolver(QPSolver):
         self._last_key = None
         status = {-1: "infeasible", _EXIT_TIMELIMIT: "deadline"}.get(flag, "failed")
         return QPResult(None, status, it, f"exitflag {flag}", info)
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def _bounds(
+    ub: FloatArray, upper: FloatArray, lb: FloatArray, lower: FloatArray, big: float
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - jit
+    """DAQP's upper and lower bounds: the variables' then the rows', infinite ones as +-big
+    (NaN stays NaN, as with ``np.minimum``)."""
+    n, m = ub.size, upper.size
+    bu = np.empty(n + m)
+    bl = np.empty(n + m)
+    for i in range(n + m):
+        u = ub[i] if i < n else upper[i - n]
+        low = lb[i] if i < n else lower[i - n]
+        bu[i] = big if u > big else u
+        bl[i] = -big if low < -big else low
+    return bu, bl
 
 
 def _set_time_limit(model: Any, seconds: float | None) -> None:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from wholehand.allocation.kernels import (
+    at_bounds,
     consistency_rows,
     edge_forces,
     selection,
@@ -116,3 +117,10 @@ def test_daqp_bounds_clip_infinities_and_keep_nan() -> None:
     bu, bl = _bounds(ub, upper, lb, lower, 1e30)
     np.testing.assert_array_equal(bu, np.minimum(np.r_[ub, upper], 1e30))
     np.testing.assert_array_equal(bl, np.maximum(np.r_[lb, lower], -1e30))
+
+
+def test_rows_at_bounds_within_the_relative_and_absolute_slack() -> None:
+    values = np.array([1.0, -0.9999995, 0.5, np.nan, -2.0])
+    limits = np.ones(5)
+    np.testing.assert_array_equal(at_bounds(values, limits, 1e-6, 1e-9), [0, 1, 4])
+    np.testing.assert_array_equal(at_bounds(values, limits, 0.0, 0.0), [0, 4])

@@ -256,3 +256,13 @@ def test_kernel_ties_keep_row_order(k):
     np.testing.assert_array_equal(p_world, p_joint[rows])
     np.testing.assert_array_equal(distance, np.float32(-0.001))
     assert np.all(np.isfinite(n_world))
+
+
+def test_unit_normals_flags_degenerate_ones() -> None:
+    from wholehand.contacts.kernels import unit_normals
+
+    n = np.array([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0], [0.0, 0.0, 0.0], [np.nan, 0.0, 1.0]])
+    unit, every = unit_normals(n, 1e-3)
+    np.testing.assert_array_equal(unit, [True, True, False, False])
+    assert not every
+    assert unit_normals(n[:2] * (1.0 + 4e-4), 1e-3)[1]  # |n|^2 - 1 = 8e-4 < 1e-3

@@ -262,6 +262,19 @@ def rows_over(
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def at_bounds(values: FloatArray, limits: FloatArray, rel: float, abs_tol: float) -> IntArray:
+    """Indices of the two-sided rows ``|values| <= limits`` at or past their bounds:
+    ``|values| >= limits (1 - rel) - abs_tol``, increasing."""
+    out = np.empty(values.size, dtype=np.intp)
+    n = 0
+    for i in range(values.size):
+        if abs(values[i]) >= limits[i] * (1.0 - rel) - abs_tol:
+            out[n] = i
+            n += 1
+    return out[:n]
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def selection(sel: IntArray, size: int) -> tuple[BoolArray, IntArray]:
     """The (size,) mask of the indices ``sel`` below ``size``, and those indices sorted without
     repeats."""
@@ -300,6 +313,7 @@ def sigma_min_lower_bound(qr: FloatArray, k: int) -> float:  # pragma: no cover 
 
 
 __all__ = [
+    "at_bounds",
     "consistency_rows",
     "contact_frames",
     "edge_forces",

@@ -38,7 +38,13 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.kernels import finite_inputs, rows_over, selection, solved_rows
+from wholehand.allocation.kernels import (
+    at_bounds,
+    finite_inputs,
+    rows_over,
+    selection,
+    solved_rows,
+)
 from wholehand.allocation.problem import (
     N_WRENCH,
     AllocationParams,
@@ -413,10 +419,9 @@ def rows_at_bounds(
     """(positions in ``qp.torque_rows``, consistency-row indices) whose values (every torque
     row's ``T_lam @ lambda`` [N*m], every consistency row's [N]) are at or past their bounds."""
     lim = qp.tau_max[qp.torque_rows]
-    t = np.flatnonzero(np.abs(qp.torque_totals(torque_values)) >= lim * (1.0 - rel) - abs_tol)
-    eps = qp.params.eps_margin
-    z = np.flatnonzero(np.abs(null_values) >= eps * (1.0 - rel) - abs_tol)
-    return t, z
+    t = at_bounds(qp.torque_totals(torque_values), lim, rel, abs_tol)
+    eps = np.full(null_values.size, qp.params.eps_margin)
+    return t, at_bounds(np.ascontiguousarray(null_values), eps, rel, abs_tol)
 
 
 def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSolution:
@@ -458,7 +463,7 @@ def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSoluti
     sol = solve_allocation(qp, solver, torque_sel=every_t, null_sel=some_n)
     if sol.x is not None:
         lam = sol.x[: qp.n_lambda]
-        qp.tau(lam), qp.f_world(lam)
+        qp.tau(lam), qp.f_world(lam), binding_rows(qp, sol)
     solver.reset()
     return sol
 

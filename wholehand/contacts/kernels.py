@@ -53,6 +53,7 @@ from wholehand.models.sdf import SignedDistanceGrid
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 
 _F32_TINY = np.float32(1e-30)  # floor of the gradient norm, as in SignedDistanceGrid
 
@@ -356,3 +357,16 @@ def mesh_sdf_contacts(
         link_out[i] = sel_link[i]
         distance[i] = d
     return p_world, n_world, link_out, distance
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def unit_normals(n_world: FloatArray, tol: float) -> tuple[BoolArray, bool]:  # pragma: no cover
+    """Which of the (N, 3) normals are unit vectors (``| |n|^2 - 1 | < tol``, False for NaN),
+    and whether all are. ``|n|^2`` is summed as numpy's ``einsum`` sums it here (two lanes)."""
+    unit = np.empty(n_world.shape[0], dtype=np.bool_)
+    every = True
+    for i in range(n_world.shape[0]):
+        x, y, z = n_world[i, 0], n_world[i, 1], n_world[i, 2]
+        unit[i] = abs((x * x + z * z) + y * y - 1.0) < tol
+        every = every and unit[i]
+    return unit, every

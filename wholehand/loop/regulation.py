@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from wholehand.allocation.base import Allocator
 from wholehand.contacts.base import ContactEstimator
+from wholehand.contacts.kernels import unit_normals
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
@@ -135,6 +136,7 @@ class ForceRegulation(Stage):
         """The links' gravity torques, when compensated."""
         self.degenerate_normals = 0
         """Contacts dropped because their normal was not a unit vector."""
+        unit_normals(np.zeros((0, 3)), UNIT_TOL)  # load the compiled check now
 
     def start(self, context: CycleContext) -> None:
         """Let the allocator prepare (baselines allocate once here)."""
@@ -152,9 +154,8 @@ class ForceRegulation(Stage):
         now = context.kinematics
         then = context.kinematics_object if self.estimate_at == "object_stamp" else now
         contacts = self.estimator.estimate(then, wMo, stamp=obs.stamp_object)
-        n = contacts.n_world
-        unit = np.abs(np.einsum("ij,ij->i", n, n) - 1.0) < UNIT_TOL  # False for NaN
-        if not unit.all():
+        unit, every = unit_normals(contacts.n_world, UNIT_TOL)  # False for NaN
+        if not every:
             self.degenerate_normals += int((~unit).sum())
             if not unit.any():
                 return StageOutput(None, BAD_CONTACTS, contacts.select(unit))

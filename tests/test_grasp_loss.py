@@ -35,6 +35,17 @@ def hull_meets_box(points: np.ndarray, wMo: np.ndarray, lo: np.ndarray, hi: np.n
     return result.status == 0
 
 
+def random_case(rng, hand, kin, check, obj) -> tuple[np.ndarray, np.ndarray]:
+    """Hull points of a random hand configuration, and an object pose whose box centre lies
+    near them, spread so that both outcomes occur, many near the border."""
+    kin.update(rng.uniform(hand.q_lower, hand.q_upper), hand.wMb)
+    points = check.hull_points(kin)
+    wMo = np.eye(4)
+    wMo[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    wMo[:3, 3] = points.mean(axis=0) + rng.normal(scale=0.06, size=3) - wMo[:3, :3] @ obj.com
+    return points, wMo
+
+
 @pytest.mark.parametrize("scan_only", [True, False])
 def test_held_matches_the_exact_hull_box_intersection(allegro, scan_only):
     cube = load_object("077_rubiks_cube")
@@ -46,12 +57,7 @@ def test_held_matches_the_exact_hull_box_intersection(allegro, scan_only):
     rng = np.random.default_rng(7)
     outcomes = []
     for _ in range(150):
-        kin.update(rng.uniform(allegro.q_lower, allegro.q_upper), allegro.wMb)
-        points = check.hull_points(kin)
-        wMo = np.eye(4)
-        wMo[:3, :3] = Rotation.random(random_state=rng).as_matrix()
-        # Box centres spread around the hull so that both outcomes occur, many near the border.
-        wMo[:3, 3] = points.mean(axis=0) + rng.normal(scale=0.06, size=3) - wMo[:3, :3] @ cube.com
+        points, wMo = random_case(rng, allegro, kin, check, cube)
         expected = hull_meets_box(points, wMo, lo, hi)
         assert check.held(kin, wMo) == expected
         assert check._gjk(points, wMo @ check._oMbox) == expected  # without the clear cases
@@ -67,11 +73,7 @@ def test_clear_verdicts_are_the_exact_ones_and_common(allegro):
     rng = np.random.default_rng(8)
     verdicts = []
     for _ in range(300):
-        kin.update(rng.uniform(allegro.q_lower, allegro.q_upper), allegro.wMb)
-        points = check.hull_points(kin)
-        wMo = np.eye(4)
-        wMo[:3, :3] = Rotation.random(random_state=rng).as_matrix()
-        wMo[:3, 3] = points.mean(axis=0) + rng.normal(scale=0.06, size=3) - wMo[:3, :3] @ cube.com
+        points, wMo = random_case(rng, allegro, kin, check, cube)
         wMbox = wMo @ check._oMbox
         verdict = clear_verdict(points, wMbox, check._half, check._n_tips, CLEAR_MARGIN)
         if verdict >= 0:

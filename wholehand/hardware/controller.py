@@ -131,7 +131,8 @@ def run_controller(
     try:
         with Ros2Backend(hand, obj, config, trace=trace) as backend:
             backend.wait_for_streams(wait)
-            # First calls load compiled kernels (~0.1-0.2 s each): here, not in a cycle.
+            # wholehand's kernels load when built; a first estimate here also loads a third-party
+            # estimator's (~0.1-0.2 s each) and checks the first reading, not in a cycle.
             first, warm = backend.observe(), HandKinematics(hand)
             check_observation(first, hand.nq, hand.nv)
             warm.update(first.q, first.wMb)

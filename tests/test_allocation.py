@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 import qpsolvers
+from kernels_loaded import kernel_versions, loaded_since
 from wholehand_plugins.fingertip_only import FingertipOnlyAllocator
 from wholehand_plugins.qp import SOLVE_SHARE, QPAllocator, QPNoConsistencyAllocator
 
@@ -247,6 +248,38 @@ def test_edge_screening_keeps_the_problems_small_near_a_loss() -> None:
     assert sol.status == "optimal" and sol.rounds == 1 and sol.n_edges == support.size
     assert sol.x is not None
     np.testing.assert_allclose(sol.x, full.x, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize(
+    "params", [{}, {"screen_edges": True}, {"screening": False}], ids=["rows", "edges", "full"]
+)
+def test_a_built_allocator_loads_no_kernel_while_allocating(params: dict[str, Any]) -> None:
+    """Every kernel version a cycle uses is loaded when the allocator is built, including those
+    of several consistency rows at once (LAPACK returns their columns in Fortran order)."""
+    cs, J, com = near_loss()
+    alloc = QPAllocator(**params)
+    before = kernel_versions()
+    out = alloc.allocate(cs, J, com)
+    sol = alloc.last_solution
+    assert out.status is AllocationStatus.OK and sol is not None and sol.null_sel.size > 1
+    assert loaded_since(before) == {}
+
+
+def test_a_round_adding_edges_starts_from_the_last_rounds_solution() -> None:
+    """Left-out edge weights sit at zero, so a round that adds them starts with their bounds
+    active: the fallback to the full problem after one screening round then costs far fewer
+    iterations than a cold solve of the full problem, and ends at its optimum."""
+    cs, J, com = near_loss()
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test"))
+    full = solve_allocation(qp, make_solver("daqp"), screening=False)
+    assert full.x is not None
+    support = np.flatnonzero(full.x[: qp.n_lambda] > 1e-9)
+    half = support[: support.size // 2]
+    sol = solve_allocation(qp, make_solver("daqp"), edge_sel=half, max_rounds=1)
+    assert sol.rounds == 2 and sol.n_edges == qp.n_lambda  # one screened round, then the full
+    assert sol.x is not None and sol.violation < 1e-8
+    np.testing.assert_allclose(sol.x, full.x, rtol=1e-6, atol=1e-7)
+    assert sol.iterations < full.iterations / 2
 
 
 class _DeadlineOnSecondSolve:

@@ -8,6 +8,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
+from kernels_loaded import kernel_versions, loaded_since
 
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
@@ -147,6 +148,35 @@ def test_same_seed_same_record(allegro, cube, tmp_path):
         np.testing.assert_array_equal(first[key], second[key], err_msg=key)
     other = run_trial(TrialSpec(**{**spec.__dict__, "seed": 4}), hand=allegro, obj=cube).arrays()
     assert not np.array_equal(first["p_object"][-1], other["p_object"][-1])
+
+
+class KernelWatch(Observer):
+    """The compiled kernel versions loaded between the loop's start (everything built) and its
+    end."""
+
+    def on_start(self, loop):
+        self.before = kernel_versions()
+
+    def on_end(self, loop):
+        self.loaded = loaded_since(self.before)
+
+
+def test_no_cycle_loads_a_kernel(allegro):
+    """Constructors load every kernel version the cycles use, so no cycle pays milliseconds
+    for one (edge screening included: the hardware controller's setting). The bottle's grasp 1
+    pulled by 90 deg binds dozens of consistency rows."""
+    bottle = load_object("006_mustard_bottle")
+    for params in ({}, {"screen_edges": True}):
+        watch = KernelWatch()
+        spec = TrialSpec(
+            object=bottle.name,
+            grasp=1,
+            theta_deg=90.0,
+            allocator_params=params,
+            protocol_params=TINY,
+        )
+        run_trial(spec, hand=allegro, obj=bottle, observers=[watch])
+        assert watch.loaded == {}, params
 
 
 def test_an_old_record_is_refused_by_name(tmp_path):

@@ -324,7 +324,9 @@ class AllocationQP:
     def null_rows(self, idx: IntArray) -> FloatArray:
         """(len(idx), 4N) consistency rows ``(N_u^T f_act)[idx]`` as functions of ``lambda``."""
         assert self.null is not None
-        Nc = self.null.columns(idx).reshape(-1, 3, len(idx))  # (N_act, 3, k)
+        # C order whatever LAPACK left, so that the kernel sees one layout (each layout is a
+        # kernel of its own, loaded on first use: milliseconds, in a control cycle).
+        Nc = np.ascontiguousarray(self.null.columns(idx)).reshape(-1, 3, len(idx))  # (N_act, 3, k)
         return cast(FloatArray, consistency_rows(Nc, self.W, self.act_idx))
 
     def violation(self, x: FloatArray) -> float:

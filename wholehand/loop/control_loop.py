@@ -275,7 +275,7 @@ class ControlLoop:
                 f"ConfigError: stage {self.active!r} switched to {name!r}, which is not one of "
                 f"{sorted(self.stages)}"
             )
-            self._keep_error(t, self.active, message, "")
+            self._keep_error(t, self.active, message, None)
             return
         self.report.transitions.append(Transition(t, self.active, name, reason))
         self.active = name
@@ -332,7 +332,7 @@ class ControlLoop:
         except Exception as err:  # noqa: BLE001 - the loop never raises mid-grasp
             output = StageOutput(None, LoopStatus.STAGE_ERROR.value)
             fault = f"{type(err).__name__}: {err}"
-            self._keep_error(t, stage.name, fault, traceback.format_exc())
+            self._keep_error(t, stage.name, fault, err)
         if output.command is not None:
             self.command = output.command
         self.backend.apply(self.command)
@@ -376,10 +376,13 @@ class ControlLoop:
         self.report.max_excess = max(self.report.max_excess, excess)
         return dataclasses.replace(command, tau=np.clip(tau, -limit, limit))
 
-    def _keep_error(self, t: float, stage: str, error: str, trace: str) -> None:
+    def _keep_error(
+        self, t: float, stage: str, error: str, exception: BaseException | None
+    ) -> None:
         report = self.report
         report.n_errors += 1
-        if len(report.errors) < MAX_KEPT_ERRORS:
+        if len(report.errors) < MAX_KEPT_ERRORS:  # the traceback only of those kept (~1 ms)
+            trace = "" if exception is None else "".join(traceback.format_exception(exception))
             report.errors.append(StageError(t, stage, error, trace))
         if report.n_errors == 1:
             log.error("stage %r raised at t = %.4f s: %s", stage, t, error)

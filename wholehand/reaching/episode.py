@@ -193,8 +193,10 @@ def run_episode(
     held_at = table.centre
     plans = _plans(grasp_hand, obj, on_table)
 
+    kin = HandKinematics(grasp_hand)  # one for every check: the stages check in their cycles
+
     def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
-        return usable_on_table(grasp_hand, plan, wMo_now, table, HAND_MARGIN)
+        return usable_on_table(grasp_hand, plan, wMo_now, table, HAND_MARGIN, kin)
 
     start = plans[int(rng.integers(len(plans)))]
     if on_table:  # resting on the face the first plan was made on, turned at random

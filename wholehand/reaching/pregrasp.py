@@ -115,12 +115,19 @@ def lowest_point(
 
 
 def usable_on_table(
-    hand: HandModel, plan: GraspPlan, wMo: FloatArray, table: Table, margin: float = 0.0
+    hand: HandModel,
+    plan: GraspPlan,
+    wMo: FloatArray,
+    table: Table,
+    margin: float = 0.0,
+    kinematics: HandKinematics | None = None,
 ) -> bool:
     """True if neither the grasp nor its pre-grasp comes within ``margin`` [m] of the table
-    top (or below it)."""
+    top (or below it); updates ``kinematics`` (of ``hand``) if given, else a new one (building
+    one takes about 0.3 ms: a caller checking many plans in a control cycle passes its own)."""
+    kin = HandKinematics(hand) if kinematics is None else kinematics
     return all(
-        lowest_point(hand, q, wMo @ oMb) >= table.top + margin
+        lowest_point(hand, q, wMo @ oMb, kin) >= table.top + margin
         for q, oMb in ((plan.q_grasp, plan.oMb_grasp), (plan.q_pre, plan.oMb_pre))
     )
 

@@ -9,8 +9,11 @@ Topics, joint names, rates, QoS and the safety limits come from a hardware confi
 (:mod:`wholehand.hardware.rmw_zenoh`), so no ROS installation is needed.
 
 Every joint state is kept in the joint history, so the contacts of a pose are estimated at the
-joint configuration of the pose's stamp (paper Sec. V-D). Incoming messages that fail their
-checks (:mod:`wholehand.hardware.inputs`) are counted by reason and the last good sample stays;
+joint configuration of the pose's stamp (paper Sec. V-D). With ``sync_to_joint_states`` (the
+default) a cycle whose newest joint state is no longer fresh waits for the next one, briefly
+(:mod:`wholehand.hardware.config`), so that the torque answers a joint state just measured.
+Incoming messages that fail their checks (:mod:`wholehand.hardware.inputs`) are counted by reason
+and the last good sample stays;
 every outgoing torque passes the safety rules of :class:`~wholehand.hardware.guard.TorqueGuard`,
 and a watchdog thread ramps the torque down when the loop stops sending.
 """
@@ -80,6 +83,9 @@ class Ros2Backend(Backend):
         rejected: rejected messages per reason (``malformed``, ``not_finite``,
             ``unknown_joint``, ``wrong_length``, ``out_of_range``, ``wrong_frame``, ...).
         guard: the safety rules; ``guard.counts`` says how often each acted.
+        sync: cycles by how they met the joint states (``fresh``: the newest was fresh;
+            ``waited``: the next arrived within the wait; ``timed_out``: it did not).
+        sync_wait: time the cycles spent waiting for joint states [s], in all.
         trace: ``(sequence number, stamp_q of the joint state used [s], publish time [ns])`` per
             torque message when ``trace`` is on.
     """
@@ -115,7 +121,17 @@ class Ros2Backend(Backend):
         self.trace: deque[tuple[int, float, int]] | None = (
             deque(maxlen=TRACE_SAMPLES) if trace else None
         )
+        self.sync: Counter[str] = Counter()
+        self.sync_wait = 0.0
+        joint_period = 1.0 / config.joint_state_rate
+        self._fresh_age = 0.25 * joint_period
+        self._max_sync_wait = (
+            min(1.25 * joint_period, 0.4 / config.control_rate)
+            if config.sync_to_joint_states
+            else 0.0
+        )
         self._lock = threading.Lock()
+        self._joint_arrived = threading.Condition(self._lock)
         self._pending: list[JointSample] = []
         self._joint: JointSample | None = None
         self._previous: JointSample | None = None
@@ -171,6 +187,7 @@ class Ros2Backend(Backend):
             self._joint_received = received
             self._pending.append(sample)
             self.received["joint_states"] += 1
+            self._joint_arrived.notify_all()
 
     def _on_pose(self, payload: bytes, attachment: bytes | None, received: float) -> None:
         config = self.config
@@ -279,9 +296,27 @@ class Ros2Backend(Backend):
             self.trace.append((self._torque.sequence_number, self._stamp_q_seen, stamp_ns))
 
     def step(self, duration: float) -> None:
-        """Wait ``duration`` [s]."""
+        """Wait ``duration`` [s], then, with ``sync_to_joint_states``, for a fresh joint state
+        (:mod:`wholehand.hardware.config`; counted in :attr:`sync`)."""
         if duration > 0.0:
             time.sleep(duration)
+        if self._max_sync_wait > 0.0:
+            self._wait_for_fresh_joints()
+
+    def _wait_for_fresh_joints(self) -> None:
+        with self._joint_arrived:
+            received = self._joint_received
+            started = time.monotonic()
+            if self._joint is None:
+                return  # nothing to wait for: the cycle reports bad_state
+            if started - received < self._fresh_age:
+                self.sync["fresh"] += 1
+                return
+            arrived = self._joint_arrived.wait_for(
+                lambda: self._joint_received != received, timeout=self._max_sync_wait
+            )
+            self.sync["waited" if arrived else "timed_out"] += 1
+            self.sync_wait += time.monotonic() - started
 
     @property
     def time(self) -> float:
@@ -308,6 +343,8 @@ class Ros2Backend(Backend):
                 "guard": dict(self.guard.counts),
                 "torque_messages": self._torque.sequence_number,
                 "command_joints": self.command_names,
+                "sync": dict(self.sync),
+                "sync_wait_s": self.sync_wait,
             }
 
     def close(self) -> None:

@@ -3,7 +3,9 @@ safety rules, and the ros2 backend against a fake robot on loopback."""
 
 from __future__ import annotations
 
+import dataclasses
 import struct
+import threading
 import time
 
 import numpy as np
@@ -39,9 +41,11 @@ def test_config_defaults_and_file(tmp_path):
     path.write_text(
         '[ros2]\ndomain_id = 7\ndistro = "humble"\n[topics]\njoint_states = "/hand/joint_states"\n'
         '[qos]\nobject_pose = { reliability = "best_effort", depth = 5 }\n'
-        "[safety]\npose_timeout = 0.1\n"
+        "[safety]\npose_timeout = 0.1\n[rates]\nsync_to_joint_states = false\n"
     )
+    assert load_hardware_config().sync_to_joint_states
     config = load_hardware_config(path)
+    assert not config.sync_to_joint_states
     assert config.domain_id == 7 and config.topics["joint_states"] == "/hand/joint_states"
     assert config.qos_of("object_pose").reliability == "best_effort"
     assert config.safety.pose_timeout == 0.1 and config.safety.pose_ramp == 0.5
@@ -59,6 +63,7 @@ def test_config_defaults_and_file(tmp_path):
         ({"safety": {"pose_timeout": -1.0}}, "pose_timeout must be > 0"),
         ({"safety": {"pose_timout": 1.0}}, "unknown keys ['pose_timout']"),
         ({"joints": {"ignore": "a"}}, "[joints] ignore must be a list"),
+        ({"rates": {"sync_to_joint_states": 1}}, "sync_to_joint_states must be true or false"),
     ],
 )
 def test_config_errors_name_the_problem(raw, named):
@@ -409,6 +414,41 @@ def test_backend_watchdog_ramps_down_when_the_loop_stops(allegro, robot_and_back
     _until(lambda: np.allclose(robot.torques[-1], 0.0), timeout=2.0)
     first = robot.torques[1]
     assert np.all(first <= 0.1 + 1e-12) and np.all(first >= 0.0)
+
+
+def test_a_cycle_starts_on_a_fresh_joint_state_waiting_briefly_for_one(allegro):
+    """Past its start time, a cycle whose newest joint state is stale waits for the next one
+    (so the torque answers a joint state just measured), at most a bounded time; a fresh one
+    needs no wait. Slow streams keep the windows wide: fresh below 25 ms, waits up to 125 ms."""
+    from wholehand_plugins.ros2_backend import Ros2Backend
+
+    endpoint = loopback_endpoint()
+    robot = FakeRobot(HardwareConfig(listen=(endpoint,), connect=()))
+    config = HardwareConfig(connect=(endpoint,), joint_state_rate=10.0, control_rate=2.0)
+    names, q = list(allegro.joint_names), allegro.neutral()
+    try:
+        with Ros2Backend(allegro, None, config) as backend:
+            _until_connected(robot, backend, names, q)
+            time.sleep(0.1)  # the newest joint state is stale now
+            stamp = time.time()
+            later = msgs.encode_joint_state(stamp, names, q + 0.01)
+            threading.Timer(0.02, lambda: robot.joints.put(later)).start()
+            backend.step(0.0)
+            assert backend.sync == {"waited": 1}
+            np.testing.assert_allclose(backend.observe().q, q + 0.01)  # this cycle's sample
+            backend.step(0.0)
+            assert backend.sync["fresh"] == 1
+            time.sleep(0.1)
+            backend.step(0.0)  # nothing comes
+            assert backend.sync["timed_out"] == 1
+            assert backend.stats()["sync"] == {"waited": 1, "fresh": 1, "timed_out": 1}
+            assert 0.0 < backend.sync_wait < 1.0
+    finally:
+        robot.close()
+    unsynced = dataclasses.replace(config, sync_to_joint_states=False)
+    with Ros2Backend(allegro, None, unsynced) as backend:
+        backend.step(0.0)
+        assert backend.sync == {}
 
 
 def test_backend_with_no_joint_state_sends_zero_and_wait_names_the_topic(allegro):

@@ -145,6 +145,7 @@ def _cmd_hw(args: argparse.Namespace) -> int:
         spec=spec,
         pose_stamp=args.pose_stamp,
         stamp_source=args.stamp_source,
+        sync_to_joint_states=not args.no_sync,
     )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -271,6 +272,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="header",
         choices=["header", "receipt"],
         help="what the controller takes as a pose's time",
+    )
+    p.add_argument(
+        "--no-sync",
+        action="store_true",
+        help="cycles do not wait for a fresh joint state ([rates] sync_to_joint_states = false)",
     )
     p.add_argument("--out", help="also write the JSON here")
     p.set_defaults(func=_cmd_hw)

@@ -50,16 +50,23 @@ def run_hw_benchmark(
     spec: ControllerSpec | None = None,
     pose_stamp: str = "image",
     stamp_source: StampSource = "header",
+    sync_to_joint_states: bool = True,
 ) -> dict[str, Any]:
     """Run the double and the controller over each grasp of each object; latency percentiles
-    over all messages, and whether each grasp held the load test."""
+    over all messages, and whether each grasp held the load test. ``sync_to_joint_states``:
+    the controller's setting of that name (:mod:`wholehand.hardware.config`)."""
     spec = spec or ControllerSpec()
     hand_model = load_hand(hand)
     answer, controller, transport, rates, rows = [], [], [], [], []
     for obj, grasp in ((o, g) for o in objects for g in grasps):
         obj_model = load_object(obj)
         endpoint = loopback_endpoint()
-        config = HardwareConfig(connect=(endpoint,), listen=(), stamp_source=stamp_source)
+        config = HardwareConfig(
+            connect=(endpoint,),
+            listen=(),
+            stamp_source=stamp_source,
+            sync_to_joint_states=sync_to_joint_states,
+        )
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "sim.json"
             argv = [
@@ -121,6 +128,8 @@ def run_hw_benchmark(
                 "statuses": robot["statuses"],
                 "rejected": result["backend"]["rejected"],
                 "guard": result["backend"]["guard"],
+                "sync": result["backend"]["sync"],
+                "sync_wait_s": result["backend"]["sync_wait_s"],
                 "late_cycles": robot["late_cycles"],
                 "max_torque_rate_Nm_s": robot["max_torque_rate_Nm_s"],
             }
@@ -140,6 +149,7 @@ def run_hw_benchmark(
         "allocate_every": spec.allocate_every,
         "pose_stamp": pose_stamp,
         "stamp_source": stamp_source,
+        "sync_to_joint_states": sync_to_joint_states,
         "held": sum(r["held"] for r in rows),
         "grasps": len(rows),
         "answer_ms": _percentiles(answer),

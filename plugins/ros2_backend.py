@@ -13,9 +13,9 @@ joint configuration of the pose's stamp (paper Sec. V-D). With ``sync_to_joint_s
 default) a cycle whose newest joint state is no longer fresh waits for the next one, briefly
 (:mod:`wholehand.hardware.config`), so that the torque answers a joint state just measured.
 Incoming messages that fail their checks (:mod:`wholehand.hardware.inputs`) are counted by reason
-and the last good sample stays;
-every outgoing torque passes the safety rules of :class:`~wholehand.hardware.guard.TorqueGuard`,
-and a watchdog thread ramps the torque down when the loop stops sending.
+and the last good sample stays; every outgoing torque passes the safety rules of
+:class:`~wholehand.hardware.guard.TorqueGuard`, and a watchdog thread ramps the torque down when
+the loop stops sending.
 """
 
 from __future__ import annotations

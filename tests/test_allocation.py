@@ -29,7 +29,7 @@ from wholehand.allocation.problem import (
 from wholehand.allocation.reference import direct_problem, solved_problem
 from wholehand.allocation.solve import binding_rows, dense_qp, load_kernels, solve_allocation
 from wholehand.allocation.solvers import NATIVE_SOLVERS, available_solvers, make_solver
-from wholehand.allocation.solvers.base import QPResult
+from wholehand.allocation.solvers.base import DenseQP, QPResult
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 
@@ -924,6 +924,44 @@ def test_a_solver_stops_itself_at_its_time_limit(solver: str) -> None:
     roomy = adapter.solve(dense_qp(qp, *rows), time_limit=60.0)
     assert roomy.status == "optimal" and roomy.x is not None and free.x is not None
     np.testing.assert_allclose(roomy.x, free.x, atol=1e-6)
+
+
+def test_daqp_keeps_one_model_per_shape_and_notices_a_new_hessian_or_limit() -> None:
+    """The adapter reuses a problem shape's model: a Hessian diagonal of that shape with other
+    values (a new array, or the same array changed in place) sets it up again, and a time limit
+    lifted again after a stopped solve lets the next solve finish. Checked against the
+    closed-form optimum of ``min 1/2 sum p_i x_i^2 s.t. x_1 + x_2 >= 1``: ``x_i = (1/p_i) /
+    sum(1/p)``."""
+    adapter = make_solver("daqp")
+
+    def problem(p: np.ndarray) -> DenseQP:
+        return DenseQP(
+            p,
+            np.array([[1.0, 1.0]]),
+            np.ones(1),
+            np.full(1, np.inf),
+            0,
+            np.full(2, -np.inf),
+            np.full(2, np.inf),
+        )
+
+    def optimum(p: np.ndarray) -> np.ndarray:
+        return (1.0 / p) / (1.0 / p).sum()
+
+    p = np.array([1.0, 3.0])
+    for _ in range(2):  # the second solve reuses the model
+        np.testing.assert_allclose(adapter.solve(problem(p)).x, optimum(p), atol=1e-12)
+    p[:] = [2.0, 1.0]  # the same array, changed in place
+    np.testing.assert_allclose(adapter.solve(problem(p)).x, optimum(p), atol=1e-12)
+    fixed = np.array([4.0, 1.0])
+    fixed.setflags(write=False)
+    np.testing.assert_allclose(adapter.solve(problem(fixed)).x, optimum(fixed), atol=1e-12)
+    np.testing.assert_allclose(adapter.solve(problem(fixed)).x, optimum(fixed), atol=1e-12)
+    cs, J, com = near_loss()
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test"))
+    rows = np.arange(qp.torque_rows.size), np.arange(qp.n_null)
+    assert adapter.solve(dense_qp(qp, *rows), time_limit=1e-9).status == "deadline"
+    assert adapter.solve(dense_qp(qp, *rows)).status == "optimal"  # no limit left behind
 
 
 def test_deadline_must_be_positive() -> None:

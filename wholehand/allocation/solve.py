@@ -57,6 +57,7 @@ from wholehand.contacts.base import ContactSet
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 
 SCREEN_TOL: float = 1e-9
 """A left-out row violated by more than this is added to the working set [N or N*m]."""
@@ -272,7 +273,7 @@ def solve_allocation(
     eps = qp.params.eps_margin
     n_null = qp.n_null if np.isfinite(eps) else 0
     all_n = np.arange(n_null, dtype=np.intp)
-    e_mask = np.ones(nl, bool)
+    e_mask: BoolArray | None = None  # the edge weights in the problem, when screened
     if not screening:
         t_mask, t_in = np.ones(all_t.size, bool), all_t
         n_mask, n_in = np.ones(n_null, bool), all_n
@@ -280,7 +281,7 @@ def solve_allocation(
         t_mask, t_in = selection(_NONE if torque_sel is None else torque_sel, all_t.size)
         n_mask, n_in = selection(_NONE if null_sel is None else null_sel, n_null)
         if screen_edges and edge_sel is not None:
-            e_mask[:] = False
+            e_mask = np.zeros(nl, bool)
             e_mask[edge_sel[edge_sel < nl]] = True
     limits = qp.tau_max[qp.torque_rows]
     eps_limits = np.full(n_null, eps)
@@ -294,8 +295,8 @@ def solve_allocation(
         full = rounds > max_rounds
         if full:
             t_in, n_in = all_t, all_n
-            e_mask[:] = True
-        e_in = None if e_mask.all() else np.flatnonzero(e_mask)
+            e_mask = None
+        e_in = None if e_mask is None or e_mask.all() else np.flatnonzero(e_mask)
         start = None
         if x0 is not None and solver.primal_warm_start:
             start = x0 if e_in is None else np.concatenate((x0[e_in], x0[nl:]))
@@ -316,9 +317,9 @@ def solve_allocation(
         if res.status == "deadline":
             return _deadline(rounds, iterations, t_in, n_in, x_relaxed)
         if res.status == "infeasible" and e_in is not None:
-            e_mask[:] = True  # infeasible with some edges held at zero: try them all
+            e_mask = None  # infeasible with some edges held at zero: try them all
             continue
-        if res.x is None or not np.all(np.isfinite(res.x)):
+        if res.x is None or not np.isfinite(res.x).all():
             return AllocationSolution(
                 x=None,
                 status=res.status if res.x is None else "failed",
@@ -344,8 +345,9 @@ def solve_allocation(
         add_n, z_worst = rows_over(z_val, eps_limits, n_mask, screen_tol)
         if full:
             break
-        add_e = np.zeros(0, dtype=np.intp)
+        add_e = _NONE
         if e_in is not None:
+            assert e_mask is not None
             if res.duals is None:  # no multipliers to price the left-out edges with
                 add_e = np.flatnonzero(~e_mask)
             else:
@@ -358,7 +360,8 @@ def solve_allocation(
             guess = ActiveSet.of(qp, res.duals, t_in, n_in, e_in)
         t_mask[add_t] = True
         n_mask[add_n] = True
-        e_mask[add_e] = True
+        if e_mask is not None:
+            e_mask[add_e] = True
         t_in, n_in = np.flatnonzero(t_mask), np.flatnonzero(n_mask)
         x0, warm = x, True
     viol = max(
@@ -380,7 +383,7 @@ def solve_allocation(
         null_sel=n_in,
         torque_values=t_val,
         null_values=z_val,
-        n_edges=int(e_mask.sum()),
+        n_edges=nl if e_mask is None else int(e_mask.sum()),
     )
 
 

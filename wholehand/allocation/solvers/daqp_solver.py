@@ -5,13 +5,17 @@ from __future__ import annotations
 import time
 from collections import OrderedDict
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numba
 import numpy as np
+import numpy.typing as npt
 
 from wholehand.allocation.solvers.base import BIG, DenseQP, FloatArray, QPResult, QPSolver
 from wholehand.jit import CACHE
+
+SenseArray = npt.NDArray[np.intc]
 
 _EXIT_TIMELIMIT = -7
 """DAQP's exit flag for a solve stopped at its time limit."""
@@ -43,7 +47,7 @@ class DaqpSolver(QPSolver):
         import daqp  # noqa: F401  (fail at construction when missing)
 
         super().__init__(settings)
-        self._models: OrderedDict[tuple[int, int, int], tuple[Any, FloatArray]] = OrderedDict()
+        self._models: OrderedDict[tuple[int, int, int], _Kept] = OrderedDict()
         self._last_key: tuple[int, int, int] | None = None
 
     def reset(self) -> None:
@@ -59,10 +63,9 @@ class DaqpSolver(QPSolver):
         n = qp.p_diag.size
         key = (n, qp.A.shape[0], qp.n_eq)
         bu, bl = _bounds(qp.ub, qp.upper, qp.lb, qp.lower, BIG)
-        sense = np.zeros(bu.size, dtype=np.intc)
-        sense[n : n + qp.n_eq] = _ACTIVE | _IMMUTABLE  # equality
-        entry = self._models.get(key)
-        own = warm and key == self._last_key and entry is not None
+        kept = self._models.get(key)
+        sense = _equality_sense(n, bu.size, qp.n_eq) if kept is None else kept.sense
+        own = warm and key == self._last_key and kept is not None
         start = sense
         if qp.active is not None and not own:
             start = sense.copy()
@@ -70,7 +73,7 @@ class DaqpSolver(QPSolver):
             start[qp.active < 0] = _ACTIVE | _LOWER
             start[n : n + qp.n_eq] = _ACTIVE | _IMMUTABLE
         warm = own or start is not sense
-        if entry is None or not np.array_equal(entry[1], qp.p_diag):
+        if kept is None or not (kept.p_diag is qp.p_diag or np.array_equal(kept.p_diag, qp.p_diag)):
             model = daqp.Model()
             unknown = set(self.settings) - set(model.settings)
             if unknown:
@@ -79,10 +82,15 @@ class DaqpSolver(QPSolver):
                 )
             model.settings = dict(self.settings)
             model.setup(np.diag(qp.p_diag), np.zeros(n), qp.A, bu, bl, start)
-            self._models[key] = (model, qp.p_diag.copy())
+            # An immutable diagonal is kept as it is, so that the next solve of this shape (the
+            # allocation passes one array per size) is recognised by identity.
+            fixed = not qp.p_diag.flags.writeable and qp.p_diag.flags.owndata
+            p_diag = qp.p_diag if fixed else qp.p_diag.copy()
+            kept = _Kept(model, p_diag, sense, float(model.settings["time_limit"]))
+            self._models[key] = kept
             warm = start is not sense
         else:
-            model = entry[0]
+            model = kept.model
             self._models.move_to_end(key)
             if own:
                 model.update(A=qp.A, bupper=bu, blower=bl)
@@ -92,17 +100,17 @@ class DaqpSolver(QPSolver):
             self._models.popitem(last=False)
         self._last_key = key
         started = time.perf_counter()
-        _set_time_limit(model, time_limit)
+        kept.set_time_limit(time_limit)
         x, _, flag, info = model.solve()
         if flag <= 0 and flag != _EXIT_TIMELIMIT and warm:
             model.update(A=qp.A, bupper=bu, blower=bl, sense=sense)
             if time_limit is not None:
-                _set_time_limit(model, time_limit - (time.perf_counter() - started))
+                kept.set_time_limit(time_limit - (time.perf_counter() - started))
             x, _, flag, info = model.solve()
         it = int(info.get("iterations", 0))
-        if flag > 0:
-            x = np.array(x, dtype=np.float64)
-            duals = np.array(info["lam"], dtype=np.float64)
+        if flag > 0:  # DAQP returns copies of its buffers
+            x = np.asarray(x, dtype=np.float64)
+            duals = np.asarray(info["lam"], dtype=np.float64)
             return QPResult(x, "optimal", it, f"exitflag {flag}", info, duals)
         self._last_key = None
         status = {-1: "infeasible", _EXIT_TIMELIMIT: "deadline"}.get(flag, "failed")
@@ -126,8 +134,30 @@ def _bounds(
     return bu, bl
 
 
-def _set_time_limit(model: Any, seconds: float | None) -> None:
-    """DAQP's own time limit (0: none); a spent budget keeps a token limit, never 'none'."""
-    limit = 0.0 if seconds is None else max(seconds, 1e-9)
-    if model.settings["time_limit"] != limit:
-        model.settings = {"time_limit": limit}
+def _equality_sense(n: int, size: int, n_eq: int) -> SenseArray:
+    """DAQP's constraint flags of a problem with ``n`` variables, ``size`` bounds in all and
+    ``n_eq`` leading equality rows, nothing else active (kept with the model and never written
+    to: DAQP's typed buffers refuse read-only arrays)."""
+    sense = np.zeros(size, dtype=np.intc)
+    sense[n : n + n_eq] = _ACTIVE | _IMMUTABLE
+    return sense
+
+
+@dataclass
+class _Kept:
+    """A DAQP model of one problem shape, with what it was set up with."""
+
+    model: Any
+    p_diag: FloatArray
+    """Hessian diagonal the model was set up with (read-only)."""
+    sense: SenseArray
+    """Constraint flags with only the equality rows active."""
+    time_limit: float
+    """The model's time limit setting [s] (0: none), mirrored to skip DAQP's settings dict."""
+
+    def set_time_limit(self, seconds: float | None) -> None:
+        """DAQP's own time limit (0: none); a spent budget keeps a token limit, never 'none'."""
+        limit = 0.0 if seconds is None else max(seconds, 1e-9)
+        if self.time_limit != limit:
+            self.model.settings = {"time_limit": limit}
+            self.time_limit = limit

@@ -32,9 +32,13 @@ def test_terms_match_their_numpy_definitions(seed: int) -> None:
     n = 9
     n_world, p_world, p_com, J = _case(seed, n)
     E = friction_edges(0.7)
-    act_idx = np.array([0, 2, 3, 7], dtype=np.intp)
+    actuated = np.zeros(n, dtype=bool)
+    actuated[[0, 2, 3, 7]] = True
     dofs = np.array([1, 3, 4, 9, 15], dtype=np.intp)
-    wRc, r, W, G, T, moved = structured_terms(n_world, p_world, p_com, E, J, act_idx, dofs)
+    tau_max = np.array([1.0, 1.0, np.inf, 0.5, 2.0])  # joint 4: no limit, so no torque row
+    wRc, r, W, G, act_idx, J_act, moved, torque_rows, T = structured_terms(
+        n_world, p_world, p_com, E, J, actuated, dofs, tau_max
+    )
 
     # Frames: orthonormal, right-handed, first column into the object.
     np.testing.assert_allclose(
@@ -50,18 +54,25 @@ def test_terms_match_their_numpy_definitions(seed: int) -> None:
             col = G[:, 4 * i + e]
             np.testing.assert_array_equal(col[:3], W[i, :, e])
             np.testing.assert_allclose(col[3:], np.cross(r[i], W[i, :, e]), atol=1e-16)
+    # The actuated contacts' Jacobian rows on the commanded joints, copied.
+    np.testing.assert_array_equal(act_idx, [0, 2, 3, 7])
+    np.testing.assert_array_equal(J_act, J[act_idx][:, :, dofs].reshape(-1, dofs.size))
+    np.testing.assert_array_equal(moved, [0, 2, 3, 4])  # joint 3 (position 1): moved by none
+    np.testing.assert_array_equal(torque_rows, [0, 3, 4])  # and joint 4 has no limit
     # Torques: J_i^T W_i for actuated contacts, zero columns for the others.
     expected = np.zeros((dofs.size, n, 4))
     for i in act_idx:
         expected[:, i, :] = J[i][:, dofs].T @ W[i]
-    np.testing.assert_allclose(T, expected.reshape(dofs.size, -1), rtol=0, atol=1e-15)
-    np.testing.assert_array_equal(moved, [True, False, True, True, True])
+    expected = expected.reshape(dofs.size, -1)[torque_rows]
+    np.testing.assert_allclose(T, expected, rtol=0, atol=1e-15)
 
 
 def test_edge_forces_are_the_edges_weighted() -> None:
     n_world, p_world, p_com, J = _case(5, 6)
     E = friction_edges(0.5)
-    W = structured_terms(n_world, p_world, p_com, E, J, np.arange(6), np.arange(16))[2]
+    W = structured_terms(
+        n_world, p_world, p_com, E, J, np.ones(6, dtype=bool), np.arange(16), np.ones(16)
+    )[2]
     lam = np.random.default_rng(1).random(24)
     rows = np.array([4, 1], dtype=np.intp)
     expected = np.einsum("nij,nj->ni", W[rows], lam.reshape(-1, 4)[rows])

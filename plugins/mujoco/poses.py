@@ -10,6 +10,9 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 
+_IDENTITY = np.eye(4)
+_IDENTITY.setflags(write=False)
+
 
 def mujoco_quat(M: FloatArray) -> FloatArray:
     """(4,) unit quaternion (w, x, y, z) of the rotation of the (4, 4) pose ``M``."""
@@ -20,8 +23,8 @@ def mujoco_quat(M: FloatArray) -> FloatArray:
 
 def pose_from_mujoco(pos: npt.ArrayLike, quat: npt.ArrayLike) -> FloatArray:
     """(4, 4) pose from a position (3,) [m] and a quaternion (w, x, y, z)."""
-    M = np.eye(4)
-    R = np.zeros(9)
+    M = _IDENTITY.copy()  # np.eye costs several times more, once per pose in every cycle
+    R = np.empty(9)
     mujoco.mju_quat2Mat(R, np.asarray(quat, dtype=float))
     M[:3, :3] = R.reshape(3, 3)
     M[:3, 3] = pos

@@ -98,9 +98,13 @@ def structured_terms(
     p_com: FloatArray,
     E: FloatArray,
     J_world: FloatArray,
-    act_idx: IntArray,
+    actuated: BoolArray,
     dofs: IntArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray]:
+    tau_max: FloatArray,
+) -> tuple[
+    FloatArray, FloatArray, FloatArray, FloatArray, IntArray, FloatArray, IntArray, IntArray,
+    FloatArray,
+]:  # fmt: skip
     """The per-contact terms of the structured allocation QP, in one pass.
 
     Args:
@@ -109,14 +113,18 @@ def structured_terms(
         p_com: (3,) object centre of mass, world frame [m].
         E: (3, 4) friction-pyramid edges in local axes (``friction_edges(mu)``).
         J_world: (N, 3, n_v) point Jacobians, world axes [m/rad or -].
-        act_idx: (N_act,) contacts on actuated links, increasing.
+        actuated: (N,) contacts on actuated links.
         dofs: (n_a,) commanded joints, increasing.
+        tau_max: (n_a,) their torque limits [N*m] (``inf``: no limit).
 
     Returns:
         ``wRc`` (N, 3, 3) frames; ``r_world`` (N, 3) points about the COM [m]; ``W`` (N, 3, 4)
-        edges in world axes; ``G_lam`` (6, 4N) their wrenches; ``T`` (n_a, 4N) their joint
-        torques, ``T[a, 4 i + e] = J_i[:, dofs[a]] . W_i[:, e]`` (zero columns for contacts
-        not actuated) [m]; ``moved`` (n_a,) joints some actuated contact's Jacobian moves.
+        edges in world axes; ``G_lam`` (6, 4N) their wrenches; ``act_idx`` (N_act,) the
+        actuated contacts; ``J_act`` (3 N_act, n_a) their Jacobians' rows, commanded joints
+        only; ``moved`` (k,) positions in ``dofs`` of the joints some actuated contact's
+        Jacobian moves; ``torque_rows`` (n_t,) those of them with a finite limit; ``T_lam``
+        (n_t, 4N) the edges' torques on those joints, ``T_lam[t, 4 i + e] = J_i[:,
+        dofs[torque_rows[t]]] . W_i[:, e]`` (zero columns for contacts not actuated) [m].
     """
     n = n_world.shape[0]
     n_e = E.shape[1]
@@ -136,19 +144,30 @@ def structured_terms(
                 s = fma(R[row, 1], E[1, e], s)
                 W[i, row, e] = fma(R[row, 2], E[2, e], s)
         _wrench_columns(r_world[i], W[i], G_lam, n_e * i)
-    T = np.zeros((n_a, n_e * n))
-    moved = np.zeros(n_a, dtype=np.bool_)
-    for i in act_idx:
-        for a in range(n_a):
-            d = dofs[a]
+    act_idx = np.flatnonzero(actuated)
+    J_act = np.empty((3 * act_idx.size, n_a))
+    is_moved = np.zeros(n_a, dtype=np.bool_)
+    for k in range(act_idx.size):
+        i = int(act_idx[k])
+        for c in range(3):
+            for a in range(n_a):
+                v = J_world[i, c, dofs[a]]
+                J_act[3 * k + c, a] = v
+                if v != 0.0:
+                    is_moved[a] = True
+    moved = np.flatnonzero(is_moved)
+    torque_rows = np.flatnonzero(is_moved & np.isfinite(tau_max))
+    T_lam = np.zeros((torque_rows.size, n_e * n))
+    for k in range(act_idx.size):
+        i = int(act_idx[k])
+        for t in range(torque_rows.size):
+            d = dofs[torque_rows[t]]
             j0, j1, j2 = J_world[i, 0, d], J_world[i, 1, d], J_world[i, 2, d]
-            if j0 != 0.0 or j1 != 0.0 or j2 != 0.0:
-                moved[a] = True
             for e in range(n_e):
                 s = fma(j0, W[i, 0, e], 0.0)
                 s = fma(j1, W[i, 1, e], s)
-                T[a, n_e * i + e] = fma(j2, W[i, 2, e], s)
-    return wRc, r_world, W, G_lam, T, moved
+                T_lam[t, n_e * i + e] = fma(j2, W[i, 2, e], s)
+    return wRc, r_world, W, G_lam, act_idx, J_act, moved, torque_rows, T_lam
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")

@@ -379,29 +379,19 @@ def build_allocation_qp(
         raise ConfigError(f"{owner}: p_com_world has shape {p_com_world.shape}, expected (3,)")
     n_v = J_world.shape[2]
     dofs, tau_max = params.dofs_and_limits(n_v, owner)
-    act_idx = np.flatnonzero(contacts.actuated)
-    wRc, r_world, W, G_lam, T, nonzero = structured_terms(
+    wRc, r_world, W, G_lam, act_idx, J_act, moved, torque_rows, T_lam = structured_terms(
         np.ascontiguousarray(contacts.n_world, dtype=np.float64),
         np.ascontiguousarray(contacts.p_world, dtype=np.float64),
         p_com_world,
         params.edges,
         np.ascontiguousarray(J_world),
-        act_idx,
+        contacts.actuated,
         dofs,
+        tau_max,
     )
-    J_act = (J_world[act_idx] if dofs.size == n_v else J_world[act_idx][:, :, dofs]).reshape(
-        -1, dofs.size
-    )
-    moved = nonzero & np.isfinite(tau_max)
-    if moved.all():
-        torque_rows = np.arange(dofs.size, dtype=np.intp)
-        T_lam = T
-    else:
-        torque_rows = np.flatnonzero(moved)
-        T_lam = T[torque_rows]
     null = None
     if params.consistency and act_idx.size:
-        null = ActuationNullSpace(J_act, params.svd_tol, np.flatnonzero(nonzero))
+        null = ActuationNullSpace(J_act, params.svd_tol, moved)
     return AllocationQP(
         params=params,
         n_v=n_v,

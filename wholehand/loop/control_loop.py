@@ -325,7 +325,9 @@ class ControlLoop:
                     stage.start(context)
                 output = stage.step(context)
                 if output.command is not None:
-                    output = dataclasses.replace(output, command=self._checked(output.command))
+                    checked = self._checked(output.command)
+                    if checked is not output.command:
+                        output = dataclasses.replace(output, command=checked)
         except ObservationError as err:
             output = StageOutput(None, LoopStatus.BAD_STATE.value)
             fault = str(err)
@@ -369,7 +371,7 @@ class ControlLoop:
                 f"stage {self.active!r} commanded torques {what}; the hand needs "
                 f"({limit.shape[0]},) finite values [N*m]"
             )
-        excess = float(np.max(np.abs(tau) - limit))
+        excess = float((np.abs(tau) - limit).max())
         if excess <= 0.0:
             return command
         self.report.clamped += 1

@@ -7,6 +7,7 @@ placements) is all a cycle needs to move every sample.
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 from typing import Any
@@ -353,11 +354,11 @@ class HandModel:
     def name(self) -> str:
         return self.config.name
 
-    @property
-    def nq(self) -> int:
+    @functools.cached_property
+    def nq(self) -> int:  # cached: read in every control cycle, and each read crosses into C++
         return int(self.model.nq)
 
-    @property
+    @functools.cached_property
     def nv(self) -> int:
         return int(self.model.nv)
 

@@ -73,7 +73,7 @@ class HandKinematics:
                 f"HandKinematics.update: q has shape {q.shape}, hand {self.hand.name!r} "
                 f"needs ({self.model.nq},)"
             )
-        if not np.all(np.isfinite(q)):
+        if not np.isfinite(q).all():
             raise ConfigError(f"HandKinematics.update: q contains NaN or inf: {q.tolist()}")
         if wMb is not None:
             self.wMb = check_pose(wMb, "wMb (hand base pose)")

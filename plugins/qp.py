@@ -32,7 +32,7 @@ from wholehand.allocation.base import (
     Allocator,
     checked_jacobians,
 )
-from wholehand.allocation.kernels import finite_inputs
+from wholehand.allocation.kernels import finite_inputs, rows_of_joints
 from wholehand.allocation.problem import (
     N_EDGES,
     REG,
@@ -313,9 +313,7 @@ class QPAllocator(Allocator):
         warm = self._warm
         if warm.lam is None:
             return {}
-        was_binding = np.zeros(qp.n_v, dtype=bool)
-        was_binding[warm.torque_dofs[warm.torque_dofs < qp.n_v]] = True
-        torque_sel = np.flatnonzero(was_binding[qp.dofs[qp.torque_rows]])
+        torque_sel = rows_of_joints(warm.torque_dofs, qp.n_v, qp.dofs, qp.torque_rows)
         null_sel = warm.null_rows if warm.same_links(contacts.link) else None
         out: dict[str, Any] = {"warm": True, "torque_sel": torque_sel, "null_sel": null_sel}
         use_edges = self.screen_edges and self.qp_solver.reports_duals

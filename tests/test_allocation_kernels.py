@@ -9,6 +9,7 @@ from wholehand.allocation.kernels import (
     at_bounds,
     consistency_rows,
     edge_forces,
+    rows_of_joints,
     selection,
     solved_rows,
     structured_terms,
@@ -135,3 +136,12 @@ def test_rows_at_bounds_within_the_relative_and_absolute_slack() -> None:
     limits = np.ones(5)
     np.testing.assert_array_equal(at_bounds(values, limits, 1e-6, 1e-9), [0, 1, 4])
     np.testing.assert_array_equal(at_bounds(values, limits, 0.0, 0.0), [0, 4])
+
+
+def test_rows_of_joints_are_the_torque_rows_of_those_joints() -> None:
+    dofs = np.array([0, 2, 3, 5, 8], dtype=np.intp)
+    torque_rows = np.array([0, 1, 3, 4], dtype=np.intp)  # joints 0, 2, 5, 8 have rows
+    joints = np.array([8, 3, 2, 11], dtype=np.intp)  # 3: no row; 11: beyond n_v
+    got = rows_of_joints(joints, 9, dofs, torque_rows)
+    np.testing.assert_array_equal(got, [1, 3])  # rows of joints 2 and 8, by position
+    assert rows_of_joints(np.zeros(0, dtype=np.intp), 9, dofs, torque_rows).size == 0

@@ -294,6 +294,23 @@ def at_bounds(values: FloatArray, limits: FloatArray, rel: float, abs_tol: float
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def rows_of_joints(joints: IntArray, n_v: int, dofs: IntArray, torque_rows: IntArray) -> IntArray:
+    """Positions in ``torque_rows`` (indices into ``dofs``) of the torque rows of the given
+    joints (indices in ``[0, n_v)``; others are ignored), increasing."""
+    mark = np.zeros(n_v, dtype=np.bool_)
+    for j in joints:
+        if 0 <= j < n_v:
+            mark[j] = True
+    out = np.empty(torque_rows.size, dtype=np.intp)
+    k = 0
+    for t in range(torque_rows.size):
+        if mark[dofs[torque_rows[t]]]:
+            out[k] = t
+            k += 1
+    return out[:k]
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def selection(sel: IntArray, size: int) -> tuple[BoolArray, IntArray]:
     """The (size,) mask of the indices ``sel`` below ``size``, and those indices sorted without
     repeats."""
@@ -337,6 +354,7 @@ __all__ = [
     "contact_frames",
     "edge_forces",
     "finite_inputs",
+    "rows_of_joints",
     "rows_over",
     "selection",
     "sigma_min_lower_bound",

@@ -41,6 +41,7 @@ import numpy.typing as npt
 from wholehand.allocation.kernels import (
     at_bounds,
     finite_inputs,
+    rows_of_joints,
     rows_over,
     selection,
     solved_rows,
@@ -470,6 +471,7 @@ def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSoluti
     if sol.x is not None:
         lam = sol.x[: qp.n_lambda]
         qp.tau(lam), qp.f_world(lam), binding_rows(qp, sol)
+    rows_of_joints(qp.dofs[qp.torque_rows], qp.n_v, qp.dofs, qp.torque_rows)  # the warm start's
     solver.reset()
     return sol
 

@@ -76,7 +76,9 @@ class WarmStart:
 
     def same_links(self, link: IntArray) -> bool:
         """True when the contacts sit on the same links, in the same order, as last cycle."""
-        return self.link is not None and np.array_equal(self.link, link)
+        # Not np.array_equal: the same test with a few microseconds less of Python, every cycle.
+        last = self.link
+        return last is not None and last.shape == link.shape and bool((last == link).all())
 
 
 __all__ = ["MATCH_RADIUS", "WarmStart"]

@@ -68,7 +68,7 @@ class HandKinematics:
     def update(self, q: npt.ArrayLike, wMb: FloatArray | None = None) -> None:
         """Run forward kinematics at joint positions ``q`` (n_q,) with base pose ``wMb`` (4, 4)."""
         q = np.asarray(q, dtype=float)
-        if q.shape != (self.model.nq,):
+        if q.shape != (self.hand.nq,):
             raise ConfigError(
                 f"HandKinematics.update: q has shape {q.shape}, hand {self.hand.name!r} "
                 f"needs ({self.model.nq},)"

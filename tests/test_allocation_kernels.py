@@ -9,12 +9,14 @@ from wholehand.allocation.kernels import (
     at_bounds,
     consistency_rows,
     edge_forces,
+    priced_edges,
     rows_of_joints,
     selection,
     solved_rows,
     structured_terms,
 )
 from wholehand.allocation.problem import friction_edges
+from wholehand.allocation.warm_start import WarmStart
 
 
 def _case(seed: int, n: int, n_v: int = 16):
@@ -102,15 +104,38 @@ def test_solved_rows_stack_the_wrench_squeeze_torque_and_consistency_rows() -> N
     nl = 8
     G, T, N = rng.normal(size=(6, nl)), rng.normal(size=(5, nl)), rng.normal(size=(2, nl))
     w_ext, sel = rng.normal(size=6), np.array([4, 1], dtype=np.intp)
-    t_lo, t_hi = -rng.random(2), rng.random(2)
-    A, lower, upper = solved_rows(G, T, sel, N, w_ext, 10.0, t_lo, t_hi, 0.5)
+    t_lo, t_hi = -rng.random(5), rng.random(5)  # bounds of every torque row
+    every = np.arange(nl, dtype=np.intp)
+    A, lower, upper = solved_rows(G, T, sel, N, w_ext, 10.0, t_lo, t_hi, 0.5, every)
     expected = np.zeros((11, nl + 6))
     expected[:6, :nl], expected[:6, nl:] = G, -np.eye(6)  # G lambda - w
     expected[6, :nl] = 1.0  # sum(lambda)
     expected[7:9, :nl], expected[9:, :nl] = T[sel], N
     np.testing.assert_array_equal(A, expected)
-    np.testing.assert_array_equal(lower, np.r_[-w_ext, 10.0, t_lo, -0.5, -0.5])
-    np.testing.assert_array_equal(upper, np.r_[-w_ext, np.inf, t_hi, 0.5, 0.5])
+    np.testing.assert_array_equal(lower, np.r_[-w_ext, 10.0, t_lo[sel], -0.5, -0.5])
+    np.testing.assert_array_equal(upper, np.r_[-w_ext, np.inf, t_hi[sel], 0.5, 0.5])
+    # Some edge weights only: their columns, then the wrench's.
+    edges = np.array([1, 5, 6], dtype=np.intp)
+    A_e, lower_e, upper_e = solved_rows(G, T, sel, N, w_ext, 10.0, t_lo, t_hi, 0.5, edges)
+    np.testing.assert_array_equal(A_e, np.hstack((expected[:, edges], expected[:, nl:])))
+    np.testing.assert_array_equal(lower_e, lower)
+    np.testing.assert_array_equal(upper_e, upper)
+
+
+def test_priced_edges_are_the_left_out_columns_with_a_negative_multiplier() -> None:
+    """Each left-out edge's price is its column of the full rows times the multipliers."""
+    rng = np.random.default_rng(10)
+    nl = 12
+    G, T, N = rng.normal(size=(6, nl)), rng.normal(size=(5, nl)), rng.normal(size=(3, nl))
+    sel = np.array([0, 3], dtype=np.intp)
+    every = np.arange(nl, dtype=np.intp)
+    A = solved_rows(G, T, sel, N, np.zeros(6), 1.0, -np.ones(5), np.ones(5), 1.0, every)[0]
+    y = rng.normal(size=A.shape[0])
+    price = A[:, :nl].T @ y
+    in_problem = rng.random(nl) < 0.4
+    got = priced_edges(G, T, sel, N, y, in_problem, 1e-9)
+    np.testing.assert_array_equal(got, np.flatnonzero((price < -1e-9) & ~in_problem))
+    assert got.size > 0  # the case checks something
 
 
 def test_selection_is_a_mask_and_its_sorted_indices() -> None:
@@ -145,3 +170,37 @@ def test_rows_of_joints_are_the_torque_rows_of_those_joints() -> None:
     got = rows_of_joints(joints, 9, dofs, torque_rows)
     np.testing.assert_array_equal(got, [1, 3])  # rows of joints 2 and 8, by position
     assert rows_of_joints(np.zeros(0, dtype=np.intp), 9, dofs, torque_rows).size == 0
+
+
+def _nearest_on_link(p, link, q, q_link, radius):
+    """The match's definition, one contact at a time."""
+    out = np.full(len(p), -1)
+    for i in range(len(p)):
+        same = np.flatnonzero(q_link == link[i])
+        if same.size:
+            d = np.linalg.norm(q[same] - p[i], axis=1)
+            if d.min() <= radius:
+                out[i] = same[np.argmin(d)]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_warm_start_matches_each_contact_to_the_nearest_on_its_link(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    q = rng.random((12, 3)) * 0.05
+    q_link = rng.integers(0, 4, 12).astype(np.intp)
+    p = np.vstack((q[[3, 3, 7]] + 0.001, rng.random((4, 3)) * 0.05))  # two near contact 3
+    link = np.r_[q_link[[3, 3, 7]], rng.integers(0, 5, 4)].astype(np.intp)
+    warm = WarmStart(match_radius=0.005, p_world=q, link=q_link)
+    got = warm.match(p, link)
+    np.testing.assert_array_equal(got, _nearest_on_link(p, link, q, q_link, 0.005))
+    np.testing.assert_array_equal(got[:3], [3, 3, 7])
+    # Same links in the same order and within the radius: the identity; one moved away: not.
+    np.testing.assert_array_equal(warm.match(q + 0.001, q_link), np.arange(12))
+    moved = q.copy()
+    moved[5] += 0.01
+    np.testing.assert_array_equal(
+        warm.match(moved, q_link), _nearest_on_link(moved, q_link, q, q_link, 0.005)
+    )
+    assert warm.match(moved, q_link)[5] != 5
+    assert (WarmStart().match(p, link) == -1).all()  # nothing to continue

@@ -230,34 +230,74 @@ def solved_rows(
     t_lower: FloatArray,
     t_upper: FloatArray,
     eps: float,
+    edge_sel: IntArray,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - jit
-    """The rows of the solved form over ``x = [lambda (nl); w (6)]`` and their bounds: the
-    wrench equality ``G_lam lambda - w = -w_ext``, the minimum squeeze ``sum(lambda) >=
-    f_n_min``, the torque rows ``T_lam[torque_sel]`` within ``[t_lower, t_upper]`` and the
+    """The rows of the solved form over ``x = [lambda[edge_sel] (k); w (6)]`` and their bounds
+    (the other edge weights held at zero): the wrench equality ``G_lam lambda - w = -w_ext``,
+    the minimum squeeze ``sum(lambda) >= f_n_min``, the torque rows ``T_lam[torque_sel]``
+    within ``[t_lower, t_upper][torque_sel]`` (bounds of every torque row, (n_t,)) and the
     consistency rows ``null_rows`` (nn, nl) within ``+-eps``.
 
     Returns:
-        ``A`` (7 + nt + nn, nl + 6), ``lower`` and ``upper`` (7 + nt + nn,).
+        ``A`` (7 + nt + nn, k + 6), ``lower`` and ``upper`` (7 + nt + nn,).
     """
-    nl = G_lam.shape[1]
+    k = edge_sel.size
     nt, nn = torque_sel.size, null_rows.shape[0]
     m = 7 + nt + nn
-    A = np.zeros((m, nl + 6))
+    A = np.zeros((m, k + 6))
     lower = np.empty(m)
     upper = np.empty(m)
     for r in range(6):
-        A[r, :nl] = G_lam[r]
-        A[r, nl + r] = -1.0
+        for c in range(k):
+            A[r, c] = G_lam[r, edge_sel[c]]
+        A[r, k + r] = -1.0
         lower[r] = upper[r] = -w_ext[r]
-    A[6, :nl] = 1.0
+    A[6, :k] = 1.0
     lower[6], upper[6] = f_n_min, np.inf
-    for k in range(nt):
-        A[7 + k, :nl] = T_lam[torque_sel[k]]
-        lower[7 + k], upper[7 + k] = t_lower[k], t_upper[k]
-    for k in range(nn):
-        A[7 + nt + k, :nl] = null_rows[k]
-        lower[7 + nt + k], upper[7 + nt + k] = -eps, eps
+    for t in range(nt):
+        row = torque_sel[t]
+        for c in range(k):
+            A[7 + t, c] = T_lam[row, edge_sel[c]]
+        lower[7 + t], upper[7 + t] = t_lower[row], t_upper[row]
+    for j in range(nn):
+        for c in range(k):
+            A[7 + nt + j, c] = null_rows[j, edge_sel[c]]
+        lower[7 + nt + j], upper[7 + nt + j] = -eps, eps
     return A, lower, upper
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def priced_edges(
+    G_lam: FloatArray,
+    T_lam: FloatArray,
+    torque_sel: IntArray,
+    null_rows: FloatArray,
+    y: FloatArray,
+    in_problem: BoolArray,
+    tol: float,
+) -> IntArray:  # pragma: no cover - jit
+    """The edge weights left out of a screening round (``in_problem`` False) whose bound
+    ``lambda_j >= 0`` would need a multiplier below ``-tol``: ``A_j . y < -tol``, with ``A_j``
+    the edge's column in the round's rows (as :func:`solved_rows` stacks them: wrench, squeeze,
+    ``T_lam[torque_sel]``, ``null_rows``) and ``y`` (m,) their multipliers. Increasing."""
+    nl = G_lam.shape[1]
+    nt, nn = torque_sel.size, null_rows.shape[0]
+    out = np.empty(nl, dtype=np.intp)
+    n_out = 0
+    for j in range(nl):
+        if in_problem[j]:
+            continue
+        price = y[6]  # the squeeze row's coefficient is 1
+        for r in range(6):
+            price += G_lam[r, j] * y[r]
+        for t in range(nt):
+            price += T_lam[torque_sel[t], j] * y[7 + t]
+        for q in range(nn):
+            price += null_rows[q, j] * y[7 + nt + q]
+        if price < -tol:
+            out[n_out] = j
+            n_out += 1
+    return out[:n_out]
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
@@ -291,6 +331,41 @@ def at_bounds(values: FloatArray, limits: FloatArray, rel: float, abs_tol: float
             out[n] = i
             n += 1
     return out[:n]
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def matched_contacts(
+    p_world: FloatArray, link: IntArray, p_last: FloatArray, link_last: IntArray, r2: float
+) -> IntArray:  # pragma: no cover - jit
+    """(N,) index of the last cycle's contact each of the (N, 3) ``p_world`` continues: the
+    nearest one on the same link, if within ``sqrt(r2)``; -1 for none (first of equals wins).
+    Same links in the same order, each within the radius: the identity, without the search."""
+    n, n_last = p_world.shape[0], p_last.shape[0]
+    out = np.full(n, -1, dtype=np.intp)
+    same = n == n_last
+    for i in range(n):
+        if not same:
+            break
+        d0 = p_world[i, 0] - p_last[i, 0]
+        d1 = p_world[i, 1] - p_last[i, 1]
+        d2 = p_world[i, 2] - p_last[i, 2]
+        same = link[i] == link_last[i] and d0 * d0 + d1 * d1 + d2 * d2 <= r2
+    if same:
+        return np.arange(n)
+    for i in range(n):
+        best = np.inf
+        for j in range(n_last):
+            if link_last[j] != link[i]:
+                continue
+            d0 = p_world[i, 0] - p_last[j, 0]
+            d1 = p_world[i, 1] - p_last[j, 1]
+            d2 = p_world[i, 2] - p_last[j, 2]
+            dist2 = d0 * d0 + d1 * d1 + d2 * d2
+            if dist2 < best:
+                best = dist2
+                if dist2 <= r2:
+                    out[i] = j
+    return out
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
@@ -354,8 +429,10 @@ __all__ = [
     "contact_frames",
     "edge_forces",
     "finite_inputs",
+    "matched_contacts",
     "rows_of_joints",
     "rows_over",
+    "priced_edges",
     "selection",
     "sigma_min_lower_bound",
     "solved_rows",

@@ -33,7 +33,6 @@ import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
-from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -41,6 +40,8 @@ import numpy.typing as npt
 from wholehand.allocation.kernels import (
     at_bounds,
     finite_inputs,
+    matched_contacts,
+    priced_edges,
     rows_of_joints,
     rows_over,
     selection,
@@ -173,24 +174,40 @@ def dense_qp(
     selected edge weights (``edge_sel``, indices into ``lambda``; None: all of them): the
     variables are then ``[lambda[edge_sel]; w]``, the others held at zero. ``guess``: the
     active set to start from."""
-    return _restrict(qp, *_rows(qp, torque_sel, null_sel), torque_sel, null_sel, edge_sel, guess)
+    null = _null_rows(qp, null_sel)
+    return _round_problem(qp, null, qp.torque_bounds(), torque_sel, null_sel, edge_sel, guess)
 
 
-def _restrict(
+def _null_rows(qp: AllocationQP, null_sel: IntArray) -> FloatArray:
+    """(len(null_sel), 4N) the selected consistency rows."""
+    return qp.null_rows(null_sel) if null_sel.size else np.zeros((0, qp.n_lambda))
+
+
+def _round_problem(
     qp: AllocationQP,
-    A: FloatArray,
-    lower: FloatArray,
-    upper: FloatArray,
+    null: FloatArray,
+    torque_bounds: tuple[FloatArray, FloatArray],
     torque_sel: IntArray,
     null_sel: IntArray,
     edge_sel: IntArray | None,
     guess: ActiveSet | None,
 ) -> DenseQP:
-    nl = qp.n_lambda
-    n_edges = nl if edge_sel is None else edge_sel.size
-    if edge_sel is not None:
-        A = np.concatenate((A[:, edge_sel], A[:, nl:]), axis=1)
-    p_diag, lb, ub = _variable_terms(n_edges, qp.params.reg)
+    """The problem of one screening round, from the selected consistency rows ``null`` and
+    the bounds of every torque row."""
+    edges = np.arange(qp.n_lambda, dtype=np.intp) if edge_sel is None else edge_sel
+    # G lambda - w = -w_ext: w is then the net wrench G f + w_ext, whose norm is minimised.
+    A, lower, upper = solved_rows(
+        qp.G_lam,
+        qp.T_lam,
+        torque_sel,
+        null,
+        qp.w_ext,
+        qp.params.f_n_min,
+        *torque_bounds,
+        qp.params.eps_margin,
+        edges,
+    )
+    p_diag, lb, ub = _variable_terms(edges.size, qp.params.reg)
     active = None if guess is None else guess.vector(torque_sel, null_sel, edge_sel)
     return DenseQP(p_diag, A, lower, upper, N_WRENCH, lb, ub, active)
 
@@ -205,30 +222,6 @@ def _variable_terms(n_edges: int, reg: float) -> tuple[FloatArray, FloatArray, F
     for a in (p_diag, lb, ub):
         a.setflags(write=False)
     return p_diag, lb, ub
-
-
-def _rows(
-    qp: AllocationQP, torque_sel: IntArray, null_sel: IntArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """(m, 4N + 6) rows of the solved form with the selected torque and consistency rows, and
-    their (m,) lower and upper bounds."""
-    t_lower, t_upper = qp.torque_bounds(torque_sel)
-    null = qp.null_rows(null_sel) if null_sel.size else np.zeros((0, qp.n_lambda))
-    # G lambda - w = -w_ext: w is then the net wrench G f + w_ext, whose norm is minimised.
-    return cast(
-        tuple[FloatArray, FloatArray, FloatArray],
-        solved_rows(
-            qp.G_lam,
-            qp.T_lam,
-            torque_sel,
-            null,
-            qp.w_ext,
-            qp.params.f_n_min,
-            t_lower,
-            t_upper,
-            qp.params.eps_margin,
-        ),
-    )
 
 
 def solve_allocation(
@@ -285,6 +278,7 @@ def solve_allocation(
             e_mask = np.zeros(nl, bool)
             e_mask[edge_sel[edge_sel < nl]] = True
     limits = qp.tau_max[qp.torque_rows]
+    torque_bounds = qp.torque_bounds()
     eps_limits = np.full(n_null, eps)
     rounds = iterations = 0
     res = QPResult(None, "failed")
@@ -301,8 +295,8 @@ def solve_allocation(
         start = None
         if x0 is not None and solver.primal_warm_start:
             start = x0 if e_in is None else np.concatenate((x0[e_in], x0[nl:]))
-        rows = _rows(qp, t_in, n_in)
-        problem = _restrict(qp, *rows, t_in, n_in, e_in, guess)
+        null = _null_rows(qp, n_in)
+        problem = _round_problem(qp, null, torque_bounds, t_in, n_in, e_in, guess)
         time_limit = None
         if deadline_ns is not None:  # the time left once the problem is built
             time_limit = (deadline_ns - time.perf_counter_ns()) * 1e-9
@@ -353,8 +347,8 @@ def solve_allocation(
                 add_e = np.flatnonzero(~e_mask)
             else:
                 # Multiplier each left-out bound lambda_j >= 0 would need (module docstring).
-                price = rows[0][:, :nl].T @ res.duals[e_in.size + N_WRENCH :]
-                add_e = np.flatnonzero((price < -screen_tol) & ~e_mask)
+                y = res.duals[e_in.size + N_WRENCH :]
+                add_e = priced_edges(qp.G_lam, qp.T_lam, t_in, null, y, e_mask, screen_tol)
         if add_t.size == 0 and add_n.size == 0 and add_e.size == 0:
             break
         if screen_edges and res.duals is not None:
@@ -472,6 +466,12 @@ def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSoluti
         lam = sol.x[: qp.n_lambda]
         qp.tau(lam), qp.f_world(lam), binding_rows(qp, sol)
     rows_of_joints(qp.dofs[qp.torque_rows], qp.n_v, qp.dofs, qp.torque_rows)  # the warm start's
+    p, link = contacts.p_world, contacts.link  # the warm start's contact match
+    matched_contacts(p, link, p.copy(), link.copy(), 1e-6)
+    y = np.zeros(7 + every_t.size + some_n.size)  # the pricing of edge screening's rounds
+    priced_edges(
+        qp.G_lam, qp.T_lam, every_t, _null_rows(qp, some_n), y, np.zeros(qp.n_lambda, bool), 0.0
+    )
     solver.reset()
     return sol
 

@@ -12,9 +12,12 @@ allocate``): large where rows bind (fewer rounds) and for OSQP; none for PIQP (i
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
+
+from wholehand.allocation.kernels import matched_contacts
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -48,25 +51,18 @@ class WarmStart:
 
     def match(self, p_world: FloatArray, link: IntArray) -> IntArray:
         """(N,) index of the previous contact each current one continues, -1 for new ones."""
-        n = link.size
         if self.p_world is None or self.link is None or self.link.size == 0:
-            return np.full(n, -1, dtype=np.intp)
-        r2 = self.match_radius**2
-        if self.link.size == n and np.array_equal(self.link, link):
-            # Fast path: same contacts in the same order, each still within the radius.
-            d = p_world - self.p_world
-            if np.einsum("ij,ij->i", d, d).max() <= r2:
-                return np.arange(n, dtype=np.intp)
-        q = self.p_world
-        d2 = (
-            np.einsum("ij,ij->i", p_world, p_world)[:, None]
-            + np.einsum("ij,ij->i", q, q)[None, :]
-            - 2.0 * (p_world @ q.T)
+            return np.full(link.size, -1, dtype=np.intp)
+        return cast(
+            IntArray,
+            matched_contacts(
+                np.ascontiguousarray(p_world, dtype=np.float64),
+                np.ascontiguousarray(link, dtype=np.intp),
+                np.ascontiguousarray(self.p_world, dtype=np.float64),
+                np.ascontiguousarray(self.link, dtype=np.intp),
+                self.match_radius**2,
+            ),
         )
-        d2 = np.where(link[:, None] == self.link[None, :], d2, np.inf)
-        j = np.argmin(d2, axis=1)
-        ok = d2[np.arange(n), j] <= r2
-        return np.where(ok, j, -1).astype(np.intp)
 
     def add_rows(self, torque_dofs: IntArray, null_rows: IntArray) -> None:
         """Seed the next cycle with these rows too (a cycle that ran out of time found them

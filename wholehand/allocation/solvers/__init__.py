@@ -65,7 +65,10 @@ def make_solver(
     if isinstance(name, str):
         base = name.removeprefix("qpsolvers:")
         if name in NATIVE_SOLVERS:
-            solver = NATIVE_SOLVERS[name](settings)
+            try:
+                solver = NATIVE_SOLVERS[name](settings)
+            except ConfigError as err:  # an adapter that checks its settings itself
+                raise ConfigError(f"{owner}: {err}") from None
         elif base in generic:
             solver = QpsolversSolver(base, settings)
     if solver is not None:

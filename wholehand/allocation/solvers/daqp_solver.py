@@ -13,6 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.allocation.solvers.base import BIG, DenseQP, FloatArray, QPResult, QPSolver
+from wholehand.errors import ConfigError
 from wholehand.jit import CACHE
 
 SenseArray = npt.NDArray[np.intc]
@@ -44,9 +45,15 @@ class DaqpSolver(QPSolver):
     """Problem shapes kept (least recently used dropped first)."""
 
     def __init__(self, settings: Mapping[str, Any] | None = None) -> None:
-        import daqp  # noqa: F401  (fail at construction when missing)
+        import daqp  # fail at construction when missing
 
         super().__init__(settings)
+        unknown = set(self.settings) - set(daqp.Model().settings)
+        if unknown:
+            raise ConfigError(
+                f"DAQP: solver_settings holds unknown names {sorted(unknown)}; known: "
+                f"{sorted(daqp.Model().settings)}"
+            )
         self._models: OrderedDict[tuple[int, int, int], _Kept] = OrderedDict()
         self._last_key: tuple[int, int, int] | None = None
 
@@ -75,12 +82,7 @@ class DaqpSolver(QPSolver):
         warm = own or start is not sense
         if kept is None or not (kept.p_diag is qp.p_diag or np.array_equal(kept.p_diag, qp.p_diag)):
             model = daqp.Model()
-            unknown = set(self.settings) - set(model.settings)
-            if unknown:
-                raise ValueError(
-                    f"unknown DAQP settings {sorted(unknown)}; known: {sorted(model.settings)}"
-                )
-            model.settings = dict(self.settings)
+            model.settings = self.settings  # known names (checked at construction)
             model.setup(np.diag(qp.p_diag), np.zeros(n), qp.A, bu, bl, start)
             # An immutable diagonal is kept as it is, so that the next solve of this shape (the
             # allocation passes one array per size) is recognised by identity.

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from wholehand.allocation.kernels import (
+    active_of,
+    active_vector,
     at_bounds,
     consistency_rows,
     edge_forces,
@@ -204,3 +206,44 @@ def test_warm_start_matches_each_contact_to_the_nearest_on_its_link(seed: int) -
     )
     assert warm.match(moved, q_link)[5] != 5
     assert (WarmStart().match(p, link) == -1).all()  # nothing to continue
+
+
+def test_active_set_by_identity_and_back() -> None:
+    """A round's multipliers -> the active set by identity (signs, left-out edges at their
+    bound) -> the guess of a problem with other edges and rows, against the definitions."""
+    rng = np.random.default_rng(11)
+    nl, n_t, n_null = 12, 5, 4
+    edge_sel = np.array([0, 2, 3, 7, 11], dtype=np.intp)
+    t_sel, n_sel = np.array([1, 4], dtype=np.intp), np.array([2], dtype=np.intp)
+    m = 7 + t_sel.size + n_sel.size
+    duals = rng.normal(size=edge_sel.size + 6 + m)
+    duals[[1, 4]] = 0.0  # inactive bounds
+    edges, squeeze, torque, null = active_of(duals, nl, edge_sel, t_sel, n_sel, n_t, n_null)
+    sign = np.sign(duals).astype(np.intp)
+    want_edges = np.full(nl, -1)
+    want_edges[edge_sel] = sign[: edge_sel.size]
+    rows = sign[edge_sel.size + 6 :]  # after the wrench variables' bounds
+    np.testing.assert_array_equal(edges, want_edges)
+    assert squeeze == rows[6]
+    want_torque, want_null = np.zeros(n_t, int), np.zeros(n_null, int)
+    want_torque[t_sel], want_null[n_sel] = rows[7:9], rows[9:]
+    np.testing.assert_array_equal(torque, want_torque)
+    np.testing.assert_array_equal(null, want_null)
+    # The next round: all edges, more rows.
+    t_next, n_next = np.array([0, 1, 4], dtype=np.intp), np.array([2, 3], dtype=np.intp)
+    every = np.arange(nl, dtype=np.intp)
+    vector = active_vector(edges, squeeze, torque, null, every, t_next, n_next)
+    want = np.r_[want_edges, np.zeros(12, int), squeeze, torque[t_next], null[n_next]]
+    np.testing.assert_array_equal(vector, want)
+
+
+def test_daqp_start_flags_follow_the_guess_and_keep_equalities_active() -> None:
+    from wholehand.allocation.solvers.daqp_solver import _ACTIVE, _IMMUTABLE, _LOWER, _start_flags
+
+    n, n_eq = 3, 2
+    sense = np.zeros(n + 4, dtype=np.intc)
+    active = np.array([1, -1, 0, 1, -1, 0, 1], dtype=np.intp)  # a guess on the equalities too
+    flags = _start_flags(sense, active, n, n_eq)
+    eq = _ACTIVE | _IMMUTABLE
+    np.testing.assert_array_equal(flags, [_ACTIVE, _ACTIVE | _LOWER, 0, eq, eq, 0, _ACTIVE])
+    assert (sense == 0).all()  # a copy

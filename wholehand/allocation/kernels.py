@@ -334,6 +334,65 @@ def at_bounds(values: FloatArray, limits: FloatArray, rel: float, abs_tol: float
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def active_of(
+    duals: FloatArray,
+    n_lambda: int,
+    edge_sel: IntArray,
+    torque_sel: IntArray,
+    null_sel: IntArray,
+    n_t: int,
+    n_null: int,
+) -> tuple[IntArray, int, IntArray, IntArray]:  # pragma: no cover - jit
+    """The active set of a screening round's solution by identity (-1 at the lower bound, +1 at
+    the upper one, 0 inactive), from the solver's (n + m,) multipliers of the problem with the
+    edge weights ``edge_sel``, the torque rows ``torque_sel`` and the consistency rows
+    ``null_sel`` (:class:`~wholehand.allocation.solve.ActiveSet`): every edge bound (-1 for
+    those left out, held at zero), the squeeze, every torque row, every consistency row."""
+    n_edges = edge_sel.size
+    edges = np.full(n_lambda, -1, dtype=np.intp)
+    for c in range(n_edges):
+        edges[edge_sel[c]] = _sign(duals[c])
+    rows = n_edges + 6  # after the free wrench variables' bounds; then the 6 equality rows
+    torque = np.zeros(n_t, dtype=np.intp)
+    for t in range(torque_sel.size):
+        torque[torque_sel[t]] = _sign(duals[rows + 7 + t])
+    null = np.zeros(n_null, dtype=np.intp)
+    for q in range(null_sel.size):
+        null[null_sel[q]] = _sign(duals[rows + 7 + torque_sel.size + q])
+    return edges, _sign(duals[rows + 6]), torque, null
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
+def _sign(v: float) -> int:  # pragma: no cover - jit
+    return 1 if v > 0.0 else (-1 if v < 0.0 else 0)
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def active_vector(
+    edges: IntArray,
+    squeeze: int,
+    torque: IntArray,
+    null: IntArray,
+    edge_sel: IntArray,
+    torque_sel: IntArray,
+    null_sel: IntArray,
+) -> IntArray:  # pragma: no cover - jit
+    """The (n + m,) guessed active set of the problem with these edge weights and rows, from
+    one by identity (:func:`active_of`): the edge bounds, the free wrench variables' (0), the
+    equality rows (0), the squeeze, the torque rows, the consistency rows."""
+    k, nt, nn = edge_sel.size, torque_sel.size, null_sel.size
+    out = np.zeros(k + 13 + nt + nn, dtype=np.intp)
+    for c in range(k):
+        out[c] = edges[edge_sel[c]]
+    out[k + 12] = squeeze
+    for t in range(nt):
+        out[k + 13 + t] = torque[torque_sel[t]]
+    for q in range(nn):
+        out[k + 13 + nt + q] = null[null_sel[q]]
+    return out
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def matched_contacts(
     p_world: FloatArray, link: IntArray, p_last: FloatArray, link_last: IntArray, r2: float
 ) -> IntArray:  # pragma: no cover - jit
@@ -424,6 +483,8 @@ def sigma_min_lower_bound(qr: FloatArray, k: int) -> float:  # pragma: no cover 
 
 
 __all__ = [
+    "active_of",
+    "active_vector",
     "at_bounds",
     "consistency_rows",
     "contact_frames",

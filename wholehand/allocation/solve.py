@@ -33,11 +33,14 @@ import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
 
 from wholehand.allocation.kernels import (
+    active_of,
+    active_vector,
     at_bounds,
     finite_inputs,
     matched_contacts,
@@ -135,32 +138,20 @@ class ActiveSet:
         edge_sel: IntArray | None,
     ) -> ActiveSet:
         """From a solver's (n + m,) multipliers of the problem with these rows and edges."""
-        sign = np.sign(duals).astype(np.intp)
-        edges = np.full(qp.n_lambda, -1, dtype=np.intp)
-        n_edges = qp.n_lambda if edge_sel is None else edge_sel.size
-        edges[slice(None) if edge_sel is None else edge_sel] = sign[:n_edges]
-        rows = sign[n_edges + N_WRENCH :]  # after the free wrench variables' bounds
-        torque = np.zeros(qp.torque_rows.size, dtype=np.intp)
-        null = np.zeros(qp.n_null, dtype=np.intp)
-        k = N_WRENCH + 1
-        torque[torque_sel] = rows[k : k + torque_sel.size]
-        null[null_sel] = rows[k + torque_sel.size :]
-        return cls(edges, int(rows[N_WRENCH]), torque, null)
+        edges = np.arange(qp.n_lambda, dtype=np.intp) if edge_sel is None else edge_sel
+        n_t, n_null = qp.torque_rows.size, qp.n_null
+        state = active_of(duals, qp.n_lambda, edges, torque_sel, null_sel, n_t, n_null)
+        return cls(state[0], int(state[1]), state[2], state[3])
 
     def vector(
         self, torque_sel: IntArray, null_sel: IntArray, edge_sel: IntArray | None
     ) -> IntArray:
         """The (n + m,) :attr:`DenseQP.active` of the problem with these rows and edges."""
-        edges = self.edges if edge_sel is None else self.edges[edge_sel]
-        return np.concatenate(
-            (
-                edges,
-                np.zeros(2 * N_WRENCH, dtype=np.intp),  # free w, then the equality rows
-                [self.squeeze],
-                self.torque[torque_sel],
-                self.null[null_sel],
-            )
+        edges = np.arange(self.edges.size, dtype=np.intp) if edge_sel is None else edge_sel
+        vector = active_vector(
+            self.edges, self.squeeze, self.torque, self.null, edges, torque_sel, null_sel
         )
+        return cast(IntArray, vector)
 
 
 def dense_qp(
@@ -465,6 +456,10 @@ def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSoluti
     if sol.x is not None:
         lam = sol.x[: qp.n_lambda]
         qp.tau(lam), qp.f_world(lam), binding_rows(qp, sol)
+    # A round of edge screening: its active set, and a solve that starts from one.
+    n_duals = qp.n_x + 7 + every_t.size + some_n.size
+    guess = ActiveSet.of(qp, np.zeros(n_duals), every_t, some_n, None)
+    solver.solve(dense_qp(qp, every_t, some_n, np.arange(qp.n_lambda, dtype=np.intp), guess))
     rows_of_joints(qp.dofs[qp.torque_rows], qp.n_v, qp.dofs, qp.torque_rows)  # the warm start's
     p, link = contacts.p_world, contacts.link  # the warm start's contact match
     matched_contacts(p, link, p.copy(), link.copy(), 1e-6)

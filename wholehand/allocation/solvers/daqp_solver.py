@@ -12,7 +12,14 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.solvers.base import BIG, DenseQP, FloatArray, QPResult, QPSolver
+from wholehand.allocation.solvers.base import (
+    BIG,
+    DenseQP,
+    FloatArray,
+    IntArray,
+    QPResult,
+    QPSolver,
+)
 from wholehand.errors import ConfigError
 from wholehand.jit import CACHE
 
@@ -75,10 +82,7 @@ class DaqpSolver(QPSolver):
         own = warm and key == self._last_key and kept is not None
         start = sense
         if qp.active is not None and not own:
-            start = sense.copy()
-            start[qp.active > 0] = _ACTIVE
-            start[qp.active < 0] = _ACTIVE | _LOWER
-            start[n : n + qp.n_eq] = _ACTIVE | _IMMUTABLE
+            start = _start_flags(sense, qp.active, n, qp.n_eq)
         warm = own or start is not sense
         if kept is None or not (kept.p_diag is qp.p_diag or np.array_equal(kept.p_diag, qp.p_diag)):
             model = daqp.Model()
@@ -134,6 +138,23 @@ def _bounds(
         bu[i] = big if u > big else u
         bl[i] = -big if low < -big else low
     return bu, bl
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def _start_flags(
+    sense: SenseArray, active: IntArray, n: int, n_eq: int
+) -> SenseArray:  # pragma: no cover - jit
+    """DAQP's constraint flags that start a solve from the guessed active set ``active``
+    (:attr:`DenseQP.active`), the equality rows active whatever the guess."""
+    start: SenseArray = sense.copy()
+    for i in range(active.size):
+        if active[i] > 0:
+            start[i] = _ACTIVE
+        elif active[i] < 0:
+            start[i] = _ACTIVE | _LOWER
+    for i in range(n, n + n_eq):
+        start[i] = _ACTIVE | _IMMUTABLE
+    return start
 
 
 def _equality_sense(n: int, size: int, n_eq: int) -> SenseArray:

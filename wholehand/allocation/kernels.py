@@ -6,9 +6,12 @@ pyramid edges in world axes, their wrenches about the centre of mass and their j
 Posed as numpy calls (one batched matmul per contact for the torques among them) they cost about
 50 us of Python overhead at 70 contacts; :func:`structured_terms` builds all of them in one
 compiled pass. The other kernels do the same for the rest of a cycle's small array work: the
-check that the inputs are finite, the consistency rows, a screening round's rows and bounds, the
-left-out rows a solution violates, the forces of the edge weights and the rank certificate of
-the null-space basis.
+check that the inputs are finite, the consistency rows, a screening round's rows and bounds (its
+edge weights' columns only), the left-out rows a solution violates, the forces of the edge
+weights, the rank certificate of the null-space basis, and the bookkeeping of the warm start and
+of edge screening (matching contacts across cycles, pricing left-out edges, active sets). Each
+replaced a handful of numpy calls of a few microseconds each; near a loss, with several
+screening rounds per cycle, that Python took more time than DAQP.
 
 Rounding. Each term is computed with the operations, and in the order, that the numpy form it
 replaced used, so a seeded trial gives the same rows to the last bit:
@@ -19,6 +22,13 @@ replaced used, so a seeded trial gives the same rows to the last bit:
   fused multiply-add chain over the inner index from zero, ``s = fma(a0, b0, 0); s = fma(a1, b1,
   s); ...``, which is what OpenBLAS's x86-64 kernels compute for these inner sizes of 3. A BLAS
   that sums otherwise rounds differently; the results agree to about 1e-16 relative either way.
+
+Two kernels decide by a threshold and compute their test quantity otherwise than the numpy code
+before them: :func:`priced_edges` sums a left-out edge's price row by row (a matrix-vector
+product did before) and :func:`matched_contacts` takes squared distances directly (numpy
+expanded them). Only a value within rounding of its threshold could decide differently; both
+serve edge screening and primal warm starts only, which no committed study uses, and the seeded
+trials with edge screening give the same bytes as before.
 
 Compilation as in :mod:`wholehand.contacts.kernels` (``cache=CACHE``, ``error_model="numpy"``).
 """

@@ -32,7 +32,7 @@ from wholehand.allocation.base import (
     Allocator,
     checked_jacobians,
 )
-from wholehand.allocation.kernels import finite_inputs, rows_of_joints
+from wholehand.allocation.kernels import finite_inputs, rows_of_joints, warm_edge_weights
 from wholehand.allocation.problem import (
     N_EDGES,
     REG,
@@ -319,16 +319,11 @@ class QPAllocator(Allocator):
         use_edges = self.screen_edges and self.qp_solver.reports_duals
         if not (self.qp_solver.primal_warm_start or use_edges):
             return out
-        idx = warm.match(contacts.p_world, contacts.link)
-        if idx.size == warm.lam.shape[0] and (idx == np.arange(idx.size)).all():
-            lam0 = warm.lam
-        else:
-            lam0 = np.full((qp.n_contacts, N_EDGES), np.inf)  # new contacts: every edge
-            hit = idx >= 0
-            lam0[hit] = warm.lam[idx[hit]]
+        # Each contact's edge weights last cycle (inf for a new contact: every edge), and the
+        # edges that carried force then, with every edge of a new contact.
+        lam0, carried = warm_edge_weights(warm.match(contacts.p_world, contacts.link), warm.lam)
         if use_edges:
-            # The edges that carried force last cycle, and every edge of a new contact.
-            out["edge_sel"] = np.flatnonzero(lam0.ravel() > 0.0)
+            out["edge_sel"] = carried
         if self.qp_solver.primal_warm_start:
             lam = np.where(np.isinf(lam0), self.params.f_n_min / qp.n_lambda, lam0).ravel()
             out["x0"] = np.concatenate((lam, qp.G_lam @ lam + qp.w_ext))

@@ -438,6 +438,29 @@ def matched_contacts(
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def warm_edge_weights(
+    match: IntArray, lam_last: FloatArray
+) -> tuple[FloatArray, IntArray]:  # pragma: no cover - jit
+    """The (N, 4) edge weights each contact had last cycle (``match``: the last cycle's contact
+    it continues, -1 for a new one, whose weights are ``inf``) from the (N_last, 4)
+    ``lam_last``, and the indices of the positive ones (``4 i + e``, increasing): the edges
+    that carried force, and every edge of a new contact."""
+    n, n_e = match.size, lam_last.shape[1]
+    lam = np.empty((n, n_e))
+    carried = np.empty(n * n_e, dtype=np.intp)
+    k = 0
+    for i in range(n):
+        j = match[i]
+        for e in range(n_e):
+            v = lam_last[j, e] if j >= 0 else np.inf
+            lam[i, e] = v
+            if v > 0.0:
+                carried[k] = n_e * i + e
+                k += 1
+    return lam, carried[:k]
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def rows_of_joints(joints: IntArray, n_v: int, dofs: IntArray, torque_rows: IntArray) -> IntArray:
     """Positions in ``torque_rows`` (indices into ``dofs``) of the torque rows of the given
     joints (indices in ``[0, n_v)``; others are ignored), increasing."""
@@ -508,5 +531,6 @@ __all__ = [
     "sigma_min_lower_bound",
     "solved_rows",
     "structured_terms",
+    "warm_edge_weights",
     "wrench_map",
 ]

@@ -49,6 +49,7 @@ from wholehand.allocation.kernels import (
     rows_over,
     selection,
     solved_rows,
+    warm_edge_weights,
 )
 from wholehand.allocation.problem import (
     N_WRENCH,
@@ -462,7 +463,7 @@ def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSoluti
     solver.solve(dense_qp(qp, every_t, some_n, np.arange(qp.n_lambda, dtype=np.intp), guess))
     rows_of_joints(qp.dofs[qp.torque_rows], qp.n_v, qp.dofs, qp.torque_rows)  # the warm start's
     p, link = contacts.p_world, contacts.link  # the warm start's contact match
-    matched_contacts(p, link, p.copy(), link.copy(), 1e-6)
+    warm_edge_weights(matched_contacts(p, link, p.copy(), link.copy(), 1e-6), np.ones((n, 4)))
     y = np.zeros(7 + every_t.size + some_n.size)  # the pricing of edge screening's rounds
     priced_edges(
         qp.G_lam, qp.T_lam, every_t, _null_rows(qp, some_n), y, np.zeros(qp.n_lambda, bool), 0.0

@@ -299,7 +299,7 @@ class ControlLoop:
         stage = self.stages[self.active]
         obs = truth
         fault = ""
-        context = CycleContext(t, self.dt, obs, self.hand, self.obj, self._kin_now, self._kin_then)
+        context: CycleContext | None = None
         try:
             check_observation(truth, self.hand.nq, self.hand.nv)
             if self.gate is not None:
@@ -335,6 +335,10 @@ class ControlLoop:
             output = StageOutput(None, LoopStatus.STAGE_ERROR.value)
             fault = f"{type(err).__name__}: {err}"
             self._keep_error(t, stage.name, fault, err)
+        if context is None:  # the cycle failed before its context was built
+            context = CycleContext(
+                t, self.dt, truth, self.hand, self.obj, self._kin_now, self._kin_then
+            )
         if output.command is not None:
             self.command = output.command
         self.backend.apply(self.command)

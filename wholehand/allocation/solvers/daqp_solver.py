@@ -55,12 +55,15 @@ class DaqpSolver(QPSolver):
         import daqp  # fail at construction when missing
 
         super().__init__(settings)
-        unknown = set(self.settings) - set(daqp.Model().settings)
+        known = daqp.Model().settings
+        unknown = set(self.settings) - set(known)
         if unknown:
             raise ConfigError(
                 f"DAQP: solver_settings holds unknown names {sorted(unknown)}; known: "
-                f"{sorted(daqp.Model().settings)}"
+                f"{sorted(known)}"
             )
+        self._time_limit = float(self.settings.get("time_limit", known["time_limit"]))
+        """A new model's time limit [s] (0: none)."""
         self._models: OrderedDict[tuple[int, int, int], _Kept] = OrderedDict()
         self._last_key: tuple[int, int, int] | None = None
 
@@ -92,7 +95,7 @@ class DaqpSolver(QPSolver):
             # allocation passes one array per size) is recognised by identity.
             fixed = not qp.p_diag.flags.writeable and qp.p_diag.flags.owndata
             p_diag = qp.p_diag if fixed else qp.p_diag.copy()
-            kept = _Kept(model, p_diag, sense, float(model.settings["time_limit"]))
+            kept = _Kept(model, p_diag, sense, self._time_limit)
             self._models[key] = kept
             warm = start is not sense
         else:

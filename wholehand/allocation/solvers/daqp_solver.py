@@ -175,7 +175,8 @@ class _Kept:
 
     model: Any
     p_diag: FloatArray
-    """Hessian diagonal the model was set up with (read-only)."""
+    """Hessian diagonal the model was set up with (the caller's array when it is immutable,
+    else a copy)."""
     sense: SenseArray
     """Constraint flags with only the equality rows active."""
     time_limit: float

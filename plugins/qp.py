@@ -200,6 +200,7 @@ class QPAllocator(Allocator):
         f_world: FloatArray | None = None,
         wrench: FloatArray | None = None,
         solve_time: float = 0.0,
+        solver_time: float = 0.0,
     ) -> Allocation:
         self.counts[status] += 1
         return Allocation(
@@ -209,6 +210,7 @@ class QPAllocator(Allocator):
             residual_wrench=np.zeros(6) if wrench is None else wrench,
             status=status,
             solve_time=solve_time,
+            solver_time=solver_time,
             solver=self.solver,
         )
 
@@ -287,13 +289,15 @@ class QPAllocator(Allocator):
         if sol.status == "deadline":
             # The problem is fine, only slow: the next cycle starts from the progress made.
             self._remember_progress(qp, contacts, sol)
-            return self._result(AllocationStatus.DEADLINE, n, n_v, solve_time=dt)
+            return self._result(
+                AllocationStatus.DEADLINE, n, n_v, solve_time=dt, solver_time=sol.solver_time
+            )
         if sol.x is None or sol.violation > self.feas_tol:
             self._warm.clear()
             status = {"infeasible": AllocationStatus.INFEASIBLE}.get(
                 sol.status, AllocationStatus.SOLVER_FAILED
             )
-            return self._result(status, n, n_v, solve_time=dt)
+            return self._result(status, n, n_v, solve_time=dt, solver_time=sol.solver_time)
         lam = sol.x[: qp.n_lambda]
         tau = qp.tau(lam)
         self._remember(qp, contacts, sol)
@@ -306,6 +310,7 @@ class QPAllocator(Allocator):
             f_world=qp.f_world(lam),
             wrench=qp.G_lam @ lam + qp.w_ext,
             solve_time=dt,
+            solver_time=sol.solver_time,
         )
 
     # --------------------------------------------------------------------------------------------

@@ -743,6 +743,8 @@ def test_replaying_a_record_reproduces_the_loops_torques(allegro, cube):
     ok = recorded["status"] == "ok"
     np.testing.assert_allclose(out["tau"][ok], recorded["tau"][ok], atol=1e-6)
     assert (out["step"] >= out["qp"]).all() and (out["qp"][ok] > 0).all()
+    # The solver's own time is part of the allocation's, and never all of it.
+    assert (out["qp_solver"][ok] > 0).all() and (out["qp_solver"] < out["qp"])[ok].all()
 
 
 def test_a_supported_settle_holds_the_object_until_the_loads(allegro):

@@ -61,6 +61,10 @@ class Allocation:
     """Why the torque is what it is."""
     solve_time: float = 0.0
     """Wall time of the QP solve [s]."""
+    solver_time: float = 0.0
+    """The part of :attr:`solve_time` spent inside the QP solver's calls (all screening rounds)
+    [s]; the rest is building the problems and the allocator's own work. 0 for allocators
+    without a QP."""
     solver: str = ""
     """Name of the QP solver that produced the result."""
 

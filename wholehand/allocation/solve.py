@@ -96,6 +96,8 @@ class AllocationSolution:
     """Largest constraint violation of ``x`` over the full problem [N or N*m] (inf if none)."""
     detail: str = ""
     """Solver status text of the last solve."""
+    solver_time: float = 0.0
+    """Wall time inside the solver's calls, all rounds [s]."""
     torque_sel: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
     """Positions in ``qp.torque_rows`` of the torque rows in the last solve."""
     null_sel: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
@@ -272,7 +274,7 @@ def solve_allocation(
     limits = qp.tau_max[qp.torque_rows]
     torque_bounds = qp.torque_bounds()
     eps_limits = np.full(n_null, eps)
-    rounds = iterations = 0
+    rounds = iterations = solver_ns = 0
     res = QPResult(None, "failed")
     x = np.zeros(qp.n_x)
     guess: ActiveSet | None = None
@@ -293,16 +295,18 @@ def solve_allocation(
         if deadline_ns is not None:  # the time left once the problem is built
             time_limit = (deadline_ns - time.perf_counter_ns()) * 1e-9
             if time_limit <= 0.0:
-                return _deadline(rounds - 1, iterations, t_in, n_in, x_relaxed)
+                return _deadline(rounds - 1, iterations, t_in, n_in, x_relaxed, solver_ns)
+        solve_started = time.perf_counter_ns()
         res = solver.solve(
             problem,
             start,
             warm=warm or x0 is not None,
             time_limit=time_limit,
         )
+        solver_ns += time.perf_counter_ns() - solve_started
         iterations += res.iterations
         if res.status == "deadline":
-            return _deadline(rounds, iterations, t_in, n_in, x_relaxed)
+            return _deadline(rounds, iterations, t_in, n_in, x_relaxed, solver_ns)
         if res.status == "infeasible" and e_in is not None:
             e_mask = None  # infeasible with some edges held at zero: try them all
             continue
@@ -315,6 +319,7 @@ def solve_allocation(
                 iterations=iterations,
                 violation=np.inf,
                 detail=res.detail,
+                solver_time=solver_ns * 1e-9,
                 torque_sel=t_in,
                 null_sel=n_in,
             )
@@ -366,6 +371,7 @@ def solve_allocation(
         iterations=iterations,
         violation=float(viol),
         detail=res.detail,
+        solver_time=solver_ns * 1e-9,
         torque_sel=t_in,
         null_sel=n_in,
         torque_values=t_val,
@@ -380,6 +386,7 @@ def _deadline(
     torque_sel: IntArray,
     null_sel: IntArray,
     x_relaxed: FloatArray | None,
+    solver_ns: int,
 ) -> AllocationSolution:
     return AllocationSolution(
         x=None,
@@ -389,6 +396,7 @@ def _deadline(
         iterations=iterations,
         violation=np.inf,
         detail="deadline passed before the solution was exact",
+        solver_time=solver_ns * 1e-9,
         torque_sel=torque_sel,
         null_sel=null_sel,
         x_relaxed=x_relaxed,

@@ -8,9 +8,11 @@ stage: the same contacts, Jacobians and QPs as the loop, without the simulation,
 are comparable from one code version to the next (same seeds, same states).
 
 Per stage it reports p50/p99/p99.9/max: ``estimate`` (kinematics and contact estimation),
-``qp`` (building and solving the allocation QP, all screening rounds), ``rest`` (Jacobians,
-normal checks, the torque) and ``step`` (the whole stage), and how many QPs took longer than
-``deadline`` (the allocator's deadline would have stopped them).
+``qp`` (building and solving the allocation QP, all screening rounds), split into
+``qp_solver`` (inside the QP solver's calls) and ``qp_other`` (building the problems and the
+allocator's own work, Python mostly), ``rest`` (Jacobians, normal checks, the torque) and
+``step`` (the whole stage), and how many QPs took longer than ``deadline`` (the allocator's
+deadline would have stopped them).
 """
 
 from __future__ import annotations
@@ -62,7 +64,8 @@ def replay(
     record: RunRecord, hand: HandModel, obj: ObjectModel, stage: ForceRegulation
 ) -> tuple[dict[str, np.ndarray], Counter[str]]:
     """Run ``stage`` on every recorded state of ``record`` (true q and object pose), timing each
-    step; returns per-cycle durations [ns] of ``step``, ``estimate`` and ``qp`` and the
+    step; returns per-cycle durations [ns] of ``step``, ``estimate``, ``qp`` and ``qp_solver``
+    (:attr:`~wholehand.allocation.base.Allocation.solver_time`) and the
     commanded torques ``tau`` (rows, n_v) [N*m] (NaN where the stage gave none), and the
     stage's statuses."""
     a = record.arrays()
@@ -70,7 +73,7 @@ def replay(
     poses_b, poses_o = record_poses(record)
     history = JointHistory(hand.nq, 4)
     now, then = HandKinematics(hand), HandKinematics(hand)
-    out = {key: np.zeros(rows, dtype=np.int64) for key in ("step", "estimate", "qp")}
+    out = {key: np.zeros(rows, dtype=np.int64) for key in ("step", "estimate", "qp", "qp_solver")}
     statuses: Counter[str] = Counter()
     taus = np.full((rows, hand.nv), np.nan)
     dt = 1.0 / float(record.meta.get("control_rate", 200.0))
@@ -85,7 +88,10 @@ def replay(
         output = stage.step(context)
         out["step"][i] = time.perf_counter_ns() - started
         out["estimate"][i] = int(output.estimate_time * 1e9)
-        out["qp"][i] = 0 if output.allocation is None else int(output.allocation.solve_time * 1e9)
+        allocation = output.allocation
+        if allocation is not None:
+            out["qp"][i] = int(allocation.solve_time * 1e9)
+            out["qp_solver"][i] = int(allocation.solver_time * 1e9)
         statuses[output.status] += 1
         if output.command is not None:
             taus[i] = output.command.tau
@@ -115,7 +121,7 @@ def run_worst_case_benchmark(
 ) -> dict[str, Any]:
     """Run the trials, keep the lost ones, replay their states (module docstring)."""
     hand_model = load_hand(hand)
-    times: dict[str, list[np.ndarray]] = {"step": [], "estimate": [], "qp": []}
+    times: dict[str, list[np.ndarray]] = {"step": [], "estimate": [], "qp": [], "qp_solver": []}
     lost = []
     statuses: Counter[str] = Counter()
     for name in objects:
@@ -157,6 +163,8 @@ def run_worst_case_benchmark(
             "step": _stats(cat["step"]),
             "estimate": _stats(cat["estimate"]),
             "qp": _stats(cat["qp"]),
+            "qp_solver": _stats(cat["qp_solver"]),
+            "qp_other": _stats(cat["qp"] - cat["qp_solver"]),
             "rest": _stats(rest),
         },
         "statuses": dict(statuses),

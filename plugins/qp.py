@@ -32,7 +32,7 @@ from wholehand.allocation.base import (
     Allocator,
     checked_jacobians,
 )
-from wholehand.allocation.kernels import finite_inputs, rows_of_joints, warm_edge_weights
+from wholehand.allocation.kernels import finite_inputs
 from wholehand.allocation.problem import (
     N_EDGES,
     REG,
@@ -50,7 +50,12 @@ from wholehand.allocation.solve import (
     solve_allocation,
 )
 from wholehand.allocation.solvers import DEFAULT_SOLVER, make_solver
-from wholehand.allocation.warm_start import MATCH_RADIUS, WarmStart
+from wholehand.allocation.warm_start import (
+    MATCH_RADIUS,
+    WarmStart,
+    rows_of_joints,
+    warm_edge_weights,
+)
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 

@@ -1,24 +1,22 @@
-"""The compiled build of the allocation QP against its definitions in plain numpy."""
+"""The allocation's compiled kernels (the problem's terms, the screening loop, the warm start)
+against their definitions in plain numpy."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from wholehand.allocation.kernels import (
+from wholehand.allocation.kernels import consistency_rows, edge_forces, structured_terms
+from wholehand.allocation.problem import friction_edges
+from wholehand.allocation.screening_kernels import (
     active_of,
     active_vector,
     at_bounds,
-    consistency_rows,
-    edge_forces,
     priced_edges,
-    rows_of_joints,
     selection,
     solved_rows,
-    structured_terms,
 )
-from wholehand.allocation.problem import friction_edges
-from wholehand.allocation.warm_start import WarmStart
+from wholehand.allocation.warm_start import WarmStart, rows_of_joints
 
 
 def _case(seed: int, n: int, n_v: int = 16):

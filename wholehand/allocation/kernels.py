@@ -1,17 +1,14 @@
-"""Numba kernels of the allocation QP's per-cycle work (:mod:`wholehand.allocation.problem`,
-:mod:`wholehand.allocation.solve`).
+"""Numba kernels of the allocation QP's per-cycle terms (:mod:`wholehand.allocation.problem`).
 
 The structured problem of one cycle is a few small products per contact: its frame, its four
 pyramid edges in world axes, their wrenches about the centre of mass and their joint torques.
 Posed as numpy calls (one batched matmul per contact for the torques among them) they cost about
 50 us of Python overhead at 70 contacts; :func:`structured_terms` builds all of them in one
-compiled pass. The other kernels do the same for the rest of a cycle's small array work: the
-check that the inputs are finite, the consistency rows, a screening round's rows and bounds (its
-edge weights' columns only), the left-out rows a solution violates, the forces of the edge
-weights, the rank certificate of the null-space basis, and the bookkeeping of the warm start and
-of edge screening (matching contacts across cycles, pricing left-out edges, active sets). Each
-replaced a handful of numpy calls of a few microseconds each; near a loss, with several
-screening rounds per cycle, that Python took more time than DAQP.
+compiled pass, with the actuated contacts' Jacobian rows and the torque rows. The other kernels
+do the same for the rest of the problem's small array work: the check that the inputs are
+finite, the consistency rows, the forces of the edge weights and the rank certificate of the
+null-space basis. The screening loop's kernels are :mod:`wholehand.allocation.screening_kernels`,
+the warm start's :mod:`wholehand.allocation.warm_start`.
 
 Rounding. Each term is computed with the operations, and in the order, that the numpy form it
 replaced used, so a seeded trial gives the same rows to the last bit:
@@ -22,13 +19,6 @@ replaced used, so a seeded trial gives the same rows to the last bit:
   fused multiply-add chain over the inner index from zero, ``s = fma(a0, b0, 0); s = fma(a1, b1,
   s); ...``, which is what OpenBLAS's x86-64 kernels compute for these inner sizes of 3. A BLAS
   that sums otherwise rounds differently; the results agree to about 1e-16 relative either way.
-
-Two kernels decide by a threshold and compute their test quantity otherwise than the numpy code
-before them: :func:`priced_edges` sums a left-out edge's price row by row (a matrix-vector
-product did before) and :func:`matched_contacts` takes squared distances directly (numpy
-expanded them). Only a value within rounding of its threshold could decide differently; both
-serve edge screening and primal warm starts only, which no committed study uses, and the seeded
-trials with edge screening give the same bytes as before.
 
 Compilation as in :mod:`wholehand.contacts.kernels` (``cache=CACHE``, ``error_model="numpy"``).
 """
@@ -230,265 +220,6 @@ def consistency_rows(Nc: FloatArray, W: FloatArray, act_idx: IntArray) -> FloatA
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def solved_rows(
-    G_lam: FloatArray,
-    T_lam: FloatArray,
-    torque_sel: IntArray,
-    null_rows: FloatArray,
-    w_ext: FloatArray,
-    f_n_min: float,
-    t_lower: FloatArray,
-    t_upper: FloatArray,
-    eps: float,
-    edge_sel: IntArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - jit
-    """The rows of the solved form over ``x = [lambda[edge_sel] (k); w (6)]`` and their bounds
-    (the other edge weights held at zero): the wrench equality ``G_lam lambda - w = -w_ext``,
-    the minimum squeeze ``sum(lambda) >= f_n_min``, the torque rows ``T_lam[torque_sel]``
-    within ``[t_lower, t_upper][torque_sel]`` (bounds of every torque row, (n_t,)) and the
-    consistency rows ``null_rows`` (nn, nl) within ``+-eps``.
-
-    Returns:
-        ``A`` (7 + nt + nn, k + 6), ``lower`` and ``upper`` (7 + nt + nn,).
-    """
-    k = edge_sel.size
-    nt, nn = torque_sel.size, null_rows.shape[0]
-    m = 7 + nt + nn
-    A = np.zeros((m, k + 6))
-    lower = np.empty(m)
-    upper = np.empty(m)
-    for r in range(6):
-        for c in range(k):
-            A[r, c] = G_lam[r, edge_sel[c]]
-        A[r, k + r] = -1.0
-        lower[r] = upper[r] = -w_ext[r]
-    A[6, :k] = 1.0
-    lower[6], upper[6] = f_n_min, np.inf
-    for t in range(nt):
-        row = torque_sel[t]
-        for c in range(k):
-            A[7 + t, c] = T_lam[row, edge_sel[c]]
-        lower[7 + t], upper[7 + t] = t_lower[row], t_upper[row]
-    for j in range(nn):
-        for c in range(k):
-            A[7 + nt + j, c] = null_rows[j, edge_sel[c]]
-        lower[7 + nt + j], upper[7 + nt + j] = -eps, eps
-    return A, lower, upper
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def priced_edges(
-    G_lam: FloatArray,
-    T_lam: FloatArray,
-    torque_sel: IntArray,
-    null_rows: FloatArray,
-    y: FloatArray,
-    in_problem: BoolArray,
-    tol: float,
-) -> IntArray:  # pragma: no cover - jit
-    """The edge weights left out of a screening round (``in_problem`` False) whose bound
-    ``lambda_j >= 0`` would need a multiplier below ``-tol``: ``A_j . y < -tol``, with ``A_j``
-    the edge's column in the round's rows (as :func:`solved_rows` stacks them: wrench, squeeze,
-    ``T_lam[torque_sel]``, ``null_rows``) and ``y`` (m,) their multipliers. Increasing."""
-    nl = G_lam.shape[1]
-    nt, nn = torque_sel.size, null_rows.shape[0]
-    out = np.empty(nl, dtype=np.intp)
-    n_out = 0
-    for j in range(nl):
-        if in_problem[j]:
-            continue
-        price = y[6]  # the squeeze row's coefficient is 1
-        for r in range(6):
-            price += G_lam[r, j] * y[r]
-        for t in range(nt):
-            price += T_lam[torque_sel[t], j] * y[7 + t]
-        for q in range(nn):
-            price += null_rows[q, j] * y[7 + nt + q]
-        if price < -tol:
-            out[n_out] = j
-            n_out += 1
-    return out[:n_out]
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def rows_over(
-    values: FloatArray, limits: FloatArray, included: BoolArray, tol: float
-) -> tuple[IntArray, float]:
-    """Two-sided rows ``|values| <= limits`` at a relaxed solution: the left-out ones
-    (``included`` False) violated by more than ``tol``, increasing, and the largest
-    ``|values| - limits`` over all rows (0 for none) [N or N*m]."""
-    add = np.empty(values.size, dtype=np.intp)
-    n_add = 0
-    worst = 0.0
-    for i in range(values.size):
-        over = abs(values[i]) - limits[i]
-        if over > worst or np.isnan(over):
-            worst = over
-        if over > tol and not included[i]:
-            add[n_add] = i
-            n_add += 1
-    return add[:n_add], worst
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def at_bounds(values: FloatArray, limits: FloatArray, rel: float, abs_tol: float) -> IntArray:
-    """Indices of the two-sided rows ``|values| <= limits`` at or past their bounds:
-    ``|values| >= limits (1 - rel) - abs_tol``, increasing."""
-    out = np.empty(values.size, dtype=np.intp)
-    n = 0
-    for i in range(values.size):
-        if abs(values[i]) >= limits[i] * (1.0 - rel) - abs_tol:
-            out[n] = i
-            n += 1
-    return out[:n]
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def active_of(
-    duals: FloatArray,
-    n_lambda: int,
-    edge_sel: IntArray,
-    torque_sel: IntArray,
-    null_sel: IntArray,
-    n_t: int,
-    n_null: int,
-) -> tuple[IntArray, int, IntArray, IntArray]:  # pragma: no cover - jit
-    """The active set of a screening round's solution by identity (-1 at the lower bound, +1 at
-    the upper one, 0 inactive), from the solver's (n + m,) multipliers of the problem with the
-    edge weights ``edge_sel``, the torque rows ``torque_sel`` and the consistency rows
-    ``null_sel`` (:class:`~wholehand.allocation.solve.ActiveSet`): every edge bound (-1 for
-    those left out, held at zero), the squeeze, every torque row, every consistency row."""
-    n_edges = edge_sel.size
-    edges = np.full(n_lambda, -1, dtype=np.intp)
-    for c in range(n_edges):
-        edges[edge_sel[c]] = _sign(duals[c])
-    rows = n_edges + 6  # after the free wrench variables' bounds; then the 6 equality rows
-    torque = np.zeros(n_t, dtype=np.intp)
-    for t in range(torque_sel.size):
-        torque[torque_sel[t]] = _sign(duals[rows + 7 + t])
-    null = np.zeros(n_null, dtype=np.intp)
-    for q in range(null_sel.size):
-        null[null_sel[q]] = _sign(duals[rows + 7 + torque_sel.size + q])
-    return edges, _sign(duals[rows + 6]), torque, null
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
-def _sign(v: float) -> int:  # pragma: no cover - jit
-    return 1 if v > 0.0 else (-1 if v < 0.0 else 0)
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def active_vector(
-    edges: IntArray,
-    squeeze: int,
-    torque: IntArray,
-    null: IntArray,
-    edge_sel: IntArray,
-    torque_sel: IntArray,
-    null_sel: IntArray,
-) -> IntArray:  # pragma: no cover - jit
-    """The (n + m,) guessed active set of the problem with these edge weights and rows, from
-    one by identity (:func:`active_of`): the edge bounds, the free wrench variables' (0), the
-    equality rows (0), the squeeze, the torque rows, the consistency rows."""
-    k, nt, nn = edge_sel.size, torque_sel.size, null_sel.size
-    out = np.zeros(k + 13 + nt + nn, dtype=np.intp)
-    for c in range(k):
-        out[c] = edges[edge_sel[c]]
-    out[k + 12] = squeeze
-    for t in range(nt):
-        out[k + 13 + t] = torque[torque_sel[t]]
-    for q in range(nn):
-        out[k + 13 + nt + q] = null[null_sel[q]]
-    return out
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def matched_contacts(
-    p_world: FloatArray, link: IntArray, p_last: FloatArray, link_last: IntArray, r2: float
-) -> IntArray:  # pragma: no cover - jit
-    """(N,) index of the last cycle's contact each of the (N, 3) ``p_world`` continues: the
-    nearest one on the same link, if within ``sqrt(r2)``; -1 for none (first of equals wins).
-    Same links in the same order, each within the radius: the identity, without the search."""
-    n, n_last = p_world.shape[0], p_last.shape[0]
-    out = np.full(n, -1, dtype=np.intp)
-    same = n == n_last
-    for i in range(n):
-        if not same:
-            break
-        d0 = p_world[i, 0] - p_last[i, 0]
-        d1 = p_world[i, 1] - p_last[i, 1]
-        d2 = p_world[i, 2] - p_last[i, 2]
-        same = link[i] == link_last[i] and d0 * d0 + d1 * d1 + d2 * d2 <= r2
-    if same:
-        return np.arange(n)
-    for i in range(n):
-        best = np.inf
-        for j in range(n_last):
-            if link_last[j] != link[i]:
-                continue
-            d0 = p_world[i, 0] - p_last[j, 0]
-            d1 = p_world[i, 1] - p_last[j, 1]
-            d2 = p_world[i, 2] - p_last[j, 2]
-            dist2 = d0 * d0 + d1 * d1 + d2 * d2
-            if dist2 < best:
-                best = dist2
-                if dist2 <= r2:
-                    out[i] = j
-    return out
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def warm_edge_weights(
-    match: IntArray, lam_last: FloatArray
-) -> tuple[FloatArray, IntArray]:  # pragma: no cover - jit
-    """The (N, 4) edge weights each contact had last cycle (``match``: the last cycle's contact
-    it continues, -1 for a new one, whose weights are ``inf``) from the (N_last, 4)
-    ``lam_last``, and the indices of the positive ones (``4 i + e``, increasing): the edges
-    that carried force, and every edge of a new contact."""
-    n, n_e = match.size, lam_last.shape[1]
-    lam = np.empty((n, n_e))
-    carried = np.empty(n * n_e, dtype=np.intp)
-    k = 0
-    for i in range(n):
-        j = match[i]
-        for e in range(n_e):
-            v = lam_last[j, e] if j >= 0 else np.inf
-            lam[i, e] = v
-            if v > 0.0:
-                carried[k] = n_e * i + e
-                k += 1
-    return lam, carried[:k]
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def rows_of_joints(joints: IntArray, n_v: int, dofs: IntArray, torque_rows: IntArray) -> IntArray:
-    """Positions in ``torque_rows`` (indices into ``dofs``) of the torque rows of the given
-    joints (indices in ``[0, n_v)``; others are ignored), increasing."""
-    mark = np.zeros(n_v, dtype=np.bool_)
-    for j in joints:
-        if 0 <= j < n_v:
-            mark[j] = True
-    out = np.empty(torque_rows.size, dtype=np.intp)
-    k = 0
-    for t in range(torque_rows.size):
-        if mark[dofs[torque_rows[t]]]:
-            out[k] = t
-            k += 1
-    return out[:k]
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def selection(sel: IntArray, size: int) -> tuple[BoolArray, IntArray]:
-    """The (size,) mask of the indices ``sel`` below ``size``, and those indices sorted without
-    repeats."""
-    mask = np.zeros(size, dtype=np.bool_)
-    for i in sel:
-        if i < size:
-            mask[i] = True
-    return mask, np.flatnonzero(mask)
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def sigma_min_lower_bound(qr: FloatArray, k: int) -> float:  # pragma: no cover - jit
     """A lower bound of the smallest singular value of the upper-triangular ``R``, the upper
     triangle of ``qr[:k, :k]`` (as LAPACK's ``dgeqrf`` leaves it): ``1 / ||R^-1||_F``, from
@@ -516,21 +247,11 @@ def sigma_min_lower_bound(qr: FloatArray, k: int) -> float:  # pragma: no cover 
 
 
 __all__ = [
-    "active_of",
-    "active_vector",
-    "at_bounds",
     "consistency_rows",
     "contact_frames",
     "edge_forces",
     "finite_inputs",
-    "matched_contacts",
-    "rows_of_joints",
-    "rows_over",
-    "priced_edges",
-    "selection",
     "sigma_min_lower_bound",
-    "solved_rows",
     "structured_terms",
-    "warm_edge_weights",
     "wrench_map",
 ]

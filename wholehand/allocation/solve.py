@@ -38,27 +38,25 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.kernels import (
-    active_of,
-    active_vector,
-    at_bounds,
-    finite_inputs,
-    matched_contacts,
-    priced_edges,
-    rows_of_joints,
-    rows_over,
-    selection,
-    solved_rows,
-    warm_edge_weights,
-)
+from wholehand.allocation.kernels import finite_inputs
 from wholehand.allocation.problem import (
     N_WRENCH,
     AllocationParams,
     AllocationQP,
     build_allocation_qp,
 )
+from wholehand.allocation.screening_kernels import (
+    active_of,
+    active_vector,
+    at_bounds,
+    priced_edges,
+    rows_over,
+    selection,
+    solved_rows,
+)
 from wholehand.allocation.solvers import QPSolver
 from wholehand.allocation.solvers.base import DenseQP, QPResult
+from wholehand.allocation.warm_start import matched_contacts, rows_of_joints, warm_edge_weights
 from wholehand.contacts.base import ContactSet
 
 FloatArray = npt.NDArray[np.float64]
@@ -202,7 +200,7 @@ def _round_problem(
         edges,
     )
     p_diag, lb, ub = _variable_terms(edges.size, qp.params.reg)
-    active = None if guess is None else guess.vector(torque_sel, null_sel, edge_sel)
+    active = None if guess is None else guess.vector(torque_sel, null_sel, edges)
     return DenseQP(p_diag, A, lower, upper, N_WRENCH, lb, ub, active)
 
 

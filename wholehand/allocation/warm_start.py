@@ -5,8 +5,17 @@ joint) and, when the contacts sit on the same links in the same order, the consi
 binding last cycle (by basis index) seed the working set, which saves screening rounds. Solvers
 that use a primal start (OSQP, qpsolvers) get the previous edge weights, each contact matched to
 the previous contact on the same link with the nearest point (within ``match_radius``). DAQP
-instead restarts from its own previous working set. Measured effect (``wholehand bench
-allocate``): large where rows bind (fewer rounds) and for OSQP; none for PIQP (interior point).
+instead restarts from its own previous working set; with edge screening, each cycle starts from
+the edges that carried force last cycle and every edge of a new contact. Measured effect
+(``wholehand bench allocate``): large where rows bind (fewer rounds) and for OSQP; none for PIQP
+(interior point).
+
+The per-cycle work (matching the contacts, last cycle's edge weights per contact, the rows of
+last cycle's binding joints) is compiled, as the problem's terms are
+(:mod:`wholehand.allocation.kernels`). :func:`matched_contacts` takes squared distances
+directly, where numpy expanded them before: only a distance within rounding of the radius could
+match differently, and the match serves edge screening and primal warm starts only, which no
+committed study uses.
 """
 
 from __future__ import annotations
@@ -14,10 +23,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import cast
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.kernels import matched_contacts
+from wholehand.jit import CACHE
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -77,4 +87,79 @@ class WarmStart:
         return last is not None and last.shape == link.shape and bool((last == link).all())
 
 
-__all__ = ["MATCH_RADIUS", "WarmStart"]
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def matched_contacts(
+    p_world: FloatArray, link: IntArray, p_last: FloatArray, link_last: IntArray, r2: float
+) -> IntArray:  # pragma: no cover - jit
+    """(N,) index of the last cycle's contact each of the (N, 3) ``p_world`` continues: the
+    nearest one on the same link, if within ``sqrt(r2)``; -1 for none (first of equals wins).
+    Same links in the same order, each within the radius: the identity, without the search."""
+    n, n_last = p_world.shape[0], p_last.shape[0]
+    out = np.full(n, -1, dtype=np.intp)
+    same = n == n_last
+    for i in range(n):
+        if not same:
+            break
+        d0 = p_world[i, 0] - p_last[i, 0]
+        d1 = p_world[i, 1] - p_last[i, 1]
+        d2 = p_world[i, 2] - p_last[i, 2]
+        same = link[i] == link_last[i] and d0 * d0 + d1 * d1 + d2 * d2 <= r2
+    if same:
+        return np.arange(n)
+    for i in range(n):
+        best = np.inf
+        for j in range(n_last):
+            if link_last[j] != link[i]:
+                continue
+            d0 = p_world[i, 0] - p_last[j, 0]
+            d1 = p_world[i, 1] - p_last[j, 1]
+            d2 = p_world[i, 2] - p_last[j, 2]
+            dist2 = d0 * d0 + d1 * d1 + d2 * d2
+            if dist2 < best:
+                best = dist2
+                if dist2 <= r2:
+                    out[i] = j
+    return out
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def warm_edge_weights(
+    match: IntArray, lam_last: FloatArray
+) -> tuple[FloatArray, IntArray]:  # pragma: no cover - jit
+    """The (N, 4) edge weights each contact had last cycle (``match``: the last cycle's contact
+    it continues, -1 for a new one, whose weights are ``inf``) from the (N_last, 4)
+    ``lam_last``, and the indices of the positive ones (``4 i + e``, increasing): the edges
+    that carried force, and every edge of a new contact."""
+    n, n_e = match.size, lam_last.shape[1]
+    lam = np.empty((n, n_e))
+    carried = np.empty(n * n_e, dtype=np.intp)
+    k = 0
+    for i in range(n):
+        j = match[i]
+        for e in range(n_e):
+            v = lam_last[j, e] if j >= 0 else np.inf
+            lam[i, e] = v
+            if v > 0.0:
+                carried[k] = n_e * i + e
+                k += 1
+    return lam, carried[:k]
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def rows_of_joints(joints: IntArray, n_v: int, dofs: IntArray, torque_rows: IntArray) -> IntArray:
+    """Positions in ``torque_rows`` (indices into ``dofs``) of the torque rows of the given
+    joints (indices in ``[0, n_v)``; others are ignored), increasing."""
+    mark = np.zeros(n_v, dtype=np.bool_)
+    for j in joints:
+        if 0 <= j < n_v:
+            mark[j] = True
+    out = np.empty(torque_rows.size, dtype=np.intp)
+    k = 0
+    for t in range(torque_rows.size):
+        if mark[dofs[torque_rows[t]]]:
+            out[k] = t
+            k += 1
+    return out[:k]
+
+
+__all__ = ["MATCH_RADIUS", "WarmStart", "matched_contacts", "rows_of_joints", "warm_edge_weights"]

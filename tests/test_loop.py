@@ -581,34 +581,66 @@ def test_the_gate_refuses_a_glitch_and_accepts_a_sustained_change(allegro, cube)
         GateLimits(accept_after=0)
 
 
+def test_the_gates_measures_against_pinocchio_and_numpy():
+    import pinocchio as pin
+
+    from wholehand.loop.gate import _measures
+
+    rng = np.random.default_rng(5)
+    lower, upper = -np.ones(4), np.ones(4)
+    for angle in (0.0, 1e-9, 1e-3, 0.5, 2.0, np.pi - 1e-6, np.pi):
+        axis = rng.normal(size=3)
+        ref, now, base = np.eye(4), np.eye(4), np.eye(4)
+        ref[:3, :3] = pin.exp3(rng.normal(size=3))
+        now[:3, :3] = ref[:3, :3] @ pin.exp3(angle * axis / np.linalg.norm(axis))
+        ref[:3, 3], now[:3, 3], base[:3, 3] = rng.normal(size=(3, 3))
+        q = np.array([0.0, 1.5, -2.0, 0.5])
+        first, distance, moved, turned = _measures(q, lower, upper, now, base, ref)
+        assert first == 1
+        assert distance == pytest.approx(np.linalg.norm(now[:3, 3] - base[:3, 3]), rel=1e-14)
+        assert moved == pytest.approx(np.linalg.norm(now[:3, 3] - ref[:3, 3]), rel=1e-14)
+        assert turned == pytest.approx(angle, abs=1e-7)
+    assert _measures(np.zeros(4), lower, upper, None, base, None)[0] == -1
+    assert np.isnan(_measures(np.zeros(4), lower, upper, now, base, None)[2])
+
+
 class Shouting(Stage):
-    """Commands ten times the limit on every joint, or a torque of the wrong length."""
+    """Commands ten times the limit on every joint, or a torque of the wrong length, or one
+    with an infinite or NaN entry."""
 
     name = "shouting"
 
-    def __init__(self, wrong_length_on=()):
-        self.n, self.wrong = 0, set(wrong_length_on)
+    def __init__(self, wrong_length_on=(), not_finite_on=()):
+        self.n, self.wrong, self.not_finite = 0, set(wrong_length_on), dict(not_finite_on)
 
     def step(self, context):
         self.n += 1
         nv = context.hand.nv
         tau = np.full(nv - 1 if self.n in self.wrong else nv, 10.0)
+        if self.n in self.not_finite:
+            tau[-1] = self.not_finite[self.n]
         return StageOutput(Command.torques(tau), "ok")
 
 
 def test_every_command_is_clamped_and_a_malformed_one_is_a_stage_error(allegro, cube):
     backend = grasp_backend(allegro, cube)
     seen = Last()
-    loop = ControlLoop(backend, allegro, cube, Shouting({3}), observers=[seen])
-    report = loop.run(0.025)
+    loop = ControlLoop(
+        backend, allegro, cube, Shouting({3}, {5: np.inf, 6: np.nan}), observers=[seen]
+    )
+    report = loop.run(0.04)
     limit = np.where(allegro.actuated_dofs, allegro.tau_max, 0.0)
     for c in seen.cycles:
         assert np.all(np.abs(c.command.tau) <= limit)
     np.testing.assert_array_equal(seen.cycles[0].command.tau, limit)
     assert np.all(np.abs(backend.applied_torques()) <= limit + 1e-12)
-    assert report.clamped == 4 and report.max_excess == pytest.approx(10.0 - limit.min())
+    assert report.clamped == 5 and report.max_excess == pytest.approx(10.0 - limit.min())
     assert seen.cycles[2].output.status == "stage_error" and "shape (15,)" in seen.cycles[2].fault
     np.testing.assert_array_equal(seen.cycles[2].command.tau, seen.cycles[1].command.tau)
+    for i in (4, 5):  # inf, then NaN: refused, the last command kept
+        assert seen.cycles[i].output.status == "stage_error"
+        assert "with NaN or inf" in seen.cycles[i].fault
+        np.testing.assert_array_equal(seen.cycles[i].command.tau, seen.cycles[3].command.tau)
 
 
 def test_an_ok_allocation_that_does_not_balance_is_reported(allegro, cube):

@@ -49,6 +49,21 @@ def test_history_is_exact_at_samples_linear_between_and_refuses_older_stamps():
         JointHistory(2, capacity=0)
 
 
+@pytest.mark.parametrize("pushed", range(1, 10))
+def test_history_brackets_every_stamp_at_every_fill_of_the_ring(pushed):
+    h = JointHistory(n_q=1, capacity=4)
+    stamps = [0.01 * i * (1 + 0.1 * i) for i in range(pushed)]  # uneven spacing
+    for i, t in enumerate(stamps):
+        h.push(t, np.array([float(i)]), np.eye(4))
+    kept = stamps[-4:]
+    for t in np.linspace(kept[0], kept[-1] + 0.01, 23):
+        k = max(i for i, s in enumerate(kept) if s <= t)  # the newest sample at or before t
+        value = float(pushed - len(kept) + k)  # q of sample k is its index
+        if k + 1 < len(kept) and t > kept[k]:
+            value += (t - kept[k]) / (kept[k + 1] - kept[k])
+        assert h.at(t)[0][0] == pytest.approx(value, abs=1e-12), t
+
+
 def _obs(q=(0.1, 0.2), wMo=None, t=0.0, stamp_object=None, history=None):
     history = history or JointHistory(2)
     if not len(history) or history.newest_stamp < t:

@@ -216,6 +216,15 @@ def _variable_terms(n_edges: int, reg: float) -> tuple[FloatArray, FloatArray, F
     return p_diag, lb, ub
 
 
+@functools.lru_cache(maxsize=256)
+def _uniform(n: int, value: float) -> FloatArray:
+    """(n,) read-only array of ``value``: the consistency rows' common bound (a problem's size
+    recurs from cycle to cycle, and ``np.full`` costs microseconds in a cycle)."""
+    out = np.full(n, value)
+    out.setflags(write=False)
+    return out
+
+
 def solve_allocation(
     qp: AllocationQP,
     solver: QPSolver,
@@ -271,7 +280,7 @@ def solve_allocation(
             e_mask[edge_sel[edge_sel < nl]] = True
     limits = qp.tau_max[qp.torque_rows]
     torque_bounds = qp.torque_bounds()
-    eps_limits = np.full(n_null, eps)
+    eps_limits = _uniform(n_null, eps)
     rounds = iterations = solver_ns = 0
     res = QPResult(None, "failed")
     x = np.zeros(qp.n_x)
@@ -419,7 +428,7 @@ def rows_at_bounds(
     row's ``T_lam @ lambda`` [N*m], every consistency row's [N]) are at or past their bounds."""
     lim = qp.tau_max[qp.torque_rows]
     t = at_bounds(qp.torque_totals(torque_values), lim, rel, abs_tol)
-    eps = np.full(null_values.size, qp.params.eps_margin)
+    eps = _uniform(null_values.size, qp.params.eps_margin)
     return t, at_bounds(np.ascontiguousarray(null_values), eps, rel, abs_tol)
 
 

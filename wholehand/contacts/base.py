@@ -133,10 +133,7 @@ class ContactSet:
         if self.p_joint is not None:
             return self
         joint = kinematics.hand.link_joint[self.link].astype(np.intp)
-        R, t = kinematics.joint_poses_in(np.eye(4))  # joint frames in the world
-        R = R[joint]
-        p_joint = np.einsum("nba,nb->na", R, self.p_world - t[joint])
-        n_joint = np.einsum("nba,nb->na", R, self.n_world)
+        p_joint, n_joint = kinematics.to_joint_frames(self.p_world, self.n_world, joint)
         return dataclasses.replace(self, p_joint=p_joint, n_joint=n_joint, joint=joint)
 
     def moved_to(self, kinematics: HandKinematics) -> ContactSet:
@@ -147,13 +144,8 @@ class ContactSet:
                 "ContactSet.moved_to needs the contacts in their joint frames; call "
                 "in_joint_frames(kinematics at the configuration they were found at) first"
             )
-        R, t = kinematics.joint_poses_in(np.eye(4))
-        R = R[self.joint]
-        return dataclasses.replace(
-            self,
-            p_world=np.einsum("nab,nb->na", R, self.p_joint) + t[self.joint],
-            n_world=np.einsum("nab,nb->na", R, self.n_joint),
-        )
+        p_world, n_world = kinematics.from_joint_frames(self.p_joint, self.n_joint, self.joint)
+        return dataclasses.replace(self, p_world=p_world, n_world=n_world)
 
     @classmethod
     def empty(

@@ -8,6 +8,9 @@ message is matched, by its attachment's sequence number, with the joint state it
   arrival at the robot: the sample's age when the cycle began, the cycle, and the transport;
 - ``controller_ms``: from that stamp to the message's publication (``answer_ms`` less transport);
 - ``transport_ms``: publication to arrival;
+- ``cycle_ms``: the controller's cycles themselves (reading the newest messages, the stage, the
+  torque guard and the publication; the waits between cycles left out): the control step on
+  a machine where the simulator is another process, as on a robot;
 - ``rate_hz``: torque messages the robot received per second of its run, on its wall clock
   (the rate held).
 
@@ -58,6 +61,7 @@ def run_hw_benchmark(
     spec = spec or ControllerSpec()
     hand_model = load_hand(hand)
     answer, controller, transport, rates, rows = [], [], [], [], []
+    cycles: list[float] = []
     for obj, grasp in ((o, g) for o in objects for g in grasps):
         obj_model = load_object(obj)
         endpoint = loopback_endpoint()
@@ -109,6 +113,7 @@ def run_hw_benchmark(
             if not out.exists():
                 raise ConfigError(f"bench hw: hw-sim failed for {obj} grasp {grasp}: {err[-2000:]}")
             robot = json.loads(out.read_text())
+        cycles.extend(1e3 * t for t in result["cycle_times_s"])
         arrivals = dict(robot["arrivals"])
         for seq, stamp_q, published_ns in result["trace"]:
             if seq in arrivals and np.isfinite(stamp_q):
@@ -155,6 +160,7 @@ def run_hw_benchmark(
         "answer_ms": _percentiles(answer),
         "controller_ms": _percentiles(controller),
         "transport_ms": _percentiles(transport),
+        "cycle_ms": _percentiles(cycles),
         "messages": len(answer),
         "rate_hz": {"min": float(min(rates)), "mean": float(np.mean(rates))},
         "control_rate_hz": HardwareConfig().control_rate,

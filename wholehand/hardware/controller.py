@@ -101,8 +101,9 @@ def run_controller(
     stop: Callable[[], object] | None = None,
 ) -> dict[str, Any]:
     """Wait for the robot's streams, then run force regulation against it; returns a
-    JSON-ready report (``loop``, ``backend`` counts, ``cycle_time_ms`` percentiles, ``trace``
-    when asked). ``announce`` is called with a line once the streams are up;
+    JSON-ready report (``loop``, ``backend`` counts, ``cycle_time_ms`` percentiles; with
+    ``trace``, the ``trace`` of published torques and every kept cycle's time in
+    ``cycle_times_s``). ``announce`` is called with a line once the streams are up;
     the run also ends on the first cycle ``stop()`` returns something other than None.
 
     Raises:
@@ -171,4 +172,5 @@ def run_controller(
     }
     if trace:
         out["trace"] = traced
+        out["cycle_times_s"] = list(stopper.cycle_times)
     return out

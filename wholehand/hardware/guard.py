@@ -44,6 +44,7 @@ class TorqueGuard:
         self.tau_max = np.asarray(tau_max, dtype=float).copy()
         if self.tau_max.ndim != 1 or (self.tau_max < 0.0).any():
             raise ConfigError("TorqueGuard: tau_max must be (n_v,) values >= 0 [N*m]")
+        self._lower = -self.tau_max
         self.limits = limits
         self.counts: Counter[str] = Counter()
         """Commands per rule that changed them (``ok`` when none did)."""
@@ -76,13 +77,14 @@ class TorqueGuard:
             return self._sent(self._ramp(now), now, "pose_stale")
         self._ramp_from = None
         status = "ok"
-        out = np.clip(tau, -self.tau_max, self.tau_max)
-        if not np.array_equal(out, tau):
+        # np.clip's results; its wrapper and np.array_equal's cost more than the arithmetic.
+        out = np.minimum(np.maximum(tau, self._lower), self.tau_max)
+        if not (out == tau).all():
             status = "clamped"
         assert self.last is not None
         step = limits.torque_rate * max(now - self.t_last, 0.0)
-        limited = np.clip(out, self.last - step, self.last + step)
-        if not np.array_equal(limited, out):
+        limited = np.minimum(np.maximum(out, self.last - step), self.last + step)
+        if not (limited == out).all():
             status = "rate_limited"
         return self._sent(limited, now, status)
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 import traceback
 from collections import Counter
@@ -369,13 +370,14 @@ class ControlLoop:
             ConfigError: torques of the wrong shape or not finite (a bug of the stage).
         """
         tau, limit = command.tau, self._tau_max
-        if tau.shape != limit.shape or not np.isfinite(tau).all():
+        # NaN or inf in tau makes the excess NaN or +inf: one reduction checks both.
+        excess = float((np.abs(tau) - limit).max()) if tau.shape == limit.shape else math.nan
+        if math.isnan(excess) or excess == math.inf:
             what = f"of shape {tau.shape}" if tau.shape != limit.shape else "with NaN or inf"
             raise ConfigError(
                 f"stage {self.active!r} commanded torques {what}; the hand needs "
                 f"({limit.shape[0]},) finite values [N*m]"
             )
-        excess = float((np.abs(tau) - limit).max())
         if excess <= 0.0:
             return command
         self.report.clamped += 1

@@ -10,6 +10,7 @@ simulation time); a hardware backend fills them from its messages.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -69,11 +70,6 @@ class JointHistory:
         self._next = (i + 1) % self.capacity
         self._count = min(self._count + 1, self.capacity)
 
-    def _order(self) -> npt.NDArray[np.intp]:
-        """Buffer rows oldest first."""
-        start = (self._next - self._count) % self.capacity
-        return (start + np.arange(self._count)) % self.capacity
-
     @property
     def newest_stamp(self) -> float:
         """Stamp of the newest sample [s]."""
@@ -99,23 +95,24 @@ class JointHistory:
         Raises:
             ObservationError: no sample yet, or ``stamp`` is older than the oldest sample kept.
         """
-        if not self._count:
+        count, capacity, stamps = self._count, self.capacity, self._stamp
+        if not count:
             raise ObservationError("JointHistory: no joint sample yet")
-        rows = self._order()
-        stamps = self._stamp[rows]
-        if not stamp >= stamps[0]:
+        oldest = (self._next - count) % capacity
+        if not stamp >= stamps[oldest]:
             raise ObservationError(
                 f"JointHistory: stamp {stamp!r} s is older than the joint history "
-                f"({stamps[0]!r} .. {stamps[-1]!r} s, {self._count} samples); the object pose "
-                "is too old for its joint configuration to be known: lengthen the history "
+                f"({stamps[oldest]!r} .. {self.newest_stamp!r} s, {count} samples); the object "
+                "pose is too old for its joint configuration to be known: lengthen the history "
                 "(capacity) or lower the pose latency"
             )
-        j = int(np.searchsorted(stamps, stamp, side="right")) - 1  # stamps[j] <= stamp
-        a = rows[j]
-        if stamps[j] == stamp or j == len(rows) - 1:
+        # The j-th oldest sample is row (oldest + j) % capacity; stamps[row(j)] <= stamp.
+        j = bisect.bisect_right(range(count), stamp, key=lambda i: stamps[(oldest + i) % capacity])
+        a = (oldest + j - 1) % capacity
+        if stamps[a] == stamp or j == count:
             return self._q[a].copy(), self._wMb[a].copy()
-        b = rows[j + 1]
-        s = (stamp - stamps[j]) / (stamps[j + 1] - stamps[j])
+        b = (a + 1) % capacity
+        s = (stamp - stamps[a]) / (stamps[b] - stamps[a])
         q = self._q[a] + s * (self._q[b] - self._q[a])
         A, B = pin.SE3(self._wMb[a]), pin.SE3(self._wMb[b])
         wMb = (A * pin.exp6(s * pin.log6(A.actInv(B)))).homogeneous

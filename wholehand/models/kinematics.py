@@ -53,8 +53,10 @@ class HandKinematics:
         self._placements = placement_views(self.data)
         self.update(self.q, self.wMb)
         # Load the compiled kernels now rather than in a control cycle.
-        origin = self.transform_points(np.zeros((1, 3)), np.zeros(1, dtype=np.intp))
-        self.point_jacobians(np.zeros(1, dtype=np.intp), origin)
+        first = np.zeros(1, dtype=np.intp)
+        origin = self.transform_points(np.zeros((1, 3)), first)
+        self.point_jacobians(first, origin)
+        self.from_joint_frames(*self.to_joint_frames(origin, np.zeros((1, 3)), first), first)
 
     def __getstate__(self) -> dict[str, object]:
         state = self.__dict__.copy()
@@ -112,6 +114,28 @@ class HandKinematics:
         R, t = _joint_poses(fMw, self.wMb, self.bRj, self.bp_j)
         p_joint = np.ascontiguousarray(p_joint, dtype=np.float64)
         return cast(FloatArray, _transform(R, t, p_joint, np.asarray(joint, dtype=np.intp)))
+
+    def to_joint_frames(
+        self, p_world: FloatArray, n_world: FloatArray, joint: IntArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Points (P, 3) [m] and directions (P, 3) given in the world, each expressed in the
+        frame of joint ``joint[i]`` (the inverse of :meth:`from_joint_frames`)."""
+        R, t = _joint_poses(_IDENTITY, self.wMb, self.bRj, self.bp_j)
+        return cast(
+            tuple[FloatArray, FloatArray],
+            _to_joint_frames(R, t, np.asarray(joint, dtype=np.intp), p_world, n_world),
+        )
+
+    def from_joint_frames(
+        self, p_joint: FloatArray, n_joint: FloatArray, joint: IntArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Points (P, 3) [m] and directions (P, 3), each given in the frame of joint
+        ``joint[i]``, in the world at this configuration."""
+        R, t = _joint_poses(_IDENTITY, self.wMb, self.bRj, self.bp_j)
+        return cast(
+            tuple[FloatArray, FloatArray],
+            _from_joint_frames(R, t, np.asarray(joint, dtype=np.intp), p_joint, n_joint),
+        )
 
     def frame_pose(self, link: str) -> FloatArray:
         """(4, 4) world pose of a URDF link frame."""
@@ -266,3 +290,40 @@ def _transform(
         for a in range(3):
             out[i, a] = (R[j, a, 0] * x + R[j, a, 2] * z) + R[j, a, 1] * y + t[j, a]
     return out
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def _to_joint_frames(
+    R: FloatArray, t: FloatArray, joint: IntArray, p_world: FloatArray, n_world: FloatArray
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - jit
+    """(P, 3) points ``R[j]^T (p - t[j])`` and directions ``R[j]^T n``, ``j = joint[i]``; the
+    three products summed as numpy's ``einsum("nba,nb->na")`` sums them (in index order)."""
+    p_out = np.empty((p_world.shape[0], 3))
+    n_out = np.empty((p_world.shape[0], 3))
+    for i in range(p_world.shape[0]):
+        j = joint[i]
+        x, y, z = p_world[i, 0] - t[j, 0], p_world[i, 1] - t[j, 1], p_world[i, 2] - t[j, 2]
+        u, v, w = n_world[i, 0], n_world[i, 1], n_world[i, 2]
+        for a in range(3):
+            p_out[i, a] = R[j, 0, a] * x + R[j, 1, a] * y + R[j, 2, a] * z
+            n_out[i, a] = R[j, 0, a] * u + R[j, 1, a] * v + R[j, 2, a] * w
+    return p_out, n_out
+
+
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
+def _from_joint_frames(
+    R: FloatArray, t: FloatArray, joint: IntArray, p_joint: FloatArray, n_joint: FloatArray
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - jit
+    """(P, 3) points ``R[j] p + t[j]`` and directions ``R[j] n``, ``j = joint[i]``; the three
+    products summed as numpy's ``einsum("nab,nb->na")`` sums them (two lanes, as
+    :func:`_transform`)."""
+    p_out = np.empty((p_joint.shape[0], 3))
+    n_out = np.empty((p_joint.shape[0], 3))
+    for i in range(p_joint.shape[0]):
+        j = joint[i]
+        x, y, z = p_joint[i, 0], p_joint[i, 1], p_joint[i, 2]
+        u, v, w = n_joint[i, 0], n_joint[i, 1], n_joint[i, 2]
+        for a in range(3):
+            p_out[i, a] = (R[j, a, 0] * x + R[j, a, 2] * z) + R[j, a, 1] * y + t[j, a]
+            n_out[i, a] = (R[j, a, 0] * u + R[j, a, 2] * w) + R[j, a, 1] * v
+    return p_out, n_out

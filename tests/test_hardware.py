@@ -97,6 +97,22 @@ def test_cdr_payloads_round_trip_with_the_encapsulation_header():
     assert struct.unpack("<dd", array[-16:]) == (1.0, -2.0)
 
 
+def test_the_messages_code_is_generated_with_the_typestore_not_in_a_cycle(monkeypatch):
+    import rosbags.serde.cdr
+    import rosbags.serde.ros1
+
+    msgs.typestore()
+
+    def generate(*args, **kwargs):
+        raise AssertionError("rosbags generated a message's code after typestore()")
+
+    for module in (rosbags.serde.cdr, rosbags.serde.ros1):
+        monkeypatch.setattr(module, "compile_lines", generate)
+    msgs.decode_array(msgs.encode_array(np.zeros(16)))
+    msgs.decode_joint_state(msgs.encode_joint_state(1.0, ["a"], [0.0], [0.0], [0.0]))
+    msgs.decode_pose(msgs.encode_pose(1.0, "world", np.eye(4)))
+
+
 @pytest.mark.parametrize("decode", [msgs.decode_joint_state, msgs.decode_pose, msgs.decode_array])
 def test_malformed_payloads_raise_message_error(decode):
     for payload in (b"", b"\x00\x01\x00\x00\x01", b"garbage" * 3):

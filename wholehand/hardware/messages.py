@@ -38,8 +38,13 @@ class MessageError(WholehandError):
 
 @cache
 def typestore() -> Any:
-    """The ROS 2 Jazzy typestore (the three messages are the same in every ROS 2 distro)."""
-    return get_typestore(Stores.ROS2_JAZZY)
+    """The ROS 2 Jazzy typestore (the three messages are the same in every ROS 2 distro), with
+    the (de)serialisers of wholehand's messages generated: rosbags writes a type's code on its
+    first use (about 5 ms), which must not fall in a control cycle."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for msgtype in (JOINT_STATE, POSE_STAMPED, FLOAT64_ARRAY):
+        store.get_msgdef(msgtype)
+    return store
 
 
 def type_hash(msgtype: str) -> str:

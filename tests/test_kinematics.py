@@ -38,6 +38,28 @@ def test_transformed_samples_match_pinocchio_frames(state, allegro):
     np.testing.assert_allclose(p_world, expected, atol=1e-12)
 
 
+def test_points_and_directions_to_joint_frames_and_back_match_pinocchio(state, allegro):
+    kin, q, wMb, rng = state
+    joint = rng.integers(1, allegro.model.njoints, size=7).astype(np.intp)
+    p, n = rng.normal(scale=0.1, size=(7, 3)), rng.normal(size=(7, 3))
+    p_joint, n_joint = kin.to_joint_frames(p, n, joint)
+    data = allegro.model.createData()
+    pin.forwardKinematics(allegro.model, data, q)
+    for i, j in enumerate(joint):
+        wMj = wMb @ data.oMi[int(j)].homogeneous
+        np.testing.assert_allclose(wMj[:3, :3] @ p_joint[i] + wMj[:3, 3], p[i], atol=1e-12)
+        np.testing.assert_allclose(wMj[:3, :3] @ n_joint[i], n[i], atol=1e-12)
+    back = kin.from_joint_frames(p_joint, n_joint, joint)
+    np.testing.assert_allclose(back[0], p, atol=1e-12)
+    np.testing.assert_allclose(back[1], n, atol=1e-12)
+    # Other layouts (a transposed view, a read-only array) give the same values.
+    p_view, n_ro = np.ascontiguousarray(p.T).T, n.copy()
+    n_ro.setflags(write=False)
+    got = kin.to_joint_frames(p_view, n_ro, joint)
+    np.testing.assert_array_equal(got[0], p_joint)
+    np.testing.assert_array_equal(got[1], n_joint)
+
+
 def test_point_jacobians_match_finite_differences(state, allegro):
     kin, q, wMb, rng = state
     idx = rng.choice(len(allegro.samples), 60, replace=False)

@@ -106,7 +106,7 @@ class JointHistory:
                 "pose is too old for its joint configuration to be known: lengthen the history "
                 "(capacity) or lower the pose latency"
             )
-        # The j-th oldest sample is row (oldest + j) % capacity; stamps[row(j)] <= stamp.
+        # j: the samples stamped at or before `stamp` (the i-th oldest is row oldest + i).
         j = bisect.bisect_right(range(count), stamp, key=lambda i: stamps[(oldest + i) % capacity])
         a = (oldest + j - 1) % capacity
         if stamps[a] == stamp or j == count:

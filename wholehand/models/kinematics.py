@@ -121,10 +121,9 @@ class HandKinematics:
         """Points (P, 3) [m] and directions (P, 3) given in the world, each expressed in the
         frame of joint ``joint[i]`` (the inverse of :meth:`from_joint_frames`)."""
         R, t = _joint_poses(_IDENTITY, self.wMb, self.bRj, self.bp_j)
-        return cast(
-            tuple[FloatArray, FloatArray],
-            _to_joint_frames(R, t, np.asarray(joint, dtype=np.intp), p_world, n_world),
-        )
+        p, n = _c_floats(p_world), _c_floats(n_world)
+        joint = np.ascontiguousarray(joint, dtype=np.intp)
+        return cast(tuple[FloatArray, FloatArray], _to_joint_frames(R, t, joint, p, n))
 
     def from_joint_frames(
         self, p_joint: FloatArray, n_joint: FloatArray, joint: IntArray
@@ -132,10 +131,9 @@ class HandKinematics:
         """Points (P, 3) [m] and directions (P, 3), each given in the frame of joint
         ``joint[i]``, in the world at this configuration."""
         R, t = _joint_poses(_IDENTITY, self.wMb, self.bRj, self.bp_j)
-        return cast(
-            tuple[FloatArray, FloatArray],
-            _from_joint_frames(R, t, np.asarray(joint, dtype=np.intp), p_joint, n_joint),
-        )
+        p, n = _c_floats(p_joint), _c_floats(n_joint)
+        joint = np.ascontiguousarray(joint, dtype=np.intp)
+        return cast(tuple[FloatArray, FloatArray], _from_joint_frames(R, t, joint, p, n))
 
     def frame_pose(self, link: str) -> FloatArray:
         """(4, 4) world pose of a URDF link frame."""
@@ -174,6 +172,13 @@ class HandKinematics:
         """
         J = self.point_jacobians(joint, p_world)
         return J @ self.hand.coupling if self.hand.coupled else J
+
+
+def _c_floats(a: npt.ArrayLike) -> FloatArray:
+    """``a`` as C-ordered, writable float64 (copied only when it is not): the one layout the
+    kernels are loaded for, so that no other version loads in a cycle."""
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    return out if out.flags.writeable else out.copy()
 
 
 def placement_views(data: pin.Data) -> tuple[FloatArray, FloatArray] | None:

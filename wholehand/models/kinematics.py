@@ -112,7 +112,7 @@ class HandKinematics:
         """
         fMw = _IDENTITY if fMw is None else np.ascontiguousarray(fMw, dtype=np.float64)
         R, t = _joint_poses(fMw, self.wMb, self.bRj, self.bp_j)
-        p_joint = np.ascontiguousarray(p_joint, dtype=np.float64)
+        p_joint = _c_floats(p_joint)
         return cast(FloatArray, _transform(R, t, p_joint, np.asarray(joint, dtype=np.intp)))
 
     def to_joint_frames(
@@ -282,18 +282,26 @@ def _joint_poses(
     return R, t
 
 
+@numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
+def _rotated(
+    R: FloatArray, j: int, a: int, x: float, y: float, z: float
+) -> float:  # pragma: no cover - jit
+    """Component ``a`` of ``R[j] (x, y, z)``, the three products summed as numpy's
+    ``einsum("nab,nb->na")`` sums them (two lanes: ``(x0 + x2) + x1``)."""
+    return float((R[j, a, 0] * x + R[j, a, 2] * z) + R[j, a, 1] * y)
+
+
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
 def _transform(
     R: FloatArray, t: FloatArray, p_joint: FloatArray, joint: IntArray
 ) -> FloatArray:  # pragma: no cover - jit
-    """(P, 3) points ``R[joint] p_joint + t[joint]``; the three products summed as numpy's
-    ``einsum`` sums them here (two lanes: ``(x0 + x2) + x1``)."""
+    """(P, 3) points ``R[joint] p_joint + t[joint]`` (rounded as :func:`_rotated`)."""
     out = np.empty((p_joint.shape[0], 3))
     for i in range(p_joint.shape[0]):
         j = joint[i]
         x, y, z = p_joint[i, 0], p_joint[i, 1], p_joint[i, 2]
         for a in range(3):
-            out[i, a] = (R[j, a, 0] * x + R[j, a, 2] * z) + R[j, a, 1] * y + t[j, a]
+            out[i, a] = _rotated(R, j, a, x, y, z) + t[j, a]
     return out
 
 
@@ -319,9 +327,8 @@ def _to_joint_frames(
 def _from_joint_frames(
     R: FloatArray, t: FloatArray, joint: IntArray, p_joint: FloatArray, n_joint: FloatArray
 ) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - jit
-    """(P, 3) points ``R[j] p + t[j]`` and directions ``R[j] n``, ``j = joint[i]``; the three
-    products summed as numpy's ``einsum("nab,nb->na")`` sums them (two lanes, as
-    :func:`_transform`)."""
+    """(P, 3) points ``R[j] p + t[j]`` and directions ``R[j] n``, ``j = joint[i]`` (rounded as
+    :func:`_rotated`)."""
     p_out = np.empty((p_joint.shape[0], 3))
     n_out = np.empty((p_joint.shape[0], 3))
     for i in range(p_joint.shape[0]):
@@ -329,6 +336,6 @@ def _from_joint_frames(
         x, y, z = p_joint[i, 0], p_joint[i, 1], p_joint[i, 2]
         u, v, w = n_joint[i, 0], n_joint[i, 1], n_joint[i, 2]
         for a in range(3):
-            p_out[i, a] = (R[j, a, 0] * x + R[j, a, 2] * z) + R[j, a, 1] * y + t[j, a]
-            n_out[i, a] = (R[j, a, 0] * u + R[j, a, 2] * w) + R[j, a, 1] * v
+            p_out[i, a] = _rotated(R, j, a, x, y, z) + t[j, a]
+            n_out[i, a] = _rotated(R, j, a, u, v, w)
     return p_out, n_out

@@ -802,6 +802,27 @@ def test_a_supported_settle_holds_the_object_until_the_loads(allegro):
     assert 0.6 * 9.81 / k_lin == pytest.approx(1e-3)  # the support's sag
 
 
+def test_cycle_benchmark_pools_every_cycle_until_each_trials_loss():
+    from wholehand.loop.bench import run_cycle_benchmark
+
+    objects = (OBJECT, "006_mustard_bottle")
+    out = run_cycle_benchmark(
+        objects=objects, ks=(1,), grasps=(0,), theta_deg=90.0, protocol_params=TINY
+    )
+    (row,) = out["results"]
+    assert out["objects"] == list(objects) and out["theta_deg"] == 90.0 and row["trials"] == 2
+    lengths = []
+    for name in objects:  # the same trials, each until its loss
+        spec = TrialSpec(
+            object=name, theta_deg=90.0, estimator_params={"k": 1}, protocol_params=TINY
+        )
+        lengths.append(len(run_trial(spec, stop_on_loss=True).arrays()["t"]))
+    full = round(PerturbationProtocol(theta_deg=90.0, **TINY).duration * 200)
+    assert all(n <= full for n in lengths)
+    assert row["cycle"]["n"] == row["qp"]["n"] == row["estimate"]["n"] == sum(lengths)
+    assert row["grasps_held"] == sum(n == full for n in lengths)
+
+
 def test_recorded_contact_benchmark_times_each_phase_of_the_loops_states():
     from wholehand.loop.estimate_bench import PHASES, run_recorded_contact_benchmark
 

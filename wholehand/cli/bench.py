@@ -51,14 +51,14 @@ def _cmd_allocate(args: argparse.Namespace) -> int:
 def _cmd_cycle(args: argparse.Namespace) -> int:
     from wholehand.loop.bench import run_cycle_benchmark
 
+    params: dict[str, object] = {}
+    if args.qp_deadline is not None:
+        params["deadline"] = args.qp_deadline
+    if args.screen_edges:
+        params["screen_edges"] = True
     if args.worst:
         from wholehand.loop.worst_case import WORST_OBJECTS, run_worst_case_benchmark
 
-        params: dict[str, object] = {}
-        if args.qp_deadline is not None:
-            params["deadline"] = args.qp_deadline
-        if args.screen_edges:
-            params["screen_edges"] = True
         worst = run_worst_case_benchmark(
             hand=args.hand,
             grasps=tuple(int(g) for g in (args.grasps or "0,1,2,3,4").split(",")),
@@ -70,13 +70,18 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
         print(json.dumps(worst, indent=2))
         return 0
 
+    from wholehand.models.object_catalogue import PAPER_OBJECTS
+
+    objects = args.object or "077_rubiks_cube"
     result = run_cycle_benchmark(
         hand=args.hand,
-        obj=args.object or "077_rubiks_cube",
+        objects=PAPER_OBJECTS if objects == "paper" else tuple(objects.split(",")),
         ks=tuple(int(k) for k in args.k.split(",")),
         grasps=tuple(int(g) for g in (args.grasps or "0,1").split(",")),
         estimator=args.estimator,
         allocator=args.allocator,
+        theta_deg=args.theta,
+        allocator_params=params,
     )
     print(json.dumps(result, indent=2))
     return 0
@@ -187,8 +192,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--hand", default="allegro_right")
     p.add_argument(
         "--object",
-        help="comma-separated objects (default: the cube; with "
-        "--worst: the mustard bottle and the clamp)",
+        help="comma-separated objects, or 'paper' for the paper's five (default: the cube; "
+        "with --worst: the mustard bottle and the clamp)",
+    )
+    p.add_argument(
+        "--theta",
+        type=float,
+        default=0.0,
+        help="the protocol's pull [deg] (without --worst; default 0: the object held in place)",
     )
     p.add_argument("--k", default="1,3,5,7", help="comma-separated contacts per link")
     p.add_argument("--grasps", default="0,1", help="comma-separated grasp indices")
@@ -200,12 +211,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--qp-deadline",
         type=float,
-        help="with --worst: the QP allocator's deadline [s] (default: none)",
+        help="the QP allocator's deadline [s] (default: none)",
     )
     p.add_argument(
         "--screen-edges",
         action="store_true",
-        help="with --worst: the QP allocator screens the pyramid-edge weights too",
+        help="the QP allocator screens the pyramid-edge weights too",
     )
     p.add_argument("--estimator", default="mesh_sdf")
     p.add_argument("--allocator", default="qp")

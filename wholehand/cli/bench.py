@@ -61,7 +61,7 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
 
         worst = run_worst_case_benchmark(
             hand=args.hand,
-            grasps=tuple(int(g) for g in (args.grasps or "0,1,2,3,4").split(",")),
+            grasps=tuple(int(g) for g in args.grasps.split(",")),
             objects=WORST_OBJECTS if args.object is None else tuple(args.object.split(",")),
             estimator=args.estimator,
             allocator=args.allocator,
@@ -77,7 +77,7 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
         hand=args.hand,
         objects=PAPER_OBJECTS if objects == "paper" else tuple(objects.split(",")),
         ks=tuple(int(k) for k in args.k.split(",")),
-        grasps=tuple(int(g) for g in (args.grasps or "0,1").split(",")),
+        grasps=tuple(int(g) for g in args.grasps.split(",")),
         estimator=args.estimator,
         allocator=args.allocator,
         theta_deg=args.theta,

@@ -2,10 +2,11 @@
 
 The worst cycles come just before a loss: contacts change, torque rows bind, screening needs
 rounds. This benchmark first runs perturbation trials where the paper's method loses grasps
-(the mustard bottle and the clamp pulled by 90 deg, by default), keeps those that were lost, and
-then replays every recorded state of them, up to the loss, through a fresh force-regulation
-stage: the same contacts, Jacobians and QPs as the loop, without the simulation, so the times
-are comparable from one code version to the next (same seeds, same states).
+(by default grasps 0 and 1 of the mustard bottle and the extra-large clamp, pulled by 90 deg:
+the bottle's two are lost), keeps those that were lost, and then replays every recorded state
+of them, up to the loss, through a fresh force-regulation stage: the same contacts, Jacobians
+and QPs as the loop, without the simulation, so the times are comparable from one code version
+to the next (same seeds, same states).
 
 Per stage it reports p50/p99/p99.9/max: ``estimate`` (kinematics and contact estimation),
 ``qp`` (building and solving the allocation QP, all screening rounds), split into
@@ -112,7 +113,7 @@ def _stats(ns: np.ndarray) -> dict[str, float]:
 def run_worst_case_benchmark(
     hand: str = "allegro_right",
     objects: Sequence[str] = WORST_OBJECTS,
-    grasps: Sequence[int] = (0, 1, 2, 3, 4),
+    grasps: Sequence[int] = (0, 1),
     theta_deg: float = 90.0,
     estimator: str = "mesh_sdf",
     allocator: str = "qp",

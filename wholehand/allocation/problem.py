@@ -298,6 +298,12 @@ class AllocationQP:
         tau[self.dofs] = self.J_act.T @ self.f_act(lam)
         return tau
 
+    @functools.cached_property
+    def torque_limits(self) -> FloatArray:
+        """(n_t,) the limits of the torque rows' joints [N*m] (``tau_max[torque_rows]``; computed
+        once, shared: read it, do not write it)."""
+        return cast(FloatArray, self.tau_max[self.torque_rows])
+
     def torque_totals(self, values: FloatArray) -> FloatArray:
         """(n_t,) joint torques the torque rows limit [N*m]: their ``values`` (``T_lam @
         lambda``) plus :attr:`tau_bias`."""
@@ -338,7 +344,7 @@ class AllocationQP:
         v = [0.0, float(-lam.min(initial=0.0)), self.params.f_n_min - float(lam.sum())]
         if self.torque_rows.size:
             t = self.torque_totals(self.T_lam @ lam)
-            v.append(float((np.abs(t) - self.tau_max[self.torque_rows]).max()))
+            v.append(float((np.abs(t) - self.torque_limits).max()))
         if self.n_null:
             v.append(float(np.abs(self.null_values(lam)).max() - self.params.eps_margin))
         out = max(v)

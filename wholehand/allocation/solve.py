@@ -278,7 +278,7 @@ def solve_allocation(
         if screen_edges and edge_sel is not None:
             e_mask = np.zeros(nl, bool)
             e_mask[edge_sel[edge_sel < nl]] = True
-    limits = qp.tau_max[qp.torque_rows]
+    limits = qp.torque_limits
     torque_bounds = qp.torque_bounds()
     eps_limits = _uniform(n_null, eps)
     rounds = iterations = solver_ns = 0
@@ -426,8 +426,7 @@ def rows_at_bounds(
 ) -> tuple[IntArray, IntArray]:
     """(positions in ``qp.torque_rows``, consistency-row indices) whose values (every torque
     row's ``T_lam @ lambda`` [N*m], every consistency row's [N]) are at or past their bounds."""
-    lim = qp.tau_max[qp.torque_rows]
-    t = at_bounds(qp.torque_totals(torque_values), lim, rel, abs_tol)
+    t = at_bounds(qp.torque_totals(torque_values), qp.torque_limits, rel, abs_tol)
     eps = _uniform(null_values.size, qp.params.eps_margin)
     return t, at_bounds(np.ascontiguousarray(null_values), eps, rel, abs_tol)
 

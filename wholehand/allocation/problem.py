@@ -311,14 +311,13 @@ class AllocationQP:
             return values
         return values + self.tau_bias[self.torque_rows]
 
-    def torque_bounds(self, sel: IntArray | None = None) -> tuple[FloatArray, FloatArray]:
-        """Lower and upper bounds of the torque rows ``T_lam @ lambda`` [N*m], of those at
-        positions ``sel`` in :attr:`torque_rows` (None: all)."""
-        rows = self.torque_rows if sel is None else self.torque_rows[sel]
-        lim = self.tau_max[rows]
+    def torque_bounds(self) -> tuple[FloatArray, FloatArray]:
+        """(n_t,) lower and upper bounds of the torque rows ``T_lam @ lambda`` [N*m] (new
+        arrays)."""
+        lim = self.torque_limits
         if self.tau_bias is None:
-            return -lim, lim
-        bias = self.tau_bias[rows]
+            return -lim, lim.copy()
+        bias = self.tau_bias[self.torque_rows]
         return -lim - bias, lim - bias
 
     def null_values(self, lam: FloatArray) -> FloatArray:

@@ -360,9 +360,7 @@ class QPAllocator(Allocator):
         if sol.x_relaxed is not None:
             # The rows at or past their bounds there: the binding ones and those to add.
             lam = sol.x_relaxed[: qp.n_lambda]
-            with_null = qp.n_null and np.isfinite(self.params.eps_margin)
-            null_values = qp.null_values(lam) if with_null else np.zeros(0)
-            t, z = rows_at_bounds(qp, qp.T_lam @ lam, null_values)
+            t, z = rows_at_bounds(qp, sol.torque_values, sol.null_values)
             warm.p_world = contacts.p_world.copy()
             warm.link = contacts.link.copy()
             warm.lam = lam.reshape(-1, N_EDGES).copy()

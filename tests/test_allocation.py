@@ -319,6 +319,24 @@ def test_a_deadline_cycle_hands_its_progress_to_the_next() -> None:
     np.testing.assert_allclose(again.tau, exact.tau, rtol=1e-6, atol=1e-8)
 
 
+def test_a_deadline_solution_carries_the_row_values_of_its_last_round() -> None:
+    """The rows the next cycle starts with come from the values at the last finished round's
+    solution, handed over rather than computed again: they must be exactly those values."""
+    cs, J, com = near_loss()
+    alloc = QPAllocator(screen_edges=True)
+    qp = build_allocation_qp(cs, J, com, alloc.params)
+    every_edge = np.arange(qp.n_lambda, dtype=np.intp)
+    sol = solve_allocation(qp, _DeadlineOnSecondSolve(), edge_sel=every_edge)  # type: ignore[arg-type]
+    assert sol.status == "deadline" and sol.x_relaxed is not None and sol.rounds == 2
+    lam = sol.x_relaxed[: qp.n_lambda]
+    np.testing.assert_array_equal(sol.torque_values, qp.T_lam @ lam)
+    assert qp.n_null > 0
+    np.testing.assert_array_equal(sol.null_values, qp.null_values(lam))
+    # A deadline before any round finished has no solution and no values.
+    early = solve_allocation(qp, make_solver("daqp"), deadline_ns=0)
+    assert early.x_relaxed is None and early.torque_values.size == early.null_values.size == 0
+
+
 class _TimeLimits:
     """DAQP that records the time limit of each solve."""
 

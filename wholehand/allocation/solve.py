@@ -101,9 +101,11 @@ class AllocationSolution:
     null_sel: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
     """Consistency rows in the last solve."""
     torque_values: FloatArray = field(default_factory=lambda: np.zeros(0))
-    """(n_t,) torques of every torque row at ``x`` [N*m] (``qp.T_lam @ lambda``)."""
+    """(n_t,) torques of every torque row at ``x`` [N*m] (``qp.T_lam @ lambda``); status
+    ``"deadline"``: at :attr:`x_relaxed` (empty without it)."""
     null_values: FloatArray = field(default_factory=lambda: np.zeros(0))
-    """(n_null,) every consistency value ``N_u^T f_act`` at ``x`` [N]."""
+    """(n_null,) every consistency value ``N_u^T f_act`` at ``x`` [N]; status ``"deadline"``:
+    at :attr:`x_relaxed` (empty without it)."""
     n_edges: int = 0
     """Edge weights that were variables of the last solve (the others held at zero)."""
     x_relaxed: FloatArray | None = None
@@ -286,6 +288,7 @@ def solve_allocation(
     x = np.zeros(qp.n_x)
     guess: ActiveSet | None = None
     x_relaxed: FloatArray | None = None  # the last round's solution, for a deadline
+    t_val = z_val = np.zeros(0)  # every torque and consistency row's value at it
     while True:
         rounds += 1
         full = rounds > max_rounds
@@ -302,7 +305,9 @@ def solve_allocation(
         if deadline_ns is not None:  # the time left once the problem is built
             time_limit = (deadline_ns - time.perf_counter_ns()) * 1e-9
             if time_limit <= 0.0:
-                return _deadline(rounds - 1, iterations, t_in, n_in, x_relaxed, solver_ns)
+                return _deadline(
+                    rounds - 1, iterations, t_in, n_in, x_relaxed, t_val, z_val, solver_ns
+                )
         solve_started = time.perf_counter_ns()
         res = solver.solve(
             problem,
@@ -313,7 +318,7 @@ def solve_allocation(
         solver_ns += time.perf_counter_ns() - solve_started
         iterations += res.iterations
         if res.status == "deadline":
-            return _deadline(rounds, iterations, t_in, n_in, x_relaxed, solver_ns)
+            return _deadline(rounds, iterations, t_in, n_in, x_relaxed, t_val, z_val, solver_ns)
         if res.status == "infeasible" and e_in is not None:
             e_mask = None  # infeasible with some edges held at zero: try them all
             continue
@@ -393,8 +398,12 @@ def _deadline(
     torque_sel: IntArray,
     null_sel: IntArray,
     x_relaxed: FloatArray | None,
+    torque_values: FloatArray,
+    null_values: FloatArray,
     solver_ns: int,
 ) -> AllocationSolution:
+    """The outcome of a solve stopped by its deadline; the row values are those at
+    ``x_relaxed`` (empty without it)."""
     return AllocationSolution(
         x=None,
         status="deadline",
@@ -406,6 +415,8 @@ def _deadline(
         solver_time=solver_ns * 1e-9,
         torque_sel=torque_sel,
         null_sel=null_sel,
+        torque_values=torque_values,
+        null_values=null_values,
         x_relaxed=x_relaxed,
     )
 

@@ -15,6 +15,7 @@ from wholehand_plugins.fingertip_only import FingertipOnlyAllocator
 from wholehand_plugins.qp import SOLVE_SHARE, QPAllocator, QPNoConsistencyAllocator
 
 from wholehand import registry
+from wholehand.allocation import solve as solve_module
 from wholehand.allocation.base import Allocation, AllocationStatus, hand_keywords
 from wholehand.allocation.bench import run_allocation_benchmark, synthetic_grasp
 from wholehand.allocation.kernels import sigma_min_lower_bound
@@ -901,6 +902,53 @@ def test_a_passed_deadline_stops_screening_and_gives_no_torque(
     # Without a deadline the same allocator is exact (the deadline changes nothing else).
     exact = QPAllocator(tau_max=tmax, warm_start=False).allocate(cs, J, com)
     assert exact.status == AllocationStatus.OK
+
+
+class _Clock:
+    """``time.perf_counter_ns`` that only the solver moves: each solve takes ``solve_ns``."""
+
+    def __init__(self, solve_ns: int) -> None:
+        self.now, self.solve_ns = 0, solve_ns
+
+    def perf_counter_ns(self) -> int:
+        return self.now
+
+
+class _TimedSolve:
+    """DAQP whose every solve takes ``clock.solve_ns`` on ``clock``."""
+
+    def __init__(self, clock: _Clock) -> None:
+        self.inner, self.clock, self.calls = make_solver("daqp"), clock, 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def solve(self, qp: Any, x0: Any = None, warm: bool = False, time_limit: Any = None) -> Any:
+        self.calls += 1
+        self.clock.now += self.clock.solve_ns
+        return self.inner.solve(qp, x0, warm, None)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_no_round_starts_without_the_time_the_last_one_took(
+    case: tuple[int, int, float], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A round whose solve would end past the deadline by the last round's measure does not
+    start: the allocation stops with the last round's progress instead."""
+    n, seed, tmax = case
+    cs, J, com = synthetic_grasp(seed, n).cycle()
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test", tau_max=tmax))
+    clock = _Clock(solve_ns=1000)
+    monkeypatch.setattr(solve_module, "time", clock)
+    free = solve_allocation(qp, _TimedSolve(clock), screening=True)
+    assert free.rounds > 1  # rows bind in every case: one round is not enough
+    for budget, rounds in ((1999, 1), (2000, 2)):  # 1 us per solve
+        clock.now = 0
+        solver = _TimedSolve(clock)
+        sol = solve_allocation(qp, solver, screening=True, deadline_ns=budget)
+        assert solver.calls == sol.rounds == min(rounds, free.rounds)
+        if sol.rounds < free.rounds:
+            assert sol.status == "deadline" and sol.x is None and sol.x_relaxed is not None
 
 
 def near_loss() -> tuple[ContactSet, np.ndarray, np.ndarray]:

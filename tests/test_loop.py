@@ -269,6 +269,11 @@ def test_bad_observations_keep_the_last_torque(allegro, cube):
     assert "shape" in seen.cycles[23].fault
     assert report.faults == {"bad_state": 4} and report.n_errors == 0
     assert report.cycles == 40 and report.stopped_by == "duration"
+    # The four faults in a row are one hold of the last torque, from cycle 20 (t = 0.1 s).
+    assert report.held == report.longest_hold == 4
+    assert report.longest_hold_s == pytest.approx(4 * 0.005)
+    assert report.longest_hold_at == pytest.approx(0.1)
+    assert report.longest_hold_status == "bad_state"
 
 
 class FailingEstimator:
@@ -296,6 +301,7 @@ def test_a_stage_exception_is_caught_recorded_and_reported(allegro, cube):
     assert statuses[9] == statuses[12] == "ok"
     np.testing.assert_array_equal(seen.cycles[11].command.tau, seen.cycles[9].command.tau)
     assert report.n_errors == 2 and report.faults == {"stage_error": 2}
+    assert report.held == report.longest_hold == 2 and report.longest_hold_status == "stage_error"
     assert "ValueError: plug-in bug" in report.errors[0].error
     assert "FailingEstimator" not in report.errors[0].error  # the message, the trace below
     assert "in estimate" in report.errors[0].traceback
@@ -555,6 +561,38 @@ def test_no_pose_yet_keeps_the_last_command_and_a_pose_free_stage_runs(allegro, 
         grasp_backend(allegro, cube), allegro, cube, closing, filters=blind, observers=[seen]
     ).run(0.02)
     assert [c.output.status for c in seen.cycles] == ["closing"] * 4
+
+
+class Silent(Stage):
+    """Commands zero torques except on the given cycles, where it gives none."""
+
+    name = "silent"
+    needs_object_pose = False
+
+    def __init__(self, nv, quiet):
+        self.nv, self.quiet, self.calls = nv, quiet, 0
+
+    def step(self, context):
+        self.calls += 1
+        if self.calls - 1 in self.quiet:
+            return StageOutput(None, "quiet")
+        return StageOutput(Command.torques(np.zeros(self.nv)), "ok")
+
+
+def test_the_longest_hold_of_the_last_command_is_reported_and_warned_once(allegro, cube, caplog):
+    """Cycles without a new command are held runs: the longest one is reported with when it
+    began and why, and a hold reaching HOLD_WARNING_S (20 cycles at 200 Hz) is logged once."""
+    quiet = set(range(5, 8)) | set(range(10, 40)) | set(range(45, 47))
+    stage = Silent(allegro.nv, quiet)
+    with caplog.at_level("WARNING", logger="wholehand.loop.control_loop"):
+        report = ControlLoop(grasp_backend(allegro, cube), allegro, cube, stage).run(0.25)
+    assert report.cycles == 50 and report.held == len(quiet) == 35
+    assert report.longest_hold == 30 and report.longest_hold_s == pytest.approx(30 * 0.005)
+    assert report.longest_hold_at == pytest.approx(10 * 0.005)
+    assert report.longest_hold_status == "quiet"
+    warnings = [r.getMessage() for r in caplog.records if "held for" in r.getMessage()]
+    assert len(warnings) == 1 and "held for 0.100 s since t = 0.0500 s (quiet first)" in warnings[0]
+    assert report.as_dict()["longest_hold"] == 30
 
 
 def test_the_gate_refuses_a_glitch_and_accepts_a_sustained_change(allegro, cube):

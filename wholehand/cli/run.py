@@ -310,6 +310,13 @@ def summarise(record: RunRecord) -> dict[str, object]:
         "unbalanced_cycles": outcome.unbalanced_cycles,
         "clamped_cycles": loop.get("clamped", 0),
         "last_fault": loop.get("last_fault", ""),
+        "held_commands": loop.get("held", 0),
+        "longest_hold": {
+            "cycles": loop.get("longest_hold", 0),
+            "s": loop.get("longest_hold_s", 0.0),
+            "at_s": loop.get("longest_hold_at", 0.0),
+            "status": loop.get("longest_hold_status", ""),
+        },
         "timing": {
             **record.timing_summary(),
             "cycles": outcome.cycles,
@@ -363,3 +370,10 @@ def print_summary(summary: dict[str, Any]) -> None:
     if summary["faults"]:
         counts = ", ".join(f"{n} {status}" for status, n in summary["faults"].items())
         print(f"faulted cycles: {counts} (last: {summary['last_fault']})")
+    hold = summary["longest_hold"]
+    if hold["cycles"]:
+        print(
+            f"held torque: {summary['held_commands']} cycles kept the last feasible torque; "
+            f"the longest hold {hold['cycles']} cycles ({1e3 * hold['s']:.0f} ms) from "
+            f"t = {hold['at_s']:.3f} s ({hold['status']} first)"
+        )

@@ -31,7 +31,9 @@ def run_cycle_benchmark(
     ``theta_deg`` > 0 [deg] the pull about the trial's seeded axis and the load test again
     (14 s, 2800 cycles), until the grasp is lost: the cycles before a loss, where the
     allocation is hardest, are in, those of an object falling away are not. Every cycle is
-    timed; the percentiles pool all trials of a K. ``protocol_params``: the protocol's
+    timed; the percentiles pool all trials of a K. ``held_commands`` counts the cycles that kept
+    the last feasible torque (an allocation past its deadline, say), ``longest_hold_cycles``
+    the most of them in a row in one trial. ``protocol_params``: the protocol's
     parameters (:class:`~wholehand.loop.protocol.PerturbationProtocol`; None: the paper's);
     ``allocator_params``: the allocator's keyword arguments (e.g. ``deadline``,
     ``screen_edges``).
@@ -40,7 +42,7 @@ def run_cycle_benchmark(
     models = {name: load_object(name) for name in objects}
     rows = []
     for k in ks:
-        times, contacts, qp, est, held = [], [], [], [], []
+        times, contacts, qp, est, held, holds, longest = [], [], [], [], [], 0, 0
         for name, obj_model in models.items():
             for g in grasps:
                 spec = TrialSpec(
@@ -61,6 +63,9 @@ def run_cycle_benchmark(
                 qp.append(a["qp_time"])
                 est.append(a["estimate_time"])
                 held.append(record.held_throughout)
+                report = record.meta["loop"]
+                holds += report["held"]
+                longest = max(longest, report["longest_hold"])
         cycle_ns = np.concatenate(times) * 1e9
         rows.append(
             {
@@ -72,6 +77,8 @@ def run_cycle_benchmark(
                 "achievable_rate_hz": round(float(1e9 / cycle_ns.mean()), 1),
                 "grasps_held": int(sum(held)),
                 "trials": len(held),
+                "held_commands": holds,
+                "longest_hold_cycles": longest,
             }
         )
     return {

@@ -55,6 +55,9 @@ log = logging.getLogger(__name__)
 MAX_KEPT_ERRORS = 20
 """Stage exceptions kept with their traceback (later ones are counted only)."""
 
+HOLD_WARNING_S = 0.1
+"""A hold of the last feasible command this long [s] is logged as a warning, once per hold."""
+
 
 @dataclass(frozen=True)
 class StageError:
@@ -120,6 +123,19 @@ class LoopReport:
     """Cycles whose commanded torque exceeded a joint's limit and was clamped to it."""
     max_excess: float = 0.0
     """Largest excess over a limit before clamping [N*m]."""
+    held: int = 0
+    """Cycles whose stage gave no command, so that the last feasible one stayed applied: faults,
+    allocations without a torque (deadline, infeasible, ...) and holds by design (a stage that
+    allocates once per object pose)."""
+    longest_hold: int = 0
+    """Most consecutive held cycles: how long the applied command once went without renewal."""
+    longest_hold_s: float = 0.0
+    """The longest hold on the backend's clock [s], from the start of its first cycle to the
+    end of its last one's period."""
+    longest_hold_at: float = 0.0
+    """Backend time of the longest hold's first cycle [s]."""
+    longest_hold_status: str = ""
+    """Status of the longest hold's first cycle: why it began."""
     overruns: int = 0
     """Cycles that computed past their period (wall-clock backends)."""
     max_overrun: float = 0.0
@@ -141,6 +157,11 @@ class LoopReport:
             "last_fault": self.last_fault,
             "clamped": self.clamped,
             "max_excess_Nm": self.max_excess,
+            "held": self.held,
+            "longest_hold": self.longest_hold,
+            "longest_hold_s": self.longest_hold_s,
+            "longest_hold_at": self.longest_hold_at,
+            "longest_hold_status": self.longest_hold_status,
             "overruns": self.overruns,
             "max_overrun_s": self.max_overrun,
             "n_errors": self.n_errors,
@@ -219,6 +240,10 @@ class ControlLoop:
         self._kin_now = HandKinematics(hand)
         self._kin_then = HandKinematics(hand)
         self._started: set[str] = set()
+        self._hold_start: float | None = None  # backend time of the current hold's first cycle
+        self._hold_cycles = 0
+        self._hold_status = ""
+        self._hold_warned = False
         load_observation_check(hand.nq, hand.nv)  # now rather than in the first cycle
 
     # --------------------------------------------------------------------------------------------
@@ -342,6 +367,9 @@ class ControlLoop:
             )
         if output.command is not None:
             self.command = output.command
+            self._hold_start = None
+        else:
+            self._held(t, output.status)
         self.backend.apply(self.command)
         report = self.report
         report.status_counts[output.status] += 1
@@ -361,6 +389,27 @@ class ControlLoop:
             time.perf_counter() - started,
             fault,
         )
+
+    def _held(self, t: float, status: str) -> None:
+        """Count a cycle that keeps the last feasible command, and the hold it belongs to."""
+        report = self.report
+        report.held += 1
+        if self._hold_start is None:
+            self._hold_start, self._hold_cycles = t, 0
+            self._hold_status, self._hold_warned = status, False
+        self._hold_cycles += 1
+        length = t - self._hold_start + self.dt
+        if self._hold_cycles > report.longest_hold:
+            report.longest_hold, report.longest_hold_s = self._hold_cycles, length
+            report.longest_hold_at, report.longest_hold_status = self._hold_start, self._hold_status
+        if length >= HOLD_WARNING_S and not self._hold_warned:
+            self._hold_warned = True
+            log.warning(
+                "the last feasible command has been held for %.3f s since t = %.4f s (%s first)",
+                length,
+                self._hold_start,
+                self._hold_status,
+            )
 
     def _checked(self, command: Command) -> Command:
         """The command with its torques within the hand's limits (0 on joints without a

@@ -12,8 +12,9 @@ Per stage it reports p50/p99/p99.9/max: ``estimate`` (kinematics and contact est
 ``qp`` (building and solving the allocation QP, all screening rounds), split into
 ``qp_solver`` (inside the QP solver's calls) and ``qp_other`` (building the problems and the
 allocator's own work, Python mostly), ``rest`` (Jacobians, normal checks, the torque) and
-``step`` (the whole stage), and how many QPs took longer than ``deadline`` (the allocator's
-deadline would have stopped them).
+``step`` (the whole stage), how many QPs took longer than ``deadline`` (the allocator's
+deadline would have stopped them), and the most cycles in a row that gave no torque (the loop
+would have held the last feasible one: ``longest_hold_cycles``).
 """
 
 from __future__ import annotations
@@ -99,6 +100,12 @@ def replay(
     return {**out, "tau": taus}, statuses
 
 
+def longest_run(flags: np.ndarray) -> int:
+    """The most consecutive True values in the (n,) boolean ``flags``."""
+    edges = np.flatnonzero(np.diff(np.r_[0, flags.astype(np.int8), 0]))
+    return int((edges[1::2] - edges[::2]).max(initial=0))
+
+
 def _stats(ns: np.ndarray) -> dict[str, float]:
     us = ns / 1e3
     p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
@@ -125,6 +132,7 @@ def run_worst_case_benchmark(
     times: dict[str, list[np.ndarray]] = {"step": [], "estimate": [], "qp": [], "qp_solver": []}
     lost = []
     statuses: Counter[str] = Counter()
+    longest_hold = 0
     for name in objects:
         obj = load_object(name)
         for g in grasps:
@@ -145,6 +153,7 @@ def run_worst_case_benchmark(
             stage = ForceRegulation(hand_model, obj, est, alloc)
             durations, seen = replay(record, hand_model, obj, stage)
             statuses.update(seen)
+            longest_hold = max(longest_hold, longest_run(np.isnan(durations["tau"][:, 0])))
             for key in times:
                 times[key].append(durations[key])
     if not lost:
@@ -170,6 +179,7 @@ def run_worst_case_benchmark(
         },
         "statuses": dict(statuses),
         "qp_over_deadline": int((cat["qp"] > deadline * 1e9).sum()),
+        "longest_hold_cycles": longest_hold,
         "deadline_ms": deadline * 1e3,
         "machine": {"python": platform.python_version(), "cpu": platform.machine()},
     }

@@ -119,10 +119,9 @@ class QPAllocator(Allocator):
         match_radius: Contacts on one link closer than this across cycles are the same [m].
         deadline: Time budget of one allocation, from its start [s]. The solving stops at
             :data:`SOLVE_SHARE` of it: DAQP and OSQP stop themselves there (they check the
-            clock every few dozen iterations), other solvers finish the solve under way, and a
-            screening round starts only while at least the last round's solve time is left; the
-            rest of the budget covers the solver's last iterations and the allocator's own
-            finishing work. An allocation not exact by then
+            clock every few dozen iterations), other solvers finish the solve under way, and no
+            screening round starts past it; the rest of the budget covers the solver's last
+            iterations and the allocator's own finishing work. An allocation not exact by then
             ends as ``DEADLINE`` (no torque: the loop keeps the last feasible one), counted in
             ``counts``. None (default): no deadline, so simulation results do not depend on the
             machine's speed.

@@ -260,10 +260,10 @@ def solve_allocation(
         max_rounds: Solves before falling back to the full problem.
         deadline_ns: ``time.perf_counter_ns()`` at which solving stops: each solve gets the
             time left as its limit (solvers that are :attr:`~QPSolver.time_limited` stop
-            themselves near it, others finish their solve), and a screening round starts only
-            while the time left is at least what the last round's solve took (the first while
-            any is left). A stopped solve, or a solution that still violates a left-out row once
-            no round can start, ends with status ``"deadline"`` and no x. None: no deadline.
+            themselves near it, others finish their solve), and no round starts (nor is its
+            problem built) past it. A stopped solve, or a solution that still violates a
+            left-out row once the time is up, ends with status ``"deadline"`` and no x. None:
+            no deadline.
     """
     nl = qp.n_lambda
     screen_edges = screening and edge_sel is not None and edge_sel.size > 0 and solver.reports_duals
@@ -290,11 +290,9 @@ def solve_allocation(
     guess: ActiveSet | None = None
     x_relaxed: FloatArray | None = None  # the last round's solution, for a deadline
     t_val = z_val = np.zeros(0)  # every torque and consistency row's value at it
-    last_solve_ns = 0  # the last round's time in the solver
     while True:
-        if deadline_ns is not None and deadline_ns - time.perf_counter_ns() < last_solve_ns:
-            # Not even the time the last round's solve took is left: a round started now
-            # would end past the deadline (the solver checks its clock only now and then).
+        if deadline_ns is not None and time.perf_counter_ns() >= deadline_ns:
+            # Past it already: not even the next round's problem is built.
             return _deadline(rounds, iterations, t_in, n_in, x_relaxed, t_val, z_val, solver_ns)
         rounds += 1
         full = rounds > max_rounds
@@ -321,8 +319,7 @@ def solve_allocation(
             warm=warm or x0 is not None,
             time_limit=time_limit,
         )
-        last_solve_ns = time.perf_counter_ns() - solve_started
-        solver_ns += last_solve_ns
+        solver_ns += time.perf_counter_ns() - solve_started
         iterations += res.iterations
         if res.status == "deadline":
             return _deadline(rounds, iterations, t_in, n_in, x_relaxed, t_val, z_val, solver_ns)

@@ -364,6 +364,46 @@ def test_the_solver_gets_its_share_of_the_deadline() -> None:
     assert all(a > b for a, b in pairwise(solver.limits))
 
 
+class _MissFirst(_TimeLimits):
+    """DAQP that records each solve's time limit and runs out of time in the first solve."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.missed = False
+
+    def solve(self, qp: Any, x0: Any = None, warm: bool = False, time_limit: Any = None) -> Any:
+        self.limits.append(time_limit)
+        if not self.missed:
+            self.missed = True
+            return QPResult(None, "deadline", 0, "test")
+        return self.inner.solve(qp, x0, warm, time_limit)
+
+
+def test_the_allocation_after_a_missed_deadline_gets_the_longer_budget() -> None:
+    cs, J, com = near_loss()
+    alloc = QPAllocator(deadline=10.0, deadline_after_miss=30.0)
+    alloc.qp_solver = solver = _MissFirst()  # type: ignore[assignment]
+    assert alloc.allocate(cs, J, com).status is AllocationStatus.DEADLINE
+    assert 10.0 * SOLVE_SHARE - 0.5 < solver.limits[0] <= 10.0 * SOLVE_SHARE
+    solver.limits.clear()
+    assert alloc.allocate(cs, J, com).status is AllocationStatus.OK  # the one after the miss
+    assert 30.0 * SOLVE_SHARE - 0.5 < solver.limits[0] <= 30.0 * SOLVE_SHARE
+    solver.limits.clear()
+    assert alloc.allocate(cs, J, com).status is AllocationStatus.OK  # back to the deadline
+    assert 10.0 * SOLVE_SHARE - 0.5 < solver.limits[0] <= 10.0 * SOLVE_SHARE
+    assert QPAllocator(deadline=10.0).deadline_after_miss == 10.0  # None: the same budget
+
+
+@pytest.mark.parametrize(
+    ("deadline", "after_miss"), [(None, 0.003), (0.002, 0.001), (0.002, float("inf"))]
+)
+def test_the_budget_after_a_miss_needs_a_deadline_it_does_not_undercut(
+    deadline: float | None, after_miss: float
+) -> None:
+    with pytest.raises(ConfigError, match="deadline_after_miss=.* at least deadline"):
+        QPAllocator(deadline=deadline, deadline_after_miss=after_miss)
+
+
 def test_warm_start_matches_cold_over_a_control_sequence() -> None:
     grasp = synthetic_grasp(2, 14)
     rng = np.random.default_rng(5)

@@ -545,13 +545,22 @@ def test_arm_targets_go_to_the_position_command_in_model_order():
 
 
 def test_the_controller_allocator_gets_the_deadline_and_edge_screening(allegro):
-    from wholehand.hardware.controller import QP_DEADLINE, ControllerSpec, controller_allocator
+    from wholehand.hardware.controller import (
+        AFTER_MISS,
+        QP_DEADLINE,
+        ControllerSpec,
+        controller_allocator,
+    )
 
     qp = controller_allocator(ControllerSpec(), allegro)
     assert qp.deadline == QP_DEADLINE and qp.screen_edges
+    assert qp.deadline_after_miss == pytest.approx(AFTER_MISS * QP_DEADLINE)
+    qp = controller_allocator(ControllerSpec(qp_deadline_after_miss=0.0025), allegro)
+    assert qp.deadline_after_miss == 0.0025
     mine = ControllerSpec(allocator_params={"screen_edges": False, "deadline": 0.004})
     qp = controller_allocator(mine, allegro)
     assert qp.deadline == 0.004 and not qp.screen_edges  # the user's parameters win
+    assert qp.deadline_after_miss == 0.004  # and the controller's budget after a miss with it
     tips = controller_allocator(ControllerSpec(allocator="fingertip_only"), allegro)
     assert tips.screen_edges  # a QP allocator too
     feedforward = controller_allocator(ControllerSpec(allocator="feedforward"), allegro)

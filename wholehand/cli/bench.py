@@ -54,6 +54,8 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
     params: dict[str, object] = {}
     if args.qp_deadline is not None:
         params["deadline"] = args.qp_deadline
+    if args.qp_deadline_after_miss is not None:
+        params["deadline_after_miss"] = args.qp_deadline_after_miss
     if args.screen_edges:
         params["screen_edges"] = True
     if args.worst:
@@ -212,6 +214,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--qp-deadline",
         type=float,
         help="the QP allocator's deadline [s] (default: none)",
+    )
+    p.add_argument(
+        "--qp-deadline-after-miss",
+        type=float,
+        help="the QP allocator's deadline right after a missed one [s] (default: the same)",
     )
     p.add_argument(
         "--screen-edges",

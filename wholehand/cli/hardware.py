@@ -37,6 +37,7 @@ def _cmd_control(args: argparse.Namespace) -> int:
         estimate_at=args.estimate_at,
         allocate_every=args.allocate_every,
         qp_deadline=args.qp_deadline or None,
+        qp_deadline_after_miss=args.qp_deadline_after_miss,
     )
     result = run_controller(
         load_hand(args.hand),
@@ -117,6 +118,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=0.002,
         help="time budget of one allocation [s] (0: none); past it the last feasible "
         "torque is kept",
+    )
+    p.add_argument(
+        "--qp-deadline-after-miss",
+        type=float,
+        help="time budget of an allocation right after a missed one [s], at least "
+        "--qp-deadline (default: 1.5 times it)",
     )
     p.set_defaults(func=_cmd_control)
 

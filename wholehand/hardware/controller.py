@@ -37,6 +37,10 @@ CYCLE_TIMES_KEPT = 100_000
 QP_DEADLINE = 0.002
 """Default time budget of one allocation on a robot [s]: 40 % of the 5 ms period at 200 Hz."""
 
+AFTER_MISS = 1.5
+"""The budget of an allocation right after a missed one, in ``qp_deadline``s (3 ms, 60 % of the
+period, at the defaults): near a loss the misses then come singly, not in runs."""
+
 
 @dataclass(frozen=True)
 class ControllerSpec:
@@ -53,18 +57,28 @@ class ControllerSpec:
     qp_deadline: float | None = QP_DEADLINE
     """Time budget of one allocation [s], for allocators that take a ``deadline`` (the ``qp``
     family): past it the loop keeps the last feasible torque and counts a ``deadline`` cycle."""
+    qp_deadline_after_miss: float | None = None
+    """Time budget of an allocation right after a ``deadline`` cycle [s], at least
+    ``qp_deadline`` (None: :data:`AFTER_MISS` times ``qp_deadline``)."""
     screen_edges: bool = True
     """Screen the pyramid-edge weights too, for allocators that take ``screen_edges`` (the
     ``qp`` family): smaller problems near a loss, so fewer deadline cycles."""
 
 
 def controller_allocator(spec: ControllerSpec, hand: HandModel) -> Allocator:
-    """The spec's allocator, with the controller's ``qp_deadline`` and ``screen_edges`` for
-    allocators that take them (the user's ``allocator_params`` win)."""
+    """The spec's allocator, with the controller's ``qp_deadline`` (and the budget after a
+    miss) and ``screen_edges`` for allocators that take them (the user's ``allocator_params``
+    win)."""
     params = dict(spec.allocator_params)
     takes = inspect.signature(registry.get_class("allocators", spec.allocator)).parameters
     if spec.qp_deadline is not None and "deadline" in takes:
         params.setdefault("deadline", spec.qp_deadline)
+        after_miss = spec.qp_deadline_after_miss
+        if "deadline_after_miss" in takes and params["deadline"] == spec.qp_deadline:
+            params.setdefault(
+                "deadline_after_miss",
+                AFTER_MISS * spec.qp_deadline if after_miss is None else after_miss,
+            )
     if "screen_edges" in takes:
         params.setdefault("screen_edges", spec.screen_edges)
     return cast(Allocator, load_allocator(spec.allocator, hand, params))

@@ -270,7 +270,7 @@ def test_bad_observations_keep_the_last_torque(allegro, cube):
     assert report.faults == {"bad_state": 4} and report.n_errors == 0
     assert report.cycles == 40 and report.stopped_by == "duration"
     # The four faults in a row are one hold of the last torque, from cycle 20 (t = 0.1 s).
-    assert report.held == report.longest_hold == 4
+    assert report.held_commands == report.longest_hold == 4
     assert report.longest_hold_s == pytest.approx(4 * 0.005)
     assert report.longest_hold_at == pytest.approx(0.1)
     assert report.longest_hold_status == "bad_state"
@@ -301,7 +301,10 @@ def test_a_stage_exception_is_caught_recorded_and_reported(allegro, cube):
     assert statuses[9] == statuses[12] == "ok"
     np.testing.assert_array_equal(seen.cycles[11].command.tau, seen.cycles[9].command.tau)
     assert report.n_errors == 2 and report.faults == {"stage_error": 2}
-    assert report.held == report.longest_hold == 2 and report.longest_hold_status == "stage_error"
+    assert (
+        report.held_commands == report.longest_hold == 2
+        and report.longest_hold_status == "stage_error"
+    )
     assert "ValueError: plug-in bug" in report.errors[0].error
     assert "FailingEstimator" not in report.errors[0].error  # the message, the trace below
     assert "in estimate" in report.errors[0].traceback
@@ -586,7 +589,7 @@ def test_the_longest_hold_of_the_last_command_is_reported_and_warned_once(allegr
     stage = Silent(allegro.nv, quiet)
     with caplog.at_level("WARNING", logger="wholehand.loop.control_loop"):
         report = ControlLoop(grasp_backend(allegro, cube), allegro, cube, stage).run(0.25)
-    assert report.cycles == 50 and report.held == len(quiet) == 35
+    assert report.cycles == 50 and report.held_commands == len(quiet) == 35
     assert report.longest_hold == 30 and report.longest_hold_s == pytest.approx(30 * 0.005)
     assert report.longest_hold_at == pytest.approx(10 * 0.005)
     assert report.longest_hold_status == "quiet"
@@ -859,6 +862,15 @@ def test_cycle_benchmark_pools_every_cycle_until_each_trials_loss():
     assert all(n <= full for n in lengths)
     assert row["cycle"]["n"] == row["qp"]["n"] == row["estimate"]["n"] == sum(lengths)
     assert row["grasps_held"] == sum(n == full for n in lengths)
+    # No allocation ever meets a nanosecond's deadline: every cycle holds the first command.
+    (late,) = run_cycle_benchmark(
+        objects=(OBJECT,),
+        ks=(1,),
+        grasps=(0,),
+        protocol_params=TINY,
+        allocator_params={"deadline": 1e-9},
+    )["results"]
+    assert late["held_commands"] == late["longest_hold_cycles"] == late["cycle"]["n"] > 0
 
 
 def test_recorded_contact_benchmark_times_each_phase_of_the_loops_states():

@@ -310,7 +310,7 @@ def summarise(record: RunRecord) -> dict[str, object]:
         "unbalanced_cycles": outcome.unbalanced_cycles,
         "clamped_cycles": loop.get("clamped", 0),
         "last_fault": loop.get("last_fault", ""),
-        "held_commands": loop.get("held", 0),
+        "held_commands": loop.get("held_commands", 0),
         "longest_hold": {
             "cycles": loop.get("longest_hold", 0),
             "s": loop.get("longest_hold_s", 0.0),

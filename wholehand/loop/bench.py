@@ -42,7 +42,8 @@ def run_cycle_benchmark(
     models = {name: load_object(name) for name in objects}
     rows = []
     for k in ks:
-        times, contacts, qp, est, held, holds, longest = [], [], [], [], [], 0, 0
+        times, contacts, qp, est, held = [], [], [], [], []
+        held_commands = longest_hold = 0
         for name, obj_model in models.items():
             for g in grasps:
                 spec = TrialSpec(
@@ -64,8 +65,8 @@ def run_cycle_benchmark(
                 est.append(a["estimate_time"])
                 held.append(record.held_throughout)
                 report = record.meta["loop"]
-                holds += report["held"]
-                longest = max(longest, report["longest_hold"])
+                held_commands += report["held_commands"]
+                longest_hold = max(longest_hold, report["longest_hold"])
         cycle_ns = np.concatenate(times) * 1e9
         rows.append(
             {
@@ -77,8 +78,8 @@ def run_cycle_benchmark(
                 "achievable_rate_hz": round(float(1e9 / cycle_ns.mean()), 1),
                 "grasps_held": int(sum(held)),
                 "trials": len(held),
-                "held_commands": holds,
-                "longest_hold_cycles": longest,
+                "held_commands": held_commands,
+                "longest_hold_cycles": longest_hold,
             }
         )
     return {

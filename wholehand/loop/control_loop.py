@@ -123,7 +123,7 @@ class LoopReport:
     """Cycles whose commanded torque exceeded a joint's limit and was clamped to it."""
     max_excess: float = 0.0
     """Largest excess over a limit before clamping [N*m]."""
-    held: int = 0
+    held_commands: int = 0
     """Cycles whose stage gave no command, so that the last feasible one stayed applied: faults,
     allocations without a torque (deadline, infeasible, ...) and holds by design (a stage that
     allocates once per object pose)."""
@@ -157,7 +157,7 @@ class LoopReport:
             "last_fault": self.last_fault,
             "clamped": self.clamped,
             "max_excess_Nm": self.max_excess,
-            "held": self.held,
+            "held_commands": self.held_commands,
             "longest_hold": self.longest_hold,
             "longest_hold_s": self.longest_hold_s,
             "longest_hold_at": self.longest_hold_at,
@@ -393,7 +393,7 @@ class ControlLoop:
     def _held(self, t: float, status: str) -> None:
         """Count a cycle that keeps the last feasible command, and the hold it belongs to."""
         report = self.report
-        report.held += 1
+        report.held_commands += 1
         if self._hold_start is None:
             self._hold_start, self._hold_cycles = t, 0
             self._hold_status, self._hold_warned = status, False

@@ -23,4 +23,9 @@ def test_a_short_soak_meets_every_requirement(capsys):
     # Every observation fault is refused (pose_missing as no_pose): 12 kinds, twice.
     assert loop["faults"] == {"bad_state": 2 * 12, "stage_error": 2 * 4, "no_pose": 2}
     assert loop["status_counts"]["bad_contacts"] == 4  # zero or NaN normals only
+    # Every cycle without a new torque kept the last one: the faults, the degenerate normals and
+    # the failed solves; each alone, since every fault is recovered on the next cycle.
+    counts = loop["status_counts"]
+    kept = sum(loop["faults"].values()) + counts["bad_contacts"] + counts["solver_failed"]
+    assert loop["held_commands"] == kept and loop["longest_hold"] == 1
     assert loop["gate_refused"]["joints"] == 2 and loop["gate_refused"]["workspace"] == 2

@@ -302,6 +302,8 @@ def run_soak(
             "status_counts": dict(report.status_counts),
             "stage_errors": report.n_errors,
             "clamped": report.clamped,
+            "held_commands": report.held_commands,
+            "longest_hold": report.longest_hold,
             "gate_refused": dict(loop.gate.refused) if loop.gate else {},
         },
         "memory_mb": {**monitor.rss_mb, "at_end": round(_rss_mb(), 1)},

@@ -32,6 +32,7 @@ from wholehand.allocation.base import (
     Allocator,
     checked_jacobians,
 )
+from wholehand.allocation.kernel_loading import load_kernels
 from wholehand.allocation.kernels import finite_inputs
 from wholehand.allocation.problem import (
     N_EDGES,
@@ -45,7 +46,6 @@ from wholehand.allocation.solve import (
     SCREEN_TOL,
     AllocationSolution,
     binding_rows,
-    load_kernels,
     rows_at_bounds,
     solve_allocation,
 )

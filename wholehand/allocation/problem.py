@@ -327,7 +327,10 @@ class AllocationQP:
         return self.null.project(self.f_act(lam))
 
     def null_rows(self, idx: IntArray) -> FloatArray:
-        """(len(idx), 4N) consistency rows ``(N_u^T f_act)[idx]`` as functions of ``lambda``."""
+        """(len(idx), 4N) consistency rows ``(N_u^T f_act)[idx]`` as functions of ``lambda``
+        (none for an empty ``idx``, also in a problem without consistency rows)."""
+        if idx.size == 0:
+            return np.zeros((0, self.n_lambda))
         assert self.null is not None
         # C order whatever LAPACK left, so that the kernel sees one layout (each layout is a
         # kernel of its own, loaded on first use: milliseconds, in a control cycle).

@@ -29,7 +29,6 @@ The warm start between cycles is :mod:`wholehand.allocation.warm_start`.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -38,13 +37,7 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.kernels import finite_inputs
-from wholehand.allocation.problem import (
-    N_WRENCH,
-    AllocationParams,
-    AllocationQP,
-    build_allocation_qp,
-)
+from wholehand.allocation.problem import N_WRENCH, AllocationQP
 from wholehand.allocation.screening_kernels import (
     active_of,
     active_vector,
@@ -56,8 +49,6 @@ from wholehand.allocation.screening_kernels import (
 )
 from wholehand.allocation.solvers import QPSolver
 from wholehand.allocation.solvers.base import DenseQP, QPResult
-from wholehand.allocation.warm_start import matched_contacts, rows_of_joints, warm_edge_weights
-from wholehand.contacts.base import ContactSet
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -168,13 +159,8 @@ def dense_qp(
     selected edge weights (``edge_sel``, indices into ``lambda``; None: all of them): the
     variables are then ``[lambda[edge_sel]; w]``, the others held at zero. ``guess``: the
     active set to start from."""
-    null = _null_rows(qp, null_sel)
+    null = qp.null_rows(null_sel)
     return _round_problem(qp, null, qp.torque_bounds(), torque_sel, null_sel, edge_sel, guess)
-
-
-def _null_rows(qp: AllocationQP, null_sel: IntArray) -> FloatArray:
-    """(len(null_sel), 4N) the selected consistency rows."""
-    return qp.null_rows(null_sel) if null_sel.size else np.zeros((0, qp.n_lambda))
 
 
 def _round_problem(
@@ -303,7 +289,7 @@ def solve_allocation(
         start = None
         if x0 is not None and solver.primal_warm_start:
             start = x0 if e_in is None else np.concatenate((x0[e_in], x0[nl:]))
-        null = _null_rows(qp, n_in)
+        null = qp.null_rows(n_in)
         problem = _round_problem(qp, null, torque_bounds, t_in, n_in, e_in, guess)
         time_limit = None
         if deadline_ns is not None:  # the time left once the problem is built
@@ -446,61 +432,6 @@ def rows_at_bounds(
     return t, at_bounds(np.ascontiguousarray(null_values), eps, rel, abs_tol)
 
 
-def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSolution:
-    """Run every compiled kernel of building and solving the allocation QP once, then forget
-    the solver's state; returns the solution of the synthetic problem it solved.
-
-    A kernel's first call in a process loads its machine code (tens of milliseconds for all of
-    them, seconds when it is compiled); allocators call this at construction so that this
-    never falls in a control cycle. The problem has the parameters' joints and, so that it is
-    solved with torque and consistency rows in it, loose limits: more contact rows than joints,
-    every torque row and one consistency row from the start.
-    """
-    n_v = 2
-    if params.actuated_dofs is not None and params.actuated_dofs.size:
-        n_v = int(params.actuated_dofs[-1]) + 1
-    if np.ndim(params.tau_max) == 1:
-        n_v = np.shape(params.tau_max)[0]
-    loose = dataclasses.replace(
-        params,
-        tau_max=np.full(n_v, 1e3) if np.ndim(params.tau_max) == 1 else 1e3,
-        eps_margin=1e3,
-    )
-    n = n_v // 3 + 2  # 3 n rows > n_v joints: the rows of J_act^T have a null space
-    rng = np.random.default_rng(0)
-    normals = rng.normal(size=(n, 3))
-    contacts = ContactSet(
-        p_world=rng.normal(scale=0.05, size=(n, 3)),
-        n_world=normals / np.linalg.norm(normals, axis=1, keepdims=True),
-        link=np.zeros(n, dtype=np.intp),
-        distance=np.zeros(n),
-        link_actuated=np.ones(1, dtype=bool),
-        link_fingertip=np.zeros(1, dtype=bool),
-    )
-    J = rng.normal(scale=0.05, size=(n, 3, n_v))
-    finite_inputs(contacts.p_world, contacts.n_world, J, np.zeros(3))
-    qp = build_allocation_qp(contacts, J, np.zeros(3), loose, "load_kernels")
-    every_t = np.arange(qp.torque_rows.size, dtype=np.intp)
-    some_n = np.arange(min(qp.n_null, 1), dtype=np.intp)
-    sol = solve_allocation(qp, solver, torque_sel=every_t, null_sel=some_n)
-    if sol.x is not None:
-        lam = sol.x[: qp.n_lambda]
-        qp.tau(lam), qp.f_world(lam), binding_rows(qp, sol)
-    # A round of edge screening: its active set, and a solve that starts from one.
-    n_duals = qp.n_x + 7 + every_t.size + some_n.size
-    guess = ActiveSet.of(qp, np.zeros(n_duals), every_t, some_n, None)
-    solver.solve(dense_qp(qp, every_t, some_n, np.arange(qp.n_lambda, dtype=np.intp), guess))
-    rows_of_joints(qp.dofs[qp.torque_rows], qp.n_v, qp.dofs, qp.torque_rows)  # the warm start's
-    p, link = contacts.p_world, contacts.link  # the warm start's contact match
-    warm_edge_weights(matched_contacts(p, link, p.copy(), link.copy(), 1e-6), np.ones((n, 4)))
-    y = np.zeros(7 + every_t.size + some_n.size)  # the pricing of edge screening's rounds
-    priced_edges(
-        qp.G_lam, qp.T_lam, every_t, _null_rows(qp, some_n), y, np.zeros(qp.n_lambda, bool), 0.0
-    )
-    solver.reset()
-    return sol
-
-
 __all__ = [
     "FEAS_TOL",
     "ActiveSet",
@@ -509,6 +440,5 @@ __all__ = [
     "binding_rows",
     "rows_at_bounds",
     "dense_qp",
-    "load_kernels",
     "solve_allocation",
 ]

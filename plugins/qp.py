@@ -46,7 +46,6 @@ from wholehand.allocation.solve import (
     SCREEN_TOL,
     AllocationSolution,
     binding_rows,
-    rows_at_bounds,
     solve_allocation,
 )
 from wholehand.allocation.solvers import DEFAULT_SOLVER, make_solver
@@ -326,7 +325,7 @@ class QPAllocator(Allocator):
             return self._result(status, n, n_v, solve_time=dt, solver_time=sol.solver_time)
         lam = sol.x[: qp.n_lambda]
         tau = qp.tau(lam)
-        self._remember(qp, contacts, sol)
+        self._remember(qp, contacts, sol, sol.x)
         return self._result(
             AllocationStatus.OK,
             n,
@@ -360,14 +359,17 @@ class QPAllocator(Allocator):
             out["x0"] = np.concatenate((lam, qp.G_lam @ lam + qp.w_ext))
         return out
 
-    def _remember(self, qp: AllocationQP, contacts: ContactSet, sol: AllocationSolution) -> None:
+    def _remember(
+        self, qp: AllocationQP, contacts: ContactSet, sol: AllocationSolution, x: FloatArray
+    ) -> None:
+        """The next cycle starts from ``x`` (the solution, or the last finished round's after a
+        deadline) and the rows at or past their bounds there (``sol``'s row values are at
+        ``x``): the binding ones, and after a deadline also those still to add."""
         warm = self._warm
         t, z = binding_rows(qp, sol)
-        assert sol.x is not None
-        lam = sol.x[: qp.n_lambda]
         warm.p_world = contacts.p_world.copy()
         warm.link = contacts.link.copy()
-        warm.lam = lam.reshape(-1, N_EDGES).copy()
+        warm.lam = x[: qp.n_lambda].reshape(-1, N_EDGES).copy()
         warm.torque_dofs = qp.dofs[qp.torque_rows[t]]
         warm.null_rows = z
 
@@ -376,19 +378,11 @@ class QPAllocator(Allocator):
     ) -> None:
         """After a deadline: the next cycle starts with every row this one had to add, and
         from the last finished round's edge weights when there is one."""
-        warm = self._warm
-        same = warm.same_links(contacts.link)
         if sol.x_relaxed is not None:
-            # The rows at or past their bounds there: the binding ones and those to add.
-            lam = sol.x_relaxed[: qp.n_lambda]
-            t, z = rows_at_bounds(qp, sol.torque_values, sol.null_values)
-            warm.p_world = contacts.p_world.copy()
-            warm.link = contacts.link.copy()
-            warm.lam = lam.reshape(-1, N_EDGES).copy()
-            warm.torque_dofs = qp.dofs[qp.torque_rows[t]]
-            warm.null_rows = z
+            self._remember(qp, contacts, sol, sol.x_relaxed)
         else:
-            warm.add_rows(
+            same = self._warm.same_links(contacts.link)
+            self._warm.add_rows(
                 qp.dofs[qp.torque_rows[sol.torque_sel]], sol.null_sel if same else sol.null_sel[:0]
             )
 

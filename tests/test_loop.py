@@ -843,6 +843,16 @@ def test_a_supported_settle_holds_the_object_until_the_loads(allegro):
     assert 0.6 * 9.81 / k_lin == pytest.approx(1e-3)  # the support's sag
 
 
+@pytest.mark.parametrize(
+    ("flags", "longest"),
+    [([], 0), ([0, 0], 0), ([1, 1, 1], 3), ([0, 1, 1, 0, 1], 2), ([1, 0, 1, 1, 1, 0, 1, 1], 3)],
+)
+def test_the_longest_run_of_cycles_without_a_torque(flags, longest):
+    from wholehand.loop.worst_case import longest_run
+
+    assert longest_run(np.array(flags, dtype=bool)) == longest
+
+
 def test_cycle_benchmark_pools_every_cycle_until_each_trials_loss():
     from wholehand.loop.bench import run_cycle_benchmark
 

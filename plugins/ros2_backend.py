@@ -1,9 +1,18 @@
 """The ``ros2`` backend: a real robot (or ``wholehand hw-sim``) over ROS 2 messages on zenoh.
 
-Subscribes ``sensor_msgs/msg/JointState`` and the tracked object's
-``geometry_msgs/msg/PoseStamped``; publishes torque commands as ``std_msgs/msg/Float64MultiArray``
-(what ros2_control's ``effort_controllers/JointGroupEffortController`` reads on ``~/commands``)
-and, for an arm, joint position targets (``position_controllers/JointGroupPositionController``).
+Subscribes ``sensor_msgs/msg/JointState``, the tracked object's ``geometry_msgs/msg/PoseStamped``
+and a stop topic (``std_msgs/msg/Bool``); publishes the hand's torque commands as
+``std_msgs/msg/Float64MultiArray`` (what ros2_control's
+``forward_command_controller/ForwardCommandController`` with ``interface_name: effort`` reads on
+``~/commands``) and, for an arm, its joint position targets (the same controller with
+``interface_name: position``, or ``joint_trajectory_controller``).
+
+The hand gets torques throughout: a stage's joint targets on hand joints (the reacher's finger
+servo) become the PD law of :mod:`wholehand.loop.command` evaluated here on the newest joint
+state, within the torque limits. Arm targets pass :class:`~wholehand.hardware.arm_guard.ArmGuard`.
+A stop request freezes the arm and ramps the hand torques to zero; on every exit (:meth:`close`,
+reached on the loop's end, Ctrl-C, SIGTERM and a fault of the loop) the arm holds its measured
+position and the hand torques ramp to zero over ``exit_ramp``.
 Topics, joint names, rates, QoS and the safety limits come from a hardware config
 (:mod:`wholehand.hardware.config`); messages go over zenoh as rmw_zenoh writes them
 (:mod:`wholehand.hardware.rmw_zenoh`), so no ROS installation is needed.
@@ -32,23 +41,29 @@ import numpy.typing as npt
 
 from wholehand.backends.base import Backend
 from wholehand.errors import ConfigError
+from wholehand.hardware.arm_guard import ArmGuard
 from wholehand.hardware.config import HardwareConfig, load_hardware_config
 from wholehand.hardware.guard import TorqueGuard
 from wholehand.hardware.inputs import (
     JointSample,
     JointStateReader,
     RejectedMessage,
+    arm_command_dofs,
     command_dofs,
     read_pose,
 )
 from wholehand.hardware.messages import (
+    BOOL,
     FLOAT64_ARRAY,
     JOINT_STATE,
+    JOINT_TRAJECTORY,
     POSE_STAMPED,
     MessageError,
+    decode_bool,
     decode_joint_state,
     decode_pose,
     encode_array,
+    encode_joint_trajectory,
 )
 from wholehand.hardware.rmw_zenoh import Publisher, Subscriber, open_session
 from wholehand.loop.command import Command
@@ -64,6 +79,9 @@ FloatArray = npt.NDArray[np.float64]
 
 TRACE_SAMPLES = 100_000
 """Torque messages whose timing :attr:`Ros2Backend.trace` keeps (for ``wholehand bench hw``)."""
+
+TRAJECTORY_LEAD = 2.0
+"""A JointTrajectory's point is reached this many control periods after it is sent."""
 
 
 class Ros2Backend(Backend):
@@ -112,9 +130,25 @@ class Ros2Backend(Backend):
         self.command_names = [self.reader.msg_name[hand.joint_names[i]] for i in self.command_dofs]
         """The torque command's joints as the robot names them (the effort controller's
         ``joints``, in order)."""
-        self.arm_dofs = np.flatnonzero(hand.arm_dofs)
+        has_arm = bool(config.topics["arm_command"])
+        self.arm_dofs = arm_command_dofs(hand, config) if has_arm else np.zeros(0, np.intp)
+        """(n_arm,) velocity indices of the arm command's joints, in its order."""
+        self.arm_names = [self.reader.msg_name[hand.joint_names[i]] for i in self.arm_dofs]
+        self.arm_guard: ArmGuard | None = None
+        if has_arm:
+            box = None if config.workspace is None else config.workspace.palm
+            self.arm_guard = ArmGuard(hand, config.arm.velocity_scale, box)
+            # ArmGuard works in model order; the command goes out in the controller's.
+            self._arm_order = np.searchsorted(self.arm_guard.dofs, self.arm_dofs)
+        self._q_index = np.array(
+            [hand.model.joints[hand.model.getJointId(n)].idx_q for n in hand.joint_names]
+        )
         self.history = JointHistory(hand.nq, history)
         self.guard = TorqueGuard(np.where(hand.actuated_dofs, hand.tau_max, 0.0), config.safety)
+        self.stop_requested = False
+        """A stop message asked the robot to stop (until one that releases it)."""
+        self.stops = 0
+        """Stop requests received (each true after a false or none)."""
         self.received: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
         self.last_rejection = ""
@@ -144,15 +178,16 @@ class Ros2Backend(Backend):
         self.session = open_session(config)
         try:
             self._torque = Publisher(self.session, config, "torque_command", FLOAT64_ARRAY)
+            arm_type = JOINT_TRAJECTORY if config.arm.interface == "trajectory" else FLOAT64_ARRAY
             self._arm = (
-                Publisher(self.session, config, "arm_command", FLOAT64_ARRAY)
-                if config.topics["arm_command"]
-                else None
+                Publisher(self.session, config, "arm_command", arm_type) if has_arm else None
             )
             self._subs = [
                 Subscriber(self.session, config, "joint_states", JOINT_STATE, self._on_joints),
                 Subscriber(self.session, config, "object_pose", POSE_STAMPED, self._on_pose),
             ]
+            if config.topics["stop"]:
+                self._subs.append(Subscriber(self.session, config, "stop", BOOL, self._on_stop))
         except Exception:
             self.session.close()
             raise
@@ -209,6 +244,21 @@ class Ros2Backend(Backend):
             self._pose_received = received
             self.received["object_pose"] += 1
 
+    def _on_stop(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+        try:
+            stop = decode_bool(payload)
+        except MessageError as err:
+            self._reject("malformed", str(err))
+            return
+        with self._lock:
+            if stop and not self.stop_requested:
+                self.stops += 1
+                log.warning(
+                    "stop requested on %s: arm frozen, hand ramping to zero",
+                    self.config.topics["stop"],
+                )
+            self.stop_requested = stop
+
     # --- Backend interface ----------------------------------------------------------------------
     def wait_for_streams(self, timeout: float) -> None:
         """Block until a first joint state and a first object pose have arrived.
@@ -253,17 +303,15 @@ class Ros2Backend(Backend):
             return Observation(
                 unknown, np.zeros(self.hand.nv), self.hand.wMb, 0.0, None, 0.0, self.history
             )
-        dq = joint.dq
-        if dq is None:  # no velocities sent: the difference of the last two samples
-            dq = np.zeros(self.hand.nv)
-            if previous is not None:
-                dq = (joint.q - previous.q) / (joint.stamp - previous.stamp)
+        dq = joint.dq if joint.dq is not None else self._velocity(joint, previous)
         self._stamp_q_seen = joint.stamp
         wMo, stamp_object = (None, joint.stamp) if pose is None else pose
         return Observation(joint.q, dq, self.hand.wMb, joint.stamp, wMo, stamp_object, self.history)
 
     def apply(self, command: Command) -> None:
-        """Send the command's torques through the safety rules (and the arm's targets)."""
+        """Send the command's hand torques (its hand targets as a PD law in torque) through the
+        torque guard and its arm targets through the arm guard; on a stop request, the arm's
+        frozen target and the hand's ramp to zero instead."""
         with self._lock:
             now, stamp_ns = time.monotonic(), time.time_ns()
             joint, joint_age = self._joint, now - self._joint_received
@@ -271,22 +319,74 @@ class Ros2Backend(Backend):
             self._last_apply = now
             if joint is not None:
                 self.guard.start_from(joint.effort, now)
-            tau, _ = self.guard.filter(command.tau, now, joint_age, pose_age)
+            if self.stop_requested:
+                tau = self.guard.ramp_down(now, self.config.safety.pose_ramp, "stop")
+            else:
+                wanted = self._hand_torques(command, joint)
+                tau, _ = self.guard.filter(wanted, now, joint_age, pose_age)
             self._publish(tau, stamp_ns)
-        if self._arm is not None and command.targets:
-            self._publish_arm(command)
+            arm = self._arm_target(command, joint, joint_age, now)
+        if arm is not None:
+            self._publish_arm(arm)
 
-    def _publish_arm(self, command: Command) -> None:
-        """The arm's position targets [rad], in model order, when the command's target groups
-        give every arm joint one (the position controller takes all its joints at once)."""
-        assert self._arm is not None
+    def _hand_torques(self, command: Command, joint: JointSample | None) -> FloatArray:
+        """(n_v,) the command's torques with each target group's PD law on the hand's joints,
+        evaluated on the newest joint state (:mod:`wholehand.loop.command`); zero on an arm's
+        joints."""
+        tau = command.tau.copy()
+        tau[self.hand.arm_dofs] = 0.0  # the arm's own controller holds it; not sent
+        if not command.targets or joint is None:
+            return tau
+        dq = joint.dq if joint.dq is not None else self._velocity(joint, self._previous)
+        for group in command.targets:
+            hand = ~self.hand.arm_dofs[group.dofs]
+            dofs = group.dofs[hand]
+            if not dofs.size:
+                continue
+            dq_ref = 0.0 if group.dq is None else group.dq[hand]
+            tau[dofs] += group.kd[hand] * (dq_ref - dq[dofs])
+            if group.q is not None:
+                tau[dofs] += group.kp[hand] * (group.q[hand] - joint.q[self._q_index[dofs]])
+        return tau
+
+    def _arm_target(
+        self, command: Command, joint: JointSample | None, joint_age: float, now: float
+    ) -> FloatArray | None:
+        """(n_arm,) the arm target to send, model order, through the arm guard; None when there
+        is no arm, no joint state yet, or the command gives the arm no full target."""
+        guard = self.arm_guard
+        if guard is None or joint is None:
+            return None
+        if self.stop_requested or not joint_age <= self.config.safety.joint_timeout:
+            # Frozen where the arm was when it began (a stale joint state: its last target).
+            if guard.last is None or (self.stop_requested and guard.counts["hold"] == 0):
+                return guard.hold(joint.q, now)
+            return guard.last
         target = np.full(self.hand.nv, np.nan)
         for group in command.targets:
             if group.q is not None:
                 target[group.dofs] = group.q
-        arm = target[self.arm_dofs]
-        if self.arm_dofs.size and np.isfinite(arm).all():
-            self._arm.put(encode_array(arm))
+        arm = target[guard.dofs]
+        if not np.isfinite(arm).all():
+            return None
+        return guard.filter(arm, joint.q, now)[0]
+
+    def _publish_arm(self, target: FloatArray) -> None:
+        """Publish the arm's target (n_arm,) [rad], model order, in the arm controller's order."""
+        assert self._arm is not None
+        out = target[self._arm_order]
+        if self.config.arm.interface == "trajectory":
+            lead = TRAJECTORY_LEAD / self.config.control_rate
+            self._arm.put(encode_joint_trajectory(self.arm_names, out, lead))
+        else:
+            self._arm.put(encode_array(out))
+
+    def _velocity(self, joint: JointSample, previous: JointSample | None) -> FloatArray:
+        """(n_v,) joint velocities of a state sent without them: the difference of the last two
+        samples (zero for a first sample)."""
+        if previous is None:
+            return np.zeros(self.hand.nv)
+        return (joint.q - previous.q) / (joint.stamp - previous.stamp)
 
     def _publish(self, tau: FloatArray, stamp_ns: int) -> None:
         """Publish ``tau``'s command joints, stamped (attachment) with the guard's time of it, so
@@ -343,23 +443,55 @@ class Ros2Backend(Backend):
                 "guard": dict(self.guard.counts),
                 "torque_messages": self._torque.sequence_number,
                 "command_joints": self.command_names,
+                "arm_guard": {} if self.arm_guard is None else dict(self.arm_guard.counts),
+                "arm_messages": 0 if self._arm is None else self._arm.sequence_number,
+                "arm_joints": self.arm_names,
+                "stops": self.stops,
                 "sync": dict(self.sync),
                 "sync_wait_s": self.sync_wait,
             }
 
     def close(self) -> None:
-        """Stop the watchdog and leave the zenoh session (the drives keep the last torque until
-        their own command timeout)."""
+        """Send the last commands (:meth:`release`), stop the watchdog and leave the zenoh
+        session."""
         if self._closed.is_set():
             return
         self._closed.set()
         self._watchdog.join()
+        self.release()
         for sub in self._subs:
             sub.close()
         self._torque.close()
         if self._arm is not None:
             self._arm.close()
         self.session.close()
+
+    def release(self) -> None:
+        """The last commands of every exit: the arm's target at its measured position, and the
+        hand's torque ramped from the last one sent to zero over ``exit_ramp`` at the control
+        rate, ending on zero (counted as ``exit`` in the guard). Nothing when no command was ever
+        sent."""
+        if self.guard.last is None:
+            return
+        duration, period = self.config.safety.exit_ramp, 1.0 / self.config.control_rate
+        with self._lock:
+            joint = self._joint
+            arm = None
+            if self.arm_guard is not None and joint is not None:
+                arm = self.arm_guard.hold(joint.q, time.monotonic())
+        if arm is not None:
+            self._publish_arm(arm)
+        start = time.monotonic()
+        while True:
+            now = time.monotonic()
+            with self._lock:
+                tau = self.guard.ramp_down(now, duration, "exit")
+                self._publish(tau, time.time_ns())
+            if not tau.any():
+                break
+            time.sleep(max(0.0, min(period, start + duration - now)))
+        if arm is not None:
+            self._publish_arm(arm)
 
     def __enter__(self) -> Ros2Backend:
         return self

@@ -31,6 +31,9 @@ from wholehand.hardware.rmw_zenoh import (
     topic_key,
 )
 
+ALLEGRO_ORDER = tuple(f"joint_{i}.0" for i in range(16))
+"""The Allegro's joints in its URDF's order (Pinocchio's model order differs)."""
+
 
 # --- config -----------------------------------------------------------------------------------
 def test_config_defaults_and_file(tmp_path):
@@ -42,6 +45,7 @@ def test_config_defaults_and_file(tmp_path):
         '[ros2]\ndomain_id = 7\ndistro = "humble"\n[topics]\njoint_states = "/hand/joint_states"\n'
         '[qos]\nobject_pose = { reliability = "best_effort", depth = 5 }\n'
         "[safety]\npose_timeout = 0.1\n[rates]\nsync_to_joint_states = false\n"
+        '[joints]\ncommand = ["a", "b"]\n'
     )
     assert load_hardware_config().sync_to_joint_states
     config = load_hardware_config(path)
@@ -62,11 +66,15 @@ def test_config_defaults_and_file(tmp_path):
         ({"object_pose": {"stamp_source": "image"}}, "stamp_source"),
         ({"safety": {"pose_timeout": -1.0}}, "pose_timeout must be > 0"),
         ({"safety": {"pose_timout": 1.0}}, "unknown keys ['pose_timout']"),
-        ({"joints": {"ignore": "a"}}, "[joints] ignore must be a list"),
+        ({"joints": {"command": ["a"], "ignore": "a"}}, "[joints] ignore must be a list"),
+        ({"joints": {}}, "[joints] command is missing"),
+        ({"joints": {"command": []}}, "[joints] command is empty"),
+        ({"joints": {"command": ["a", "b", "a"]}}, "lists ['a'] more than once"),
         ({"rates": {"sync_to_joint_states": 1}}, "sync_to_joint_states must be true or false"),
     ],
 )
 def test_config_errors_name_the_problem(raw, named):
+    raw = {"joints": {"command": ["a"]}, **raw}
     with pytest.raises(ConfigError) as err:
         parse_hardware_config(raw, "hw.toml")
     assert named in str(err.value) and "hw.toml" in str(err.value)
@@ -315,7 +323,8 @@ def robot_and_backend(allegro):
         pose_timeout=0.3, pose_ramp=0.3, torque_rate=2.0, watchdog=0.1, joint_timeout=0.5
     )
     robot = FakeRobot(HardwareConfig(listen=(endpoint,), connect=()))
-    backend = Ros2Backend(allegro, None, HardwareConfig(connect=(endpoint,), safety=safety))
+    config = HardwareConfig(connect=(endpoint,), safety=safety, command_joints=ALLEGRO_ORDER)
+    backend = Ros2Backend(allegro, None, config)
     yield robot, backend
     backend.close()
     robot.close()
@@ -440,7 +449,9 @@ def test_a_cycle_starts_on_a_fresh_joint_state_waiting_briefly_for_one(allegro):
 
     endpoint = loopback_endpoint()
     robot = FakeRobot(HardwareConfig(listen=(endpoint,), connect=()))
-    config = HardwareConfig(connect=(endpoint,), joint_state_rate=10.0, control_rate=2.0)
+    config = HardwareConfig(
+        connect=(endpoint,), joint_state_rate=10.0, control_rate=2.0, command_joints=ALLEGRO_ORDER
+    )
     names, q = list(allegro.joint_names), allegro.neutral()
     try:
         with Ros2Backend(allegro, None, config) as backend:
@@ -473,7 +484,8 @@ def test_backend_with_no_joint_state_sends_zero_and_wait_names_the_topic(allegro
     from wholehand.loop.command import Command
 
     endpoint = loopback_endpoint()
-    with Ros2Backend(allegro, None, HardwareConfig(connect=(endpoint,))) as b:
+    config = HardwareConfig(connect=(endpoint,), command_joints=ALLEGRO_ORDER)
+    with Ros2Backend(allegro, None, config) as b:
         assert np.isnan(b.observe().q).all()  # the loop's bad_state
         b.apply(Command.torques(np.full(allegro.nv, 0.2)))
         assert b.guard.counts == {"joints_stale": 1}
@@ -488,60 +500,54 @@ def test_control_cli_names_a_missing_config(tmp_path, capsys):
     assert "robot.toml' does not exist" in capsys.readouterr().err
 
 
-def test_shipped_example_config_loads_against_the_allegro(allegro):
-    from pathlib import Path
-
-    path = Path(__file__).parents[1] / "examples" / "hardware" / "ros2_allegro.toml"
-    config = load_hardware_config(path)
-    reader = JointStateReader(allegro, config)
-    assert reader.msg_name["joint_0.0"] == "allegro_joint_0"
-
-
-def test_command_order_follows_the_config_and_bad_names_are_refused(allegro):
+def test_shipped_config_loads_against_the_allegro_in_its_urdf_order(allegro):
+    from wholehand.hardware.config import hand_hardware_config
     from wholehand.hardware.inputs import command_dofs
 
-    np.testing.assert_array_equal(
-        command_dofs(allegro, HardwareConfig()), np.flatnonzero(allegro.actuated_dofs)
-    )
-    order = ("joint_3.0", "joint_0.0")
+    config = load_hardware_config(hand_hardware_config("allegro_right"))
+    reader = JointStateReader(allegro, config)
+    assert reader.msg_name["joint_0.0"] == "allegro_joint_0"
+    # The file names joint 0 by its robot name (after rename): the same joint either way.
+    assert [allegro.joint_names[i] for i in command_dofs(allegro, config)] == list(ALLEGRO_ORDER)
+    model_order = [allegro.joint_names[i] for i in np.flatnonzero(allegro.actuated_dofs)]
+    assert model_order != list(ALLEGRO_ORDER)  # why the order must be given
+
+
+def test_a_hand_without_a_hardware_config_is_named(tmp_path):
+    from wholehand.hardware.config import hand_hardware_config
+
+    with pytest.raises(ConfigError, match="no hardware config for hand 'robotis_hx5_d20_right'"):
+        hand_hardware_config("robotis_hx5_d20_right")
+
+
+@pytest.mark.parametrize(
+    ("order", "named"),
+    [
+        (None, "[joints] command is missing"),
+        (("wrist", *ALLEGRO_ORDER[1:]), "names ['wrist'], which are not among"),
+        (ALLEGRO_ORDER[:-1], "leaves out ['joint_15.0']"),
+        ((*ALLEGRO_ORDER, "joint_0.0"), "names the joints ['joint_0.0'] more than once"),
+        (("hand_joint_0", *ALLEGRO_ORDER), "more than once"),  # a joint by both its names
+    ],
+)
+def test_a_command_order_must_name_every_actuated_joint_once(allegro, order, named):
+    from wholehand.hardware.inputs import command_dofs
+
+    config = HardwareConfig(command_joints=order, rename={"joint_0.0": "hand_joint_0"})
+    with pytest.raises(ConfigError) as err:
+        command_dofs(allegro, config)
+    assert named in str(err.value)
+
+
+def test_command_order_follows_the_config_by_model_or_robot_names(allegro):
+    from wholehand.hardware.inputs import command_dofs
+
+    order = tuple(np.random.default_rng(3).permutation(ALLEGRO_ORDER))
     dofs = command_dofs(allegro, HardwareConfig(command_joints=order))
     assert [allegro.joint_names[i] for i in dofs] == list(order)
-    with pytest.raises(ConfigError, match="names 'wrist', which is not an actuated joint"):
-        command_dofs(allegro, HardwareConfig(command_joints=("wrist",)))
-
-
-def test_arm_targets_go_to_the_position_command_in_model_order():
-    from wholehand_plugins.ros2_backend import Ros2Backend
-
-    from wholehand.loop.command import Command, JointTargets
-    from wholehand.models.hand import load_hand
-
-    rig = load_hand("flexiv_rizon4_allegro_right")
-    arm = np.flatnonzero(rig.arm_dofs)
-    endpoint = loopback_endpoint()
-    topics = {**HardwareConfig().topics, "arm_command": "/arm_position_controller/commands"}
-    robot_config = HardwareConfig(listen=(endpoint,), connect=(), topics=topics)
-    session = open_session(robot_config)
-    received: list[np.ndarray] = []
-    Subscriber(
-        session,
-        robot_config,
-        "arm_command",
-        msgs.FLOAT64_ARRAY,
-        lambda p, a, t: received.append(msgs.decode_array(p)),
-    )
-    config = HardwareConfig(connect=(endpoint,), topics=topics)
-    try:
-        with Ros2Backend(rig, None, config) as backend:
-            q_arm = 0.1 * np.arange(1, arm.size + 1)
-            shuffled = arm[::-1]  # a group may list its joints in any order
-            group = JointTargets(shuffled, q_arm[::-1], None, 100.0, 10.0, name="arm")
-            _until(lambda: bool(backend.apply(Command(np.zeros(rig.nv), (group,)))) or received)
-            np.testing.assert_allclose(received[-1], q_arm)
-            # The torque command carries the hand's joints only: the arm's are not in it.
-            assert not set(backend.command_dofs.tolist()) & set(arm.tolist())
-    finally:
-        session.close()
+    renamed = tuple("hand_joint_0" if n == "joint_0.0" else n for n in order)
+    config = HardwareConfig(command_joints=renamed, rename={"joint_0.0": "hand_joint_0"})
+    np.testing.assert_array_equal(command_dofs(allegro, config), dofs)
 
 
 def test_the_controller_allocator_gets_the_deadline_and_edge_screening(allegro):

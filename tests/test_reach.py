@@ -126,7 +126,7 @@ def test_pregrasps_clear_the_object_by_3cm_and_the_grasps_do_not(allegro, cube, 
         assert plan.retreat == pytest.approx(round(plan.retreat / 0.005) * 0.005)
 
 
-def test_nearest_plan_and_planner_skip_failed_plans(plans) -> None:
+def test_nearest_plan_and_planner_skip_failedgrasp_plans(plans) -> None:
     wMo = np.eye(4)
     target = plans[3]
     wMb_now = wMo @ target.oMb_pre
@@ -521,14 +521,14 @@ def test_a_floating_wrist_never_starts_inside_the_object(allegro) -> None:
         START_CLEARANCE,
         START_LIFT,
         START_SPREAD,
-        _plans,
         episode_table,
         floating_start,
     )
+    from wholehand.reaching.pipeline import grasp_plans
     from wholehand.reaching.pregrasp import hand_clearance
 
     obj = load_object("006_mustard_bottle")
-    plans, table = _plans(allegro, obj), episode_table(allegro)
+    plans, table = grasp_plans(allegro, obj), episode_table(allegro)
     wMo = np.eye(4)
     wMo[:3, 3] = [*table.centre, table.top + 0.25]
     naive_inside = 0
@@ -550,11 +550,12 @@ def test_a_plan_check_with_the_callers_kinematics_gives_the_same_answer(allegro)
     one per check cost 9 ms per choice); the answers are those of fresh ones, down to the
     lowest point's bits."""
     from wholehand.models.object_catalogue import load_object
-    from wholehand.reaching.episode import _plans, episode_table
+    from wholehand.reaching.episode import episode_table
+    from wholehand.reaching.pipeline import grasp_plans
     from wholehand.reaching.pregrasp import usable_on_table
 
     obj = load_object("077_rubiks_cube")
-    plans, table = _plans(allegro, obj), episode_table(allegro)
+    plans, table = grasp_plans(allegro, obj), episode_table(allegro)
     shared = HandKinematics(allegro)
     answers = []
     for height in (0.02, 0.06, 0.25):  # low poses put some plans below the table top
@@ -717,13 +718,14 @@ def test_a_table_top_grasp_without_its_face_is_named(monkeypatch) -> None:
     import dataclasses
 
     import wholehand.reaching.episode as episode
+    import wholehand.reaching.pipeline as pipeline
 
-    real = episode.load_grasps
+    real = pipeline.load_grasps
 
     def faceless(*args: object, **kwargs: object) -> list:
         return [dataclasses.replace(g, extra={}) for g in real(*args, **kwargs)]
 
-    monkeypatch.setattr(episode, "load_grasps", faceless)
+    monkeypatch.setattr(pipeline, "load_grasps", faceless)
     spec = episode.EpisodeSpec(object="003_cracker_box", start="table")
     with pytest.raises(ConfigError, match="has no table_up.*--on-table"):
         episode.run_episode(spec)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
@@ -153,11 +154,33 @@ def _cmd_hw(args: argparse.Namespace) -> int:
         pose_stamp=args.pose_stamp,
         stamp_source=args.stamp_source,
         sync_to_joint_states=not args.no_sync,
+        config=args.config,
     )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(result, indent=1))
     print(json.dumps(result, indent=2))
+    return 0
+
+
+def _cmd_pipeline(args: argparse.Namespace) -> int:
+    from wholehand.hardware.episode_bench import run_pipeline_benchmark
+    from wholehand.models.object_catalogue import PAPER_OBJECTS
+
+    objects = PAPER_OBJECTS if args.object == "paper" else tuple(args.object.split(","))
+    result = run_pipeline_benchmark(
+        hand=args.hand,
+        objects=objects,
+        episodes=args.episodes,
+        seed=args.seed,
+        latency=args.latency,
+        config=args.config,
+        progress=lambda line: print(line, file=sys.stderr, flush=True),
+    )
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(result, indent=1))
+    print(json.dumps({k: v for k, v in result.items() if k != "rows"}, indent=2))
     return 0
 
 
@@ -296,5 +319,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="cycles do not wait for a fresh joint state ([rates] sync_to_joint_states = false)",
     )
+    p.add_argument(
+        "--config", help="hardware config TOML (default: ros2.toml in the hand's folder)"
+    )
     p.add_argument("--out", help="also write the JSON here")
     p.set_defaults(func=_cmd_hw)
+
+    p = bsub.add_parser(
+        "pipeline",
+        help="the paper's Table I through the robot double (reach, grasp, hold, regrasp over "
+        "ROS 2 messages) beside the same seeded episodes in process",
+    )
+    p.add_argument("--hand", default="flexiv_rizon4_hx5_d20_right", help="an arm-hand assembly")
+    p.add_argument(
+        "--object", default="077_rubiks_cube", help="comma-separated objects, or 'paper'"
+    )
+    p.add_argument("--episodes", type=int, default=3, help="seeded episodes per object")
+    p.add_argument("--seed", type=int, default=0, help="seeds derived as `study reach` does")
+    p.add_argument("--latency", type=float, default=0.033, help="the tracker's latency [s]")
+    p.add_argument(
+        "--config", help="hardware config TOML (default: ros2.toml in the hand's folder)"
+    )
+    p.add_argument("--out", help="also write the JSON (with every episode's row) here")
+    p.set_defaults(func=_cmd_pipeline)

@@ -10,9 +10,9 @@ from typing import Any
 
 
 def _config(args: argparse.Namespace) -> Any:
-    from wholehand.hardware.config import load_hardware_config
+    from wholehand.hardware.config import hand_hardware_config, load_hardware_config
 
-    config = load_hardware_config(args.config)
+    config = load_hardware_config(args.config or hand_hardware_config(args.hand))
     connect = tuple(args.connect) if args.connect is not None else None
     listen = tuple(args.listen) if args.listen is not None else None
     return config.with_endpoints(connect, listen)
@@ -54,6 +54,10 @@ def _cmd_control(args: argparse.Namespace) -> int:
 
 def _cmd_hw_sim(args: argparse.Namespace) -> int:
     from wholehand.hardware.double import DoubleSpec, run_double
+    from wholehand.models.hand import load_hand
+
+    if load_hand(args.hand).arm_dofs.any():
+        return _episode_double(args)
 
     params: dict[str, Any] = {}
     if args.quick:  # a shorter protocol: settle and a 0.3 s load per direction
@@ -82,8 +86,35 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
     return 0 if summary["held"] else 1
 
 
+def _episode_double(args: argparse.Namespace) -> int:
+    from wholehand.hardware.episode_double import EpisodeDoubleSpec, run_episode_double
+    from wholehand.reaching.episode import EpisodeSpec
+
+    episode = EpisodeSpec(
+        hand=args.hand,
+        object=args.object,
+        seed=args.seed,
+        duration=args.duration if args.duration is not None else EpisodeSpec.duration,
+    )
+    spec = EpisodeDoubleSpec(
+        episode=episode,
+        latency=args.latency,
+        noise_mm=args.noise_mm,
+        noise_deg=args.noise_deg,
+        dropouts=tuple((float(a), float(b)) for a, b in args.dropout or ()),
+        command_timeout=args.command_timeout,
+        away=None if args.away is None else (float(args.away[0]), float(args.away[1])),
+    )
+    summary = run_episode_double(spec, _config(args), args.wait)
+    _write(summary, args.json, summary)
+    return 0
+
+
 def _endpoints(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", help="hardware config TOML (default: the built-in defaults)")
+    p.add_argument(
+        "--config",
+        help="hardware config TOML (default: ros2.toml in the hand's folder; docs/hardware.md)",
+    )
     p.add_argument("--connect", nargs="*", help="zenoh endpoints to connect to (overrides config)")
     p.add_argument("--listen", nargs="*", help="zenoh endpoints to listen on (overrides config)")
     p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
@@ -94,7 +125,8 @@ def _endpoints(p: argparse.ArgumentParser) -> None:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "control",
-        help="regulate a held grasp on a robot over ROS 2 messages (zenoh; see docs/hardware.md)",
+        help="the controller on a robot over ROS 2 messages (zenoh; docs/hardware.md): the whole "
+        "pipeline on an arm-hand, force regulation of a held grasp on a hand alone",
     )
     _endpoints(p)
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: never)")
@@ -129,9 +161,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "hw-sim",
-        help="play a robot over ROS 2 messages: MuJoCo in real time, a tracker with latency",
+        help="play a robot over ROS 2 messages: MuJoCo in real time, a tracker with latency; "
+        "an arm-hand plays the reach episode with its person, a hand alone a held grasp",
     )
     _endpoints(p)
+    p.add_argument(
+        "--duration", type=float, help="arm-hand: longest episode [s] (default: the episode's)"
+    )
+    p.add_argument(
+        "--away",
+        nargs=2,
+        type=float,
+        metavar=("START", "DURATION"),
+        help="arm-hand: the person carries the object out of the workspace at START s and back "
+        "after DURATION s (instead of the perturbations)",
+    )
     p.add_argument("--grasp", type=int, default=0, help="stored power grasp index")
     p.add_argument("--theta", type=float, default=0.0, help="protocol pull [deg]; 0: loads only")
     p.add_argument("--seed", type=int, default=0)

@@ -26,13 +26,19 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import HardwareConfig, StampSource
+from wholehand.hardware.config import (
+    HardwareConfig,
+    StampSource,
+    hand_hardware_config,
+    load_hardware_config,
+)
 from wholehand.hardware.controller import ControllerSpec, run_controller
 from wholehand.hardware.rmw_zenoh import loopback_endpoint
 from wholehand.models.hand import load_hand
@@ -54,18 +60,22 @@ def run_hw_benchmark(
     pose_stamp: str = "image",
     stamp_source: StampSource = "header",
     sync_to_joint_states: bool = True,
+    config: str | Path | None = None,
 ) -> dict[str, Any]:
     """Run the double and the controller over each grasp of each object; latency percentiles
     over all messages, and whether each grasp held the load test. ``sync_to_joint_states``:
-    the controller's setting of that name (:mod:`wholehand.hardware.config`)."""
+    the controller's setting of that name (:mod:`wholehand.hardware.config`); ``config``: the
+    hardware config both use (None: the hand folder's ``ros2.toml``)."""
     spec = spec or ControllerSpec()
+    config_path = hand_hardware_config(hand) if config is None else Path(config)
     hand_model = load_hand(hand)
     answer, controller, transport, rates, rows = [], [], [], [], []
     cycles: list[float] = []
     for obj, grasp in ((o, g) for o in objects for g in grasps):
         obj_model = load_object(obj)
         endpoint = loopback_endpoint()
-        config = HardwareConfig(
+        hw_config = replace(
+            load_hardware_config(config_path),
             connect=(endpoint,),
             listen=(),
             stamp_source=stamp_source,
@@ -78,6 +88,8 @@ def run_hw_benchmark(
                 "-m",
                 "wholehand.cli.main",
                 "hw-sim",
+                "--config",
+                str(config_path),
                 "--hand",
                 hand,
                 "--object",
@@ -104,7 +116,7 @@ def run_hw_benchmark(
             )
             try:
                 result = run_controller(
-                    hand_model, obj_model, config, spec, trace=True, duration=None, stop=sim.poll
+                    hand_model, obj_model, hw_config, spec, trace=True, duration=None, stop=sim.poll
                 )
                 _, err = sim.communicate(timeout=60)
             finally:
@@ -163,7 +175,7 @@ def run_hw_benchmark(
         "cycle_ms": _percentiles(cycles),
         "messages": len(answer),
         "rate_hz": {"min": float(min(rates)), "mean": float(np.mean(rates))},
-        "control_rate_hz": HardwareConfig().control_rate,
+        "control_rate_hz": load_hardware_config(config_path).control_rate,
         "runs": rows,
     }
 

@@ -14,14 +14,33 @@ Schema (times in s, rates in Hz, torques in N*m; every key optional, defaults be
     joint_states = "/joint_states"                          # sensor_msgs/msg/JointState, in
     object_pose = "/object_pose"                            # geometry_msgs/msg/PoseStamped, in
     torque_command = "/hand_effort_controller/commands"     # std_msgs/msg/Float64MultiArray, out
-    arm_command = ""                # Float64MultiArray of arm joint positions, out ("" = none)
+    arm_command = ""                # the arm's joint position targets, out ("" = no arm)
+    stop = "/wholehand/stop"        # std_msgs/msg/Bool, in: true stops the robot ("" = none)
 
     [joints]
     rename = { joint_0 = "allegro_joint_0" }   # model joint -> name in JointState messages
     ignore = ["gripper_joint"]      # names in JointState that are not the hand's (else rejected)
-    command = ["joint_0", ...]      # model joints in the order of the torque command's data
-                                    # (the effort controller's `joints`); default: the actuated
-                                    # hand joints in model order
+    command = ["joint_0", ...]      # REQUIRED: the torque command's joints in its order (the
+                                    # hand controller's `joints` parameter), model names or
+                                    # their names after `rename`; every actuated hand joint once
+
+    [arm]                           # with [topics] arm_command only
+    joints = ["joint1", ...]        # REQUIRED: the arm controller's `joints`, in its order
+    interface = "position"          # "position": Float64MultiArray for ForwardCommandController
+                                    # (interface_name: position); "trajectory": a
+                                    # trajectory_msgs/msg/JointTrajectory stream for
+                                    # joint_trajectory_controller
+    velocity_scale = 0.5            # targets move at most this fraction of the URDF's joint
+                                    # velocity limits
+    home = [0.0, ...]               # home posture [rad] (default: the assembly's [assembly] home)
+
+    [workspace]                     # REQUIRED with an arm (world frame [m])
+    palm_min = [0.2, -0.4, 0.05]    # the palm's targets are kept in this box
+    palm_max = [0.8, 0.4, 0.6]
+    object_min = [0.25, -0.35, 0.0] # an object outside this box sends the arm home
+    object_max = [0.75, 0.35, 0.5]
+    table = { top = 0.0, centre = [0.45, 0.0], size = [1.5, 1.5] }   # optional: a table the
+                                    # reacher keeps the hand above
 
     [rates]
     control = 200.0                 # control loop [Hz]
@@ -44,6 +63,7 @@ Schema (times in s, rates in Hz, torques in N*m; every key optional, defaults be
     torque_rate = 20.0              # largest torque change per second [N*m/s]
     watchdog = 0.05                 # no command for this long -> the watchdog ramps down
     max_future_stamp = 0.01         # a stamp further ahead of this clock is rejected
+    exit_ramp = 0.5                 # on every exit the hand torques ramp to zero over this time
 
 Message ages are measured from the time each message arrived, on this process's monotonic
 clock, so a clock offset between robot and controller cannot hide a stream that stopped.
@@ -64,7 +84,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
+from wholehand.backends.table import Table
 from wholehand.errors import ConfigError
+from wholehand.reaching.workspace import Box, Workspace
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -74,11 +96,12 @@ else:  # pragma: no cover
 Reliability = Literal["reliable", "best_effort"]
 History = Literal["keep_last", "keep_all"]
 StampSource = Literal["header", "receipt"]
+ArmInterface = Literal["position", "trajectory"]
 
 DISTROS = ("humble", "jazzy", "kilted")
 """ROS 2 distributions whose rmw_zenoh key expressions we write."""
 
-TOPICS = ("joint_states", "object_pose", "torque_command", "arm_command")
+TOPICS = ("joint_states", "object_pose", "torque_command", "arm_command", "stop")
 STAMP_SOURCES: tuple[StampSource, ...] = ("header", "receipt")
 
 
@@ -108,6 +131,26 @@ class SafetyLimits:
     """No command from the loop for this long [s] -> the watchdog ramps the torque down."""
     max_future_stamp: float = 0.01
     """A message stamped further than this [s] ahead of the controller's clock is rejected."""
+    exit_ramp: float = 0.5
+    """On every exit of the controller (its end, Ctrl-C, SIGTERM, a fault of the loop) the hand
+    torques ramp to zero over this time [s] while the arm holds its position."""
+
+
+@dataclass(frozen=True)
+class ArmSettings:
+    """How the controller commands an arm (the ``[arm]`` table)."""
+
+    joints: tuple[str, ...] = ()
+    """The arm controller's joints in the order of its command (ros2_control's ``joints``)."""
+    interface: ArmInterface = "position"
+    """``position``: ``std_msgs/msg/Float64MultiArray`` for ``ForwardCommandController`` with
+    ``interface_name: position``; ``trajectory``: ``trajectory_msgs/msg/JointTrajectory`` (one
+    point, one control period ahead) for ``joint_trajectory_controller``."""
+    velocity_scale: float = 0.5
+    """Targets move at most this fraction of the URDF's joint velocity limits [-]."""
+    home: tuple[float, ...] | None = None
+    """Home posture of the arm joints [rad] in the order of ``joints`` (None: the assembly's
+    ``[assembly] home``)."""
 
 
 @dataclass(frozen=True)
@@ -126,11 +169,16 @@ class HardwareConfig:
             "object_pose": "/object_pose",
             "torque_command": "/hand_effort_controller/commands",
             "arm_command": "",
+            "stop": "/wholehand/stop",
         }
     )
     rename: dict[str, str] = field(default_factory=dict)
     ignore: tuple[str, ...] = ()
     command_joints: tuple[str, ...] | None = None
+    """The torque command's joints in its order (``[joints] command``; required in a file)."""
+    arm: ArmSettings = field(default_factory=ArmSettings)
+    workspace: Workspace | None = None
+    """The arm's workspace (``[workspace]``; required with an arm)."""
     control_rate: float = 200.0
     joint_state_rate: float = 500.0
     object_pose_rate: float = 30.0
@@ -211,20 +259,106 @@ def _qos(value: Any, topic: str, path: str) -> QoS:
     return QoS(reliability, history, depth)
 
 
+TABLES = ("ros2", "topics", "joints", "rates", "qos", "object_pose", "safety", "arm", "workspace")
+
+
+def _joint_list(value: Any, what: str, path: str) -> tuple[str, ...]:
+    """A non-empty list of joint names without repeats."""
+    names = _strings(value, what, path)
+    if not names:
+        raise ConfigError(f"{_where(path)}: {what} is empty; list the controller's joints")
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise ConfigError(f"{_where(path)}: {what} lists {repeated} more than once")
+    return names
+
+
+def _arm(raw: dict[str, Any], has_arm: bool, path: str) -> ArmSettings:
+    table = _table(raw, "arm", ("joints", "interface", "velocity_scale", "home"), path)
+    if not has_arm:
+        if table:
+            raise ConfigError(
+                f"{_where(path)}: [arm] is set but [topics] arm_command is not; name the arm "
+                "controller's command topic or remove [arm]"
+            )
+        return ArmSettings()
+    if "joints" not in table:
+        raise ConfigError(
+            f"{_where(path)}: [arm] joints is missing: list the arm controller's joints in the "
+            'order of its `joints` parameter, e.g. joints = ["joint1", "joint2", ...]'
+        )
+    interface = table.get("interface", "position")
+    if interface not in ("position", "trajectory"):
+        raise ConfigError(
+            f"{_where(path)}: [arm] interface must be 'position' or 'trajectory', got {interface!r}"
+        )
+    scale = _number(table.get("velocity_scale", 0.5), "[arm] velocity_scale", path)
+    if scale > 1.0:
+        raise ConfigError(f"{_where(path)}: [arm] velocity_scale must be in (0, 1], got {scale}")
+    joints = _joint_list(table["joints"], "[arm] joints", path)
+    home = table.get("home")
+    if home is not None:
+        home = tuple(_number(v, "[arm] home", path, positive=False) for v in _list(home, path))
+        if len(home) != len(joints):
+            raise ConfigError(
+                f"{_where(path)}: [arm] home has {len(home)} values for {len(joints)} joints"
+            )
+    return ArmSettings(joints, interface, scale, home)
+
+
+def _list(value: Any, path: str) -> list[Any]:
+    if not isinstance(value, list):
+        raise ConfigError(f"{_where(path)}: expected a list of numbers, got {value!r}")
+    return value
+
+
+def _box(table: dict[str, Any], key: str, path: str) -> Box:
+    lower, upper = table.get(f"{key}_min"), table.get(f"{key}_max")
+    if lower is None or upper is None:
+        raise ConfigError(
+            f"{_where(path)}: [workspace] needs {key}_min and {key}_max (x, y, z in the world "
+            "frame [m])"
+        )
+    lo = tuple(_number(v, f"[workspace] {key}_min", path, False) for v in _list(lower, path))
+    hi = tuple(_number(v, f"[workspace] {key}_max", path, False) for v in _list(upper, path))
+    return Box(lo, hi, f"{_where(path)}: [workspace] {key}")  # type: ignore[arg-type]
+
+
+def _workspace(raw: dict[str, Any], has_arm: bool, path: str) -> Workspace | None:
+    known = ("palm_min", "palm_max", "object_min", "object_max", "table")
+    table = _table(raw, "workspace", known, path)
+    if not table:
+        if has_arm:
+            raise ConfigError(
+                f"{_where(path)}: [workspace] is missing: an arm needs palm_min, palm_max, "
+                "object_min and object_max (world frame [m]); see docs/hardware.md"
+            )
+        return None
+    top = table.get("table")
+    surface = None
+    if top is not None:
+        if not isinstance(top, dict) or set(top) - {"top", "centre", "size"}:
+            raise ConfigError(
+                f"{_where(path)}: [workspace] table takes top [m], centre [x, y] and size "
+                f"[x, y], got {top!r}"
+            )
+        surface = Table(
+            top=_number(top.get("top", 0.0), "[workspace] table.top", path, positive=False),
+            centre=tuple(_list(top.get("centre", [0.0, 0.0]), path)),
+            size=tuple(_list(top.get("size", [0.8, 0.8]), path)),
+        )
+    return Workspace(_box(table, "palm", path), _box(table, "object", path), surface)
+
+
 def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig:
     """A :class:`HardwareConfig` from the parsed TOML ``raw`` (the module's schema).
 
     Raises:
         ConfigError: an unknown table or key, or a value of the wrong kind (named with the file).
     """
-    unknown = sorted(
-        set(raw) - {"ros2", "topics", "joints", "rates", "qos", "object_pose", "safety"}
-    )
+    unknown = sorted(set(raw) - set(TABLES))
     if unknown:
-        raise ConfigError(
-            f"{_where(path)}: unknown tables {unknown}; valid: ros2, topics, joints, rates, qos, "
-            "object_pose, safety"
-        )
+        raise ConfigError(f"{_where(path)}: unknown tables {unknown}; valid: {', '.join(TABLES)}")
     ros2 = _table(raw, "ros2", ("domain_id", "distro", "mode", "connect", "listen"), path)
     domain = ros2.get("domain_id", 0)
     if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= 232:
@@ -270,7 +404,14 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
         )
     safety_raw = _table(raw, "safety", tuple(SafetyLimits.__dataclass_fields__), path)
     safety = SafetyLimits(**{k: _number(v, f"[safety] {k}", path) for k, v in safety_raw.items()})
-    command = joints.get("command")
+    if "command" not in joints:
+        raise ConfigError(
+            f"{_where(path)}: [joints] command is missing: list the torque command's joints in "
+            "the order of the hand controller's `joints` parameter, e.g. command = "
+            '["joint_0", "joint_1", ...] (model names or their names after [joints] rename)'
+        )
+    command = _joint_list(joints["command"], "[joints] command", path)
+    arm = _arm(raw, bool(topics["arm_command"]), path)
     return HardwareConfig(
         domain_id=domain,
         distro=distro,
@@ -280,7 +421,9 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
         topics=topics,
         rename=dict(rename),
         ignore=_strings(joints.get("ignore", []), "[joints] ignore", path),
-        command_joints=None if command is None else _strings(command, "[joints] command", path),
+        command_joints=command,
+        arm=arm,
+        workspace=_workspace(raw, bool(topics["arm_command"]), path),
         control_rate=_number(rates.get("control", 200.0), "[rates] control", path),
         joint_state_rate=_number(rates.get("joint_states", 500.0), "[rates] joint_states", path),
         object_pose_rate=_number(rates.get("object_pose", 30.0), "[rates] object_pose", path),
@@ -291,6 +434,27 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
         safety=safety,
         path=path,
     )
+
+
+HAND_CONFIG_FILE = "ros2.toml"
+"""A hand folder's hardware config, read when no other is given."""
+
+
+def hand_hardware_config(hand: str | Path) -> Path:
+    """The hardware config in a hand's folder (``ros2.toml`` beside its hand.toml).
+
+    Raises:
+        ConfigError: the hand is unknown, or its folder has no hardware config.
+    """
+    from wholehand.models.hand_config import resolve_hand_config
+
+    path = resolve_hand_config(hand).parent / HAND_CONFIG_FILE
+    if not path.is_file():
+        raise ConfigError(
+            f"no hardware config for hand {str(hand)!r}: give --config FILE, or write "
+            f"{path} (copy robots/allegro_right/{HAND_CONFIG_FILE}; docs/hardware.md)"
+        )
+    return path
 
 
 def load_hardware_config(path: str | Path | None = None) -> HardwareConfig:

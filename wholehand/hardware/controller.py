@@ -1,10 +1,15 @@
-"""``wholehand control``: force regulation of a held grasp on a robot over the ``ros2`` backend.
+"""``wholehand control``: the controller on a robot over the ``ros2`` backend.
 
-The same :class:`~wholehand.loop.regulation.ForceRegulation` stage as in simulation runs in the
-same :class:`~wholehand.loop.control_loop.ControlLoop`, now on the wall clock of
-:class:`~wholehand_plugins.ros2_backend.Ros2Backend`. It runs until ``duration`` has passed or
-the process is asked to stop (SIGINT, SIGTERM), and reports the loop's statuses, the messages
-received and rejected, and how often each safety rule acted.
+On an arm-hand assembly it runs the whole pipeline, the same stage machine as ``wholehand reach``
+(:mod:`wholehand.reaching.pipeline`): reach the pre-grasp, reach the grasp, regulate, back to
+reaching after a loss, and home while the object is out of the arm's workspace. On a hand alone
+it regulates a grasp that is already in the hand (:class:`~wholehand.loop.regulation.
+ForceRegulation`). Either way the same :class:`~wholehand.loop.control_loop.ControlLoop` as in
+simulation runs, now on the wall clock of :class:`~wholehand_plugins.ros2_backend.Ros2Backend`,
+until ``duration`` has passed or the process is asked to stop (SIGINT, SIGTERM); the backend's
+last commands (the arm held, the hand's torques ramped to zero) follow on every exit. It reports
+the loop's statuses and stage transitions, the messages received and rejected, and how often
+each safety rule acted.
 """
 
 from __future__ import annotations
@@ -18,18 +23,36 @@ from dataclasses import dataclass, field
 from typing import Any, cast
 
 import numpy as np
+import numpy.typing as npt
 
-from wholehand import registry
+from wholehand import defaults, registry
 from wholehand.allocation.base import Allocator
+from wholehand.backends.table import HAND_MARGIN
+from wholehand.contacts.base import ContactEstimator
+from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig
+from wholehand.hardware.inputs import model_joint_name
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.gate import ObservationGate
 from wholehand.loop.observation import check_observation
+from wholehand.loop.reach import PREGRASP, REGULATE, HoldStage, ReachPlanner
 from wholehand.loop.regulation import AllocateEvery, EstimateAt, ForceRegulation
+from wholehand.loop.stage import Stage
 from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
+from wholehand.reaching.pipeline import (
+    RobotRules,
+    always_usable,
+    grasp_hand_of,
+    grasp_plans,
+    home_configuration,
+    pipeline_stages,
+)
+from wholehand.reaching.pregrasp import GraspPlan, usable_on_table
+
+FloatArray = npt.NDArray[np.float64]
 
 CYCLE_TIMES_KEPT = 100_000
 """Cycle times the report's percentiles cover (the latest; a controller may run for hours)."""
@@ -63,6 +86,14 @@ class ControllerSpec:
     screen_edges: bool = True
     """Screen the pyramid-edge weights too, for allocators that take ``screen_edges`` (the
     ``qp`` family): smaller problems near a loss, so fewer deadline cycles."""
+    reacher: str = "mink"
+    """The reacher plug-in of the pipeline (an arm-hand assembly only)."""
+    balance_weight: bool = True
+    """Pipeline: force regulation balances the object's known weight (as ``wholehand
+    reach``)."""
+    gravity_compensation: bool = True
+    """Pipeline: the hand's torques hold its own links against gravity (as ``wholehand
+    reach``)."""
 
 
 def controller_allocator(spec: ControllerSpec, hand: HandModel) -> Allocator:
@@ -82,6 +113,72 @@ def controller_allocator(spec: ControllerSpec, hand: HandModel) -> Allocator:
     if "screen_edges" in takes:
         params.setdefault("screen_edges", spec.screen_edges)
     return cast(Allocator, load_allocator(spec.allocator, hand, params))
+
+
+def pipeline_for_robot(
+    hand: HandModel,
+    obj: ObjectModel,
+    config: HardwareConfig,
+    spec: ControllerSpec,
+    estimator: ContactEstimator,
+    allocator: Allocator,
+) -> dict[str, Stage]:
+    """The stage machine of ``wholehand reach`` for an arm-hand on a robot: its workspace and
+    table, home posture and pose timeout from ``config``.
+
+    Raises:
+        ConfigError: the config gives the arm no command topic or no workspace.
+    """
+    workspace = config.workspace
+    if not config.topics["arm_command"] or workspace is None:
+        raise ConfigError(
+            f"{config.path or 'hardware config'}: {hand.name!r} is an arm-hand assembly: set "
+            "[topics] arm_command, [arm] joints and [workspace] (docs/hardware.md), or give the "
+            "hand alone (--hand) to regulate a grasp already in it"
+        )
+    grasp_hand = grasp_hand_of(hand)
+    table = workspace.table
+    kin = HandKinematics(grasp_hand)
+
+    def usable(plan: GraspPlan, wMo: FloatArray) -> bool:
+        assert table is not None
+        return usable_on_table(grasp_hand, plan, wMo, table, HAND_MARGIN, kin)
+
+    planner = ReachPlanner(grasp_plans(grasp_hand, obj), always_usable if table is None else usable)
+    reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
+    weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if spec.balance_weight else None
+    regulation = ForceRegulation(
+        hand,
+        obj,
+        estimator,
+        allocator,
+        cast(EstimateAt, spec.estimate_at),
+        allocate_every=cast(AllocateEvery, spec.allocate_every),
+        weight=weight,
+        gravity_compensation=spec.gravity_compensation,
+    )
+    arm_home = None
+    if config.arm.home is not None:  # [arm] home is in the arm controller's order
+        given = {
+            model_joint_name(hand, config, n): v
+            for n, v in zip(config.arm.joints, config.arm.home, strict=True)
+        }
+        arm_home = tuple(given[n] for n in hand.config.arm_joints)
+    robot = RobotRules(
+        workspace, config.safety.pose_timeout, home_configuration(hand, grasp_hand, arm_home)
+    )
+    stages, _ = pipeline_stages(
+        hand,
+        grasp_hand,
+        obj,
+        planner,
+        estimator,
+        reacher,
+        regulation,
+        spec.gravity_compensation,
+        robot,
+    )
+    return stages
 
 
 class _StopWhen(Observer):
@@ -114,14 +211,16 @@ def run_controller(
     announce: Callable[[str], None] | None = None,
     stop: Callable[[], object] | None = None,
 ) -> dict[str, Any]:
-    """Wait for the robot's streams, then run force regulation against it; returns a
-    JSON-ready report (``loop``, ``backend`` counts, ``cycle_time_ms`` percentiles; with
-    ``trace``, the ``trace`` of published torques and every kept cycle's time in
-    ``cycle_times_s``). ``announce`` is called with a line once the streams are up;
-    the run also ends on the first cycle ``stop()`` returns something other than None.
+    """Wait for the robot's streams, then run the pipeline (an arm-hand assembly) or force
+    regulation (a hand alone) against it; returns a JSON-ready report (``mode``, ``loop`` with
+    the stage transitions, ``backend`` counts, ``cycle_time_ms`` percentiles; with ``trace``,
+    the ``trace`` of published torques and every kept cycle's time in ``cycle_times_s``).
+    ``announce`` is called with a line once the streams are up; the run also ends on the first
+    cycle ``stop()`` returns something other than None.
 
     Raises:
-        ConfigError: no joint state or object pose within ``wait`` [s].
+        ConfigError: no joint state or object pose within ``wait`` [s]; an assembly without an
+            arm topic or workspace in ``config``.
     """
     from wholehand_plugins.ros2_backend import Ros2Backend
 
@@ -129,14 +228,21 @@ def run_controller(
         "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params
     )
     allocator = controller_allocator(spec, hand)
-    regulation = ForceRegulation(
-        hand,
-        obj,
-        estimator,
-        allocator,
-        cast(EstimateAt, spec.estimate_at),
-        allocate_every=cast(AllocateEvery, spec.allocate_every),
-    )
+    pipeline = bool(hand.arm_dofs.any())
+    stages: dict[str, Stage] | Stage
+    if pipeline:
+        stages = pipeline_for_robot(hand, obj, config, spec, estimator, allocator)
+        first_stage: str | None = PREGRASP
+    else:
+        stages = ForceRegulation(
+            hand,
+            obj,
+            estimator,
+            allocator,
+            cast(EstimateAt, spec.estimate_at),
+            allocate_every=cast(AllocateEvery, spec.allocate_every),
+        )
+        first_stage = None
     stopped = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():
@@ -154,8 +260,9 @@ def run_controller(
             assert first.wMo is not None
             estimator.estimate(warm, first.wMo)
             if announce is not None:
+                what = "the pipeline" if pipeline else "regulating"
                 announce(
-                    f"streams up; regulating at {config.control_rate:g} Hz on "
+                    f"streams up; {what} at {config.control_rate:g} Hz on "
                     f"{config.topics['torque_command']}"
                 )
             gate = ObservationGate(hand)
@@ -163,20 +270,29 @@ def run_controller(
                 backend,
                 hand,
                 obj,
-                regulation,
+                stages,
+                first=first_stage,
                 rate=config.control_rate,
                 observers=[stopper],
                 gate=gate,
             )
             report = loop.run(duration)
-            stats = backend.stats()
-            stats["gate_refused"] = dict(gate.refused)
-            traced = list(backend.trace or ())
+        # After the backend's last commands (the exit ramp, when it closed), so they count.
+        stats = backend.stats()
+        stats["gate_refused"] = dict(gate.refused)
+        traced = list(backend.trace or ())
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     times = np.asarray(stopper.cycle_times) * 1e3
+    regulation = stages if isinstance(stages, ForceRegulation) else None
+    if isinstance(stages, dict):
+        hold = stages[REGULATE]
+        assert isinstance(hold, HoldStage)
+        regulation = hold.regulation
+    assert regulation is not None
     out: dict[str, Any] = {
+        "mode": "pipeline" if pipeline else "regulate",
         "loop": report.as_dict(),
         "backend": stats,
         "degenerate_normals": regulation.degenerate_normals,

@@ -204,16 +204,18 @@ class RealTimePacer(Observer):
     """
 
     def __init__(self) -> None:
-        self._mono0 = 0.0
+        self.mono0 = 0.0
+        """``time.monotonic()`` at backend time 0 [s]: where the run's times lie on the
+        machine's monotonic clock."""
         self._dt = 0.0
         self.late = 0
 
     def on_start(self, loop: ControlLoop) -> None:
-        self._mono0 = time.monotonic() - loop.backend.time
+        self.mono0 = time.monotonic() - loop.backend.time
         self._dt = loop.dt
 
     def on_cycle(self, cycle: Cycle) -> str | None:
-        wait = self._mono0 + cycle.t + self._dt - time.monotonic()
+        wait = self.mono0 + cycle.t + self._dt - time.monotonic()
         if wait > 0.0:
             time.sleep(wait)
         elif wait < -self._dt:
@@ -292,7 +294,7 @@ def run_double(
         kinematics.update(first.q, first.wMb)
         assert first.wMo is not None
         loss.check.held(kinematics, first.wMo)
-        _wait(backend, drives, joints, poses, names, config, wait_for_controller)
+        wait_for_command(backend, drives, joints, poses, names, config, wait_for_controller)
         run_start = time.time_ns()
         report = loop.run(protocol.duration)
         run_end = time.time_ns()
@@ -318,7 +320,7 @@ def run_double(
     return summary, recorder.record
 
 
-def _wait(
+def wait_for_command(
     backend: Any,
     drives: RemoteTorque,
     joints: Publisher,

@@ -16,6 +16,9 @@ in this order (the names are the statuses it counts):
 deadline), :meth:`TorqueGuard.watchdog` gives the ramp from the last torque to zero, which the
 backend's watchdog thread sends in the loop's place.
 
+``stop`` and ``exit``: :meth:`TorqueGuard.ramp_down` gives the same ramp over a given time, for a
+stop request (``pose_ramp``) and for the last commands of every exit (``exit_ramp``).
+
 Times are on one monotonic clock [s]; torques are (n_v,) in the hand's joint order [N*m].
 """
 
@@ -93,11 +96,17 @@ class TorqueGuard:
         over ``pose_ramp`` from the first late call on."""
         return self._sent(self._ramp(now), now, "watchdog")[0]
 
-    def _ramp(self, now: float) -> FloatArray:
+    def ramp_down(self, now: float, duration: float, status: str) -> FloatArray:
+        """The last torque ramped linearly to zero over ``duration`` [s] from the first call of
+        a ramp on (counted as ``status``); a command through :meth:`filter` ends the ramp."""
+        return self._sent(self._ramp(now, duration), now, status)[0]
+
+    def _ramp(self, now: float, duration: float | None = None) -> FloatArray:
         if self._ramp_from is None:
             self._ramp_from = np.zeros_like(self.tau_max) if self.last is None else self.last
             self._ramp_start = now
-        left = max(0.0, 1.0 - (now - self._ramp_start) / self.limits.pose_ramp)
+        duration = self.limits.pose_ramp if duration is None else duration
+        left = max(0.0, 1.0 - (now - self._ramp_start) / duration) if duration > 0.0 else 0.0
         return self._ramp_from * left
 
     def _sent(self, tau: FloatArray, now: float, status: str) -> tuple[FloatArray, str]:

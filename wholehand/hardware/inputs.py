@@ -26,9 +26,11 @@ from wholehand.models.hand import HandModel
 
 FloatArray = npt.NDArray[np.float64]
 
-LIMIT_SLACK = 0.05
+LIMIT_SLACK = 0.2
 """How far past a joint limit a measured position is still believed [rad]: encoders and
-calibration put real joints a little past their URDF limits."""
+calibration put real joints a little past their URDF limits, and a finger pressed on an object
+goes past them too (0.074 rad in the robot double's reach episode). The same margin as the
+observation gate's ``joint_margin``."""
 
 
 class RejectedMessage(WholehandError):  # noqa: N818 - a verdict, not a failure
@@ -197,23 +199,72 @@ def read_pose(msg: PoseMsg, frame_id: str, now: float, max_future: float = 0.01)
     return M
 
 
+def model_joint_name(hand: HandModel, config: HardwareConfig, name: str) -> str:
+    """The model joint named ``name`` by the model or by the robot (after ``[joints] rename``);
+    ``name`` itself when neither knows it."""
+    if name in hand.joint_names:
+        return name
+    robot = {v: k for k, v in config.rename.items()}
+    return robot.get(name, name)
+
+
+def _ordered_dofs(
+    hand: HandModel, config: HardwareConfig, names: tuple[str, ...], expected: list[str], what: str
+) -> npt.NDArray[np.intp]:
+    """Velocity indices of ``names`` (model or robot names) in their order, checked to name
+    every joint of ``expected`` exactly once and nothing else."""
+    where = config.path or "hardware config"
+    model_names = [model_joint_name(hand, config, n) for n in names]
+    strange = [n for n, m in zip(names, model_names, strict=True) if m not in expected]
+    if strange:
+        raise ConfigError(
+            f"{where}: {what} names {strange}, which are not among the joints it commands on "
+            f"hand {hand.name!r}: {expected}"
+        )
+    repeated = sorted({m for m in model_names if model_names.count(m) > 1})
+    if repeated:
+        raise ConfigError(f"{where}: {what} names the joints {repeated} more than once")
+    missing = [j for j in expected if j not in model_names]
+    if missing:
+        raise ConfigError(
+            f"{where}: {what} leaves out {missing}; it must list every one of {expected} once, "
+            "in the order of the robot controller's `joints` parameter"
+        )
+    model = hand.model
+    return np.array([model.joints[model.getJointId(m)].idx_v for m in model_names], dtype=np.intp)
+
+
 def command_dofs(hand: HandModel, config: HardwareConfig) -> npt.NDArray[np.intp]:
-    """(m,) velocity indices of the torque command's joints, in its order: ``[joints] command``
-    or, by default, the hand's actuated joints in model order.
+    """(m,) velocity indices of the torque command's joints in its order (``[joints]
+    command``): every actuated joint of the hand (not of an arm) exactly once.
 
     Raises:
-        ConfigError: a name that is not an actuated joint of the hand.
+        ConfigError: no ``[joints] command``, or one that names a joint that is not an actuated
+            hand joint, names one twice, or leaves one out.
     """
-    model = hand.model
     if config.command_joints is None:
-        return np.flatnonzero(hand.actuated_dofs)
-    actuated = [hand.joint_names[i] for i in np.flatnonzero(hand.actuated_dofs)]
-    dofs = []
-    for name in config.command_joints:
-        if name not in actuated:
-            raise ConfigError(
-                f"{config.path or 'hardware config'}: [joints] command names {name!r}, which is "
-                f"not an actuated joint of hand {hand.name!r}; actuated: {actuated}"
-            )
-        dofs.append(model.joints[model.getJointId(name)].idx_v)
-    return np.asarray(dofs, dtype=np.intp)
+        raise ConfigError(
+            f"{config.path or 'hardware config'}: [joints] command is missing: list the torque "
+            "command's joints in the order of the hand controller's `joints` parameter"
+        )
+    hand_joints = np.flatnonzero(hand.actuated_dofs & ~hand.arm_dofs)
+    expected = [hand.joint_names[i] for i in hand_joints]
+    return _ordered_dofs(hand, config, config.command_joints, expected, "[joints] command")
+
+
+def arm_command_dofs(hand: HandModel, config: HardwareConfig) -> npt.NDArray[np.intp]:
+    """(m,) velocity indices of the arm command's joints in its order (``[arm] joints``): every
+    arm joint of an assembly exactly once.
+
+    Raises:
+        ConfigError: the hand has no arm, or ``[arm] joints`` does not name every arm joint once.
+    """
+    where = config.path or "hardware config"
+    arm = np.flatnonzero(hand.arm_dofs)
+    if not arm.size:
+        raise ConfigError(
+            f"{where}: [topics] arm_command is set but {hand.name!r} has no arm; remove it or "
+            "give an arm-hand assembly (--hand)"
+        )
+    expected = [hand.joint_names[i] for i in arm]
+    return _ordered_dofs(hand, config, config.arm.joints, expected, "[arm] joints")

@@ -5,7 +5,10 @@
 - ``geometry_msgs/msg/PoseStamped`` (in): the tracked object pose in ``header.frame_id``,
   stamped with the image time (or the processing time, see ``stamp_source``).
 - ``std_msgs/msg/Float64MultiArray`` (out): torque commands [N*m] in the order of the effort
-  controller's joints, and arm position targets [rad].
+  controller's joints, and arm position targets [rad] (``ForwardCommandController``).
+- ``trajectory_msgs/msg/JointTrajectory`` (out): arm position targets as one point for
+  ``joint_trajectory_controller``.
+- ``std_msgs/msg/Bool`` (in): the stop topic (true: stop).
 
 Payloads are CDR with the 4-byte encapsulation header (little endian ``00 01 00 00``), exactly as
 a ROS 2 node serialises them. Decoding a payload that is not such a message raises
@@ -30,6 +33,8 @@ FloatArray = npt.NDArray[np.float64]
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
+JOINT_TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
+BOOL = "std_msgs/msg/Bool"
 
 
 class MessageError(WholehandError):
@@ -42,7 +47,7 @@ def typestore() -> Any:
     the (de)serialisers of wholehand's messages generated: rosbags writes a type's code on its
     first use (about 5 ms), which must not fall in a control cycle."""
     store = get_typestore(Stores.ROS2_JAZZY)
-    for msgtype in (JOINT_STATE, POSE_STAMPED, FLOAT64_ARRAY):
+    for msgtype in (JOINT_STATE, POSE_STAMPED, FLOAT64_ARRAY, JOINT_TRAJECTORY, BOOL):
         store.get_msgdef(msgtype)
     return store
 
@@ -193,3 +198,57 @@ def decode_array(payload: bytes) -> FloatArray:
         MessageError: not a CDR Float64MultiArray.
     """
     return np.asarray(_decode(payload, FLOAT64_ARRAY).data, dtype=np.float64)
+
+
+# --- JointTrajectory ---------------------------------------------------------------------------
+def encode_joint_trajectory(
+    names: list[str], position: npt.ArrayLike, time_from_start: float
+) -> bytes:
+    """CDR bytes of a JointTrajectory of one point: reach ``position`` [rad] of the joints
+    ``names`` ``time_from_start`` [s] after the message arrives (header stamp zero: start now,
+    as joint_trajectory_controller reads it)."""
+    ts = typestore()
+    sec = math.floor(time_from_start)
+    duration = ts.types["builtin_interfaces/msg/Duration"](
+        sec=int(sec), nanosec=int(round((time_from_start - sec) * 1e9))
+    )
+    empty = np.zeros(0, dtype=np.float64)
+    point = ts.types["trajectory_msgs/msg/JointTrajectoryPoint"](
+        positions=np.asarray(position, dtype=np.float64),
+        velocities=empty,
+        accelerations=empty,
+        effort=empty,
+        time_from_start=duration,
+    )
+    msg = ts.types[JOINT_TRAJECTORY](
+        header=_header(0.0, ""), joint_names=list(names), points=[point]
+    )
+    return bytes(ts.serialize_cdr(msg, JOINT_TRAJECTORY))
+
+
+def decode_joint_trajectory(payload: bytes) -> tuple[tuple[str, ...], FloatArray]:
+    """The joint names and the last point's positions of the JointTrajectory in ``payload``.
+
+    Raises:
+        MessageError: not a CDR JointTrajectory, or one without points.
+    """
+    msg = _decode(payload, JOINT_TRAJECTORY)
+    if not msg.points:
+        raise MessageError("JointTrajectory without points")
+    return tuple(msg.joint_names), np.asarray(msg.points[-1].positions, dtype=np.float64)
+
+
+# --- Bool ---------------------------------------------------------------------------------------
+def encode_bool(value: bool) -> bytes:
+    """CDR bytes of a std_msgs/msg/Bool."""
+    ts = typestore()
+    return bytes(ts.serialize_cdr(ts.types[BOOL](data=bool(value)), BOOL))
+
+
+def decode_bool(payload: bytes) -> bool:
+    """The data of the std_msgs/msg/Bool in ``payload``.
+
+    Raises:
+        MessageError: not a CDR Bool.
+    """
+    return bool(_decode(payload, BOOL).data)

@@ -6,6 +6,12 @@
     reach_pregrasp --(pre-grasp not reached within PREGRASP_TIMEOUT)--> another grasp
     regulate --(hull of fingertips and palm leaves the object's bounding box)--> reach_pregrasp
 
+On a robot, with a :class:`~wholehand.reaching.workspace.Workspace`, two more rules (paper Sec.
+V-D): the palm's targets are kept in the workspace's palm box, and an object outside its object
+box sends the reaching stages to ``home`` (:mod:`wholehand.loop.home`), which returns once the
+object is back. With a ``pose_timeout``, a reaching stage whose object pose has grown older than
+it holds the arm and fingers where they are (status ``pose_lost``) until a fresh pose arrives.
+
 Every target follows the tracked object pose, so the hand reacts to the object moving before
 contact. On entering ``reach_pregrasp`` the plan (a stored grasp and its pre-grasp,
 :mod:`wholehand.reaching.pregrasp`) whose pre-grasp is nearest the current palm is chosen
@@ -35,6 +41,7 @@ from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command, JointTargets
 from wholehand.loop.grasp_loss import GraspLossCheck
+from wholehand.loop.observation import Observation
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.models.gravity import GravityCompensation
@@ -42,11 +49,12 @@ from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.reaching.base import Reacher, ReachTargets
 from wholehand.reaching.pregrasp import GraspPlan, nearest_plan
+from wholehand.reaching.workspace import Workspace
 
 FloatArray = npt.NDArray[np.float64]
 
-PREGRASP, GRASP, REGULATE = "reach_pregrasp", "reach_grasp", "regulate"
-"""Stage names."""
+PREGRASP, GRASP, REGULATE, HOME = "reach_pregrasp", "reach_grasp", "regulate", "home"
+"""Stage names (``home`` on a robot only: :mod:`wholehand.loop.home`)."""
 
 TOUCH_DISTANCE: float = 0.002
 """A finger touches the object when a sample of it is within this signed distance [m]."""
@@ -143,7 +151,9 @@ class ReachStage(Stage):
     (:class:`~wholehand.models.gravity.GravityCompensation`) to its PD law.
 
     Status: ``reaching``, or ``no_plan`` when no stored grasp is usable at the object's pose
-    (the hand then holds still and the choice is retried every cycle).
+    (the hand then holds still and the choice is retried every cycle); with ``workspace``,
+    ``out_of_workspace`` (the switch to ``home``); with ``pose_timeout`` [s], ``pose_lost``
+    (arm and fingers held where they were when the pose grew too old).
     """
 
     def __init__(
@@ -159,6 +169,8 @@ class ReachStage(Stage):
         closing: FloatArray | None = None,
         grasp_hand: HandModel | None = None,
         gravity_compensation: bool = False,
+        workspace: Workspace | None = None,
+        pose_timeout: float | None = None,
     ) -> None:
         if kind not in ("pregrasp", "grasp"):
             raise ConfigError(f"ReachStage: kind must be 'pregrasp' or 'grasp', got {kind!r}")
@@ -167,6 +179,10 @@ class ReachStage(Stage):
         self.name = PREGRASP if kind == "pregrasp" else GRASP
         self.switch_distance, self.touch_distance = switch_distance, touch_distance
         self.timeout = timeout
+        self.workspace, self.pose_timeout = workspace, pose_timeout
+        self.palm_clamped = 0
+        """Cycles whose targets were moved to keep the palm in the workspace's palm box."""
+        self._held: FloatArray | None = None
         # An assembly's plans and targets are the hand's alone: joint angles in its order, base
         # poses of its root link. _hand_q places them in the assembly's q.
         self.grasp_hand = grasp_hand or hand
@@ -222,10 +238,48 @@ class ReachStage(Stage):
         touching = contacts.link[contacts.distance <= self.touch_distance]
         return {self._finger_of[int(i)] for i in touching if int(i) in self._finger_of}
 
+    def _hold(self, context: CycleContext) -> Command:
+        """Arm and fingers held at the joint angles of the first cycle of the hold."""
+        obs = context.obs
+        if self._held is None:
+            self._held = obs.q.copy()
+            self._q_ref = obs.q.copy()
+        return self._servo(obs, self._held, None)
+
+    def _servo(self, obs: Observation, q_servo: FloatArray, base: FloatArray | None) -> Command:
+        """Every joint servoed to ``q_servo`` (n_q,) with the gravity feed-forward terms."""
+        tau = np.zeros(self.hand.nv)
+        if self.gravity is not None:
+            tau = self.hand.joint_torques(self.gravity.actuation_torques(obs.q, obs.wMb))
+        if self.arm is not None:
+            tau[self.arm.dofs] = self.arm.feedforward(obs.q, obs.wMb)
+        servo = JointTargets(self._dofs, q_servo, None, self._kp, self._kd, name="joints")
+        return Command(tau, (servo,), base=base)
+
+    def _in_box(self, targets: dict[str, FloatArray]) -> dict[str, FloatArray]:
+        """The targets moved together so that the palm's lies in the workspace's palm box."""
+        assert self.workspace is not None
+        palm = targets[self.hand.palm_link][:3, 3]
+        shift = self.workspace.palm.clamp(palm) - palm
+        if not shift.any():
+            return targets
+        self.palm_clamped += 1
+        moved = {}
+        for link, pose in targets.items():
+            moved[link] = pose.copy()
+            moved[link][:3, 3] += shift
+        return moved
+
     def step(self, context: CycleContext) -> StageOutput:
         obs = context.obs
         wMo = obs.wMo
         assert wMo is not None
+        if self.pose_timeout is not None and obs.stamp_q - obs.stamp_object > self.pose_timeout:
+            return StageOutput(self._hold(context), "pose_lost")
+        if self.workspace is not None and not self.workspace.object.contains(wMo[:3, 3]):
+            reason = "the object left the arm's workspace: going home"
+            return StageOutput(self._hold(context), "out_of_workspace", next=HOME, reason=reason)
+        self._held = None
         plan = self.planner.chosen
         if plan is None:
             plan = self.planner.choose(wMo, self.grasp_base(context))
@@ -236,6 +290,8 @@ class ReachStage(Stage):
         else:
             q_goal, oMb_goal = plan.q_grasp, plan.oMb_grasp
         targets = _targets(self._kin, q_goal, wMo @ oMb_goal, self.links)
+        if self.workspace is not None:
+            targets = self._in_box(targets)
         posture = self._q_ref.copy()
         posture[self._hand_q] = q_goal
         goal = ReachTargets(targets, posture, self.hand.palm_link, self.kind == "pregrasp")
@@ -259,14 +315,7 @@ class ReachStage(Stage):
         q_servo = q_next
         if self.kind == "grasp" and palm_error < SQUEEZE_PALM_ERROR:
             q_servo = np.clip(q_next + self.squeeze, self.hand.q_lower, self.hand.q_upper)
-        tau = np.zeros(self.hand.nv)
-        if self.gravity is not None:
-            tau = self.hand.joint_torques(self.gravity.actuation_torques(obs.q, obs.wMb))
-        if self.arm is not None:
-            tau[self.arm.dofs] = self.arm.feedforward(obs.q, obs.wMb)
-        servo = JointTargets(self._dofs, q_servo, None, self._kp, self._kd, name="joints")
-        base = wMb_next if self.arm is None else None
-        command = Command(tau, (servo,), base=base)
+        command = self._servo(obs, q_servo, wMb_next if self.arm is None else None)
         errors = [np.linalg.norm(now.frame_pose(t)[:3, 3] - targets[t][:3, 3]) for t in self.tips]
         error = float(np.mean(errors))
         if self.kind == "pregrasp" and error < self.switch_distance:

@@ -33,14 +33,11 @@ import numpy.typing as npt
 from wholehand import defaults, registry
 from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
-from wholehand.grasps.store import load_grasps
-from wholehand.grasps.styles import style_arrays
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.grasp_loss import GraspLossCheck, GraspLossMonitor
-from wholehand.loop.reach import GRASP, PREGRASP, REGULATE, HoldStage, ReachPlanner, ReachStage
+from wholehand.loop.grasp_loss import GraspLossMonitor
+from wholehand.loop.reach import PREGRASP, REGULATE, ReachPlanner
 from wholehand.loop.record import Recorder
 from wholehand.loop.regulation import ForceRegulation
-from wholehand.loop.stage import Stage
 from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
@@ -48,13 +45,8 @@ from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.models.resting import resting_pose
 from wholehand.reaching.person import PERTURBATIONS, Person, loss_cause
-from wholehand.reaching.pregrasp import (
-    GraspPlan,
-    hand_clearance,
-    lowest_point,
-    plan_pregrasp,
-    usable_on_table,
-)
+from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, pipeline_stages
+from wholehand.reaching.pregrasp import GraspPlan, hand_clearance, lowest_point, usable_on_table
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -155,27 +147,33 @@ def floating_start(
     return wMo @ plan.oMb_pre
 
 
-def _plans(hand: HandModel, obj: ObjectModel, on_table: bool = False) -> list[GraspPlan]:
-    """The plans of the hand's stored power grasps (its table-top ones if ``on_table``)."""
-    q_open = style_arrays(hand, hand.config.grasp_styles["power"])[0]
-    grasps = load_grasps(hand.name, obj.name, "power", on_table=on_table)
-    plans = [plan_pregrasp(hand, obj, g, q_open) for g in grasps]
-    found = [p for p in plans if p is not None]
-    if not found:
-        raise ConfigError(f"no stored grasp of {obj.name!r} for {hand.name!r} has a pre-grasp")
-    return found
+@dataclass
+class EpisodeScene:
+    """An episode's models, its seeded random stream and its MuJoCo scene, before any cycle."""
+
+    hand: HandModel
+    grasp_hand: HandModel
+    """The hand whose grasps the plans are (an assembly's hand)."""
+    obj: ObjectModel
+    table: Table
+    rng: np.random.Generator
+    """The episode's random stream, after the start's draws (the person draws from it next)."""
+    plans: list[GraspPlan]
+    wMo: FloatArray
+    """(4, 4) the object's start pose, world frame."""
+    backend: Any
+    """The MuJoCo backend: the hand at its start, the object at ``wMo``, gravity on."""
+    on_table: bool
 
 
-def run_episode(
-    spec: EpisodeSpec,
-    samples: bool = False,
-    record: bool = False,
-    observers: Sequence[Observer] = (),
-) -> dict[str, Any]:
-    """Run one episode; returns its summary (events, transitions, counts, timings), with every
-    cycle's and reacher step's compute time [us] (``cycle_samples_us``, ``reacher_samples_us``)
-    if ``samples``, and the :class:`~wholehand.loop.record.RunRecord` of every cycle
-    (``record``, not JSON) if ``record``. ``observers`` see every cycle too (a viewer)."""
+def episode_scene(spec: EpisodeSpec) -> EpisodeScene:
+    """The scene of ``spec``: the same for equal specs, in ``wholehand reach`` and in
+    ``wholehand hw-sim`` (an assembly from its home posture, the fingers at the first plan's
+    pre-shape; a floating wrist above the first plan's pre-grasp).
+
+    Raises:
+        ConfigError: a bad spec, or no usable stored grasp.
+    """
     if not (math.isfinite(spec.rate) and spec.rate > 0):
         raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
     if spec.start not in STARTS:
@@ -187,16 +185,11 @@ def run_episode(
     on_table = spec.start == "table"
     hand, obj = load_hand(spec.hand), load_object(spec.object)
     # An assembly's grasps, pre-grasps and targets are those of its hand alone.
-    grasp_hand = load_hand(hand.config.hand_toml) if hand.config.hand_toml else hand
+    grasp_hand = grasp_hand_of(hand)
     rng = np.random.default_rng(spec.seed)
     table = episode_table(hand)
     held_at = table.centre
-    plans = _plans(grasp_hand, obj, on_table)
-
-    kin = HandKinematics(grasp_hand)  # one for every check: the stages check in their cycles
-
-    def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
-        return usable_on_table(grasp_hand, plan, wMo_now, table, HAND_MARGIN, kin)
+    plans = grasp_plans(grasp_hand, obj, on_table)
 
     start = plans[int(rng.integers(len(plans)))]
     if on_table:  # resting on the face the first plan was made on, turned at random
@@ -233,6 +226,33 @@ def run_episode(
         table=table,
         **placement,
     )
+    return EpisodeScene(hand, grasp_hand, obj, table, rng, plans, wMo, backend, on_table)
+
+
+def run_episode(
+    spec: EpisodeSpec,
+    samples: bool = False,
+    record: bool = False,
+    observers: Sequence[Observer] = (),
+) -> dict[str, Any]:
+    """Run one episode; returns its summary (events, transitions, counts, timings), with every
+    cycle's and reacher step's compute time [us] (``cycle_samples_us``, ``reacher_samples_us``)
+    if ``samples``, and the :class:`~wholehand.loop.record.RunRecord` of every cycle
+    (``record``, not JSON) if ``record``. ``observers`` see every cycle too (a viewer)."""
+    scene = episode_scene(spec)
+    hand, grasp_hand, obj, table = scene.hand, scene.grasp_hand, scene.obj, scene.table
+    rng, plans, wMo, backend, on_table = (
+        scene.rng,
+        scene.plans,
+        scene.wMo,
+        scene.backend,
+        scene.on_table,
+    )
+    kin = HandKinematics(grasp_hand)  # one for every check: the stages check in their cycles
+
+    def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
+        return usable_on_table(grasp_hand, plan, wMo_now, table, HAND_MARGIN, kin)
+
     estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj)
     # The first estimate loads its compiled kernel (~0.1 s): done here, not in the first cycle.
     warm, first = HandKinematics(hand), backend.observe()
@@ -242,7 +262,6 @@ def run_episode(
     avoid = {"self_collision": True} if spec.self_collision else {}
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table, **avoid)
     planner = ReachPlanner(plans, usable)
-    closing = style_arrays(grasp_hand, grasp_hand.config.grasp_styles["power"])[1]
     # On the table the table carries the weight: balancing it would have the fingers lift the
     # object off its support (measured: the box rose 4 mm and the QP's p99 went to 10-24 ms).
     balance = spec.balance_weight and not on_table
@@ -252,24 +271,9 @@ def run_episode(
     regulation = ForceRegulation(
         hand, obj, estimator, allocator, weight=weight, gravity_compensation=compensate
     )
-    reaching = tuple(
-        ReachStage(
-            hand,
-            reacher,
-            planner,
-            estimator,
-            kind,
-            closing=closing if kind == "grasp" else None,
-            grasp_hand=grasp_hand,
-            gravity_compensation=compensate,
-        )
-        for kind in ("pregrasp", "grasp")
+    stages, reaching = pipeline_stages(
+        hand, grasp_hand, obj, planner, estimator, reacher, regulation, compensate
     )
-    stages: dict[str, Stage] = {
-        PREGRASP: reaching[0],
-        GRASP: reaching[1],
-        REGULATE: HoldStage(regulation, GraspLossCheck(hand, obj)),
-    }
     inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
     rim = 0.5 * float(np.max(obj.extents))
     person = Person(spec, backend, wMo, rng, (obj.mass, inertia), hand.palm_link, rim, on_table)

@@ -5,6 +5,7 @@ EpisodeSpec` for its parameters)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -41,6 +42,17 @@ PERTURBATIONS = ("person moves", "push", "twist", "person snatches")
 """Events that count as perturbations."""
 
 
+def grip(
+    backend: Any, wMo: FloatArray, mass_inertia: tuple[float, float], w: float = PERSON_BANDWIDTH
+) -> None:
+    """The person's hand on the object: a critically damped spring-damper toward ``wMo`` with
+    natural frequency ``w`` [rad/s] for an object of ``mass_inertia`` ([kg], [kg*m^2])."""
+    mass, inertia = mass_inertia
+    stiffness = (mass * w**2, inertia * w**2)
+    damping = (2.0 * mass * w, 2.0 * inertia * w)
+    backend.set_object_spring(wMo, stiffness, damping)
+
+
 @dataclass
 class Event:
     t: float
@@ -63,6 +75,10 @@ class Person(Observer):
     on_table: bool = False
     """The object rests on the table: the person slides it and puts it down instead of holding
     it out (:attr:`EpisodeSpec.start`)."""
+    holds: Callable[[Cycle], bool] | None = None
+    """Whether the hand holds the object in a cycle, as the person sees it (None: the loop's
+    stage is ``regulate``; the robot double, which cannot see the controller's stage, judges by
+    the simulated contacts)."""
     events: list[Event] = field(default_factory=list)
     state: str = "holding"
     since: float = 0.0
@@ -76,10 +92,7 @@ class Person(Observer):
             self._grip(self.wMo_hold)
 
     def _grip(self, wMo: FloatArray, w: float = PERSON_BANDWIDTH) -> None:
-        mass, inertia = self.mass_inertia
-        stiffness = (mass * w**2, inertia * w**2)
-        damping = (2.0 * mass * w, 2.0 * inertia * w)
-        self.backend.set_object_spring(wMo, stiffness, damping)
+        grip(self.backend, wMo, self.mass_inertia, w)
 
     def _note(self, t: float, what: str) -> None:
         self.events.append(Event(round(t, 4), what))
@@ -104,7 +117,7 @@ class Person(Observer):
         t, spec, state = cycle.t, self.spec, self.state
         if self._pickup is not None and state == "snatched":  # until the person lets go
             self._carry(t)
-        holding = cycle.stage == REGULATE
+        holding = self._holding(cycle)
         self.held_since = (self.held_since or t) if holding else None
         held_for = t - self.held_since if self.held_since is not None else 0.0
         if state == "holding" and t >= spec.displace_at:
@@ -176,7 +189,7 @@ class Person(Observer):
         elif state == "twisted" and t - self.since >= GAP:
             assert cycle.truth.wMo is not None  # the episode's backend always has the pose
             target = cycle.truth.wMo.copy()
-            if cycle.stage == REGULATE:  # pulled out of the hand, away from the palm (a pull
+            if holding:  # pulled out of the hand, away from the palm (a pull
                 # into the palm would be held by the wrist, not the grip), not downward
                 target[:3, 3] += spec.snatch * self._away_from_palm(cycle, target, upward=True)
                 target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
@@ -188,7 +201,7 @@ class Person(Observer):
                 goal[:3, 3] = self.wMo_hold[:3, 3] + spec.snatch * self._horizontal()
                 self._pickup = (target, goal, t)
                 self._carry(t)
-            if cycle.stage == REGULATE:
+            if holding:
                 self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
             else:
                 self._note(t, "person picks the dropped object up and holds it out")
@@ -197,6 +210,9 @@ class Person(Observer):
             self.done = True
             return "episode complete"
         return None
+
+    def _holding(self, cycle: Cycle) -> bool:
+        return cycle.stage == REGULATE if self.holds is None else self.holds(cycle)
 
     def _away_from_palm(self, cycle: Cycle, wMo: FloatArray, upward: bool) -> FloatArray:
         """(3,) unit direction of a snatch: from the palm to the object at ``wMo``, never
@@ -213,7 +229,7 @@ class Person(Observer):
         its largest side (so that it leaves the hand however large it is), and put it down
         there (:data:`SLIDE_TIME` later); the hand must regrasp it where it lies."""
         t, spec = cycle.t, self.spec
-        if cycle.stage == REGULATE:
+        if self._holding(cycle):
             assert cycle.truth.wMo is not None
             target = cycle.truth.wMo.copy()
             distance = spec.snatch + 2.0 * self.rim

@@ -1,0 +1,215 @@
+"""``wholehand bench pipeline``: the paper's Table I through the robot double, beside the same
+episodes in process.
+
+Each seeded episode runs twice: over ROS 2 messages, ``wholehand hw-sim`` playing the arm-hand
+and the person in a second process while ``wholehand control``'s controller runs in this one
+(in real time, the tracker at its rate with its latency); and in process, ``wholehand reach``'s
+episode on the same seed (the same scene and person draws, no tracker latency). Per episode and
+mode: acquisition, time to grasp, perturbations, losses, regrasps and the time they took,
+returns home, completion, the controller's cycle times and overruns; per mode, the counts with
+the standard errors of the rates and of their paired differences.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wholehand.errors import ConfigError
+from wholehand.hardware.config import hand_hardware_config, load_hardware_config
+from wholehand.hardware.controller import ControllerSpec, run_controller
+from wholehand.hardware.rmw_zenoh import loopback_endpoint
+from wholehand.loop.reach import HOME, PREGRASP, REGULATE
+from wholehand.models.hand import load_hand
+from wholehand.models.object_catalogue import load_object
+from wholehand.studies.base import derive_seed
+
+RIG = "flexiv_rizon4_hx5_d20_right"
+
+
+def _outcome(
+    transitions: list[dict[str, Any]], t0: float, complete: bool, perturbations: int
+) -> dict[str, Any]:
+    """An episode's Table I columns from its stage transitions (times from ``t0`` [s])."""
+    grasps = [t["t"] - t0 for t in transitions if t["target"] == REGULATE]
+    losses = [
+        t["t"] - t0 for t in transitions if t["source"] == REGULATE and t["target"] == PREGRASP
+    ]
+    regrasp_times = []
+    for lost in losses:
+        after = [g for g in grasps if g > lost]
+        if after:
+            regrasp_times.append(after[0] - lost)
+    return {
+        "acquired": bool(grasps),
+        "time_to_grasp_s": grasps[0] if grasps else None,
+        "perturbations": perturbations,
+        "losses": len(losses),
+        "regrasps": len(regrasp_times),
+        "time_to_regrasp_s": regrasp_times,
+        "returns_home": sum(t["target"] == HOME for t in transitions),
+        "complete": complete,
+    }
+
+
+def _percentiles(values: Sequence[float]) -> dict[str, float | None]:
+    arr = np.asarray(values, dtype=float)
+    return {f"p{p}": float(np.percentile(arr, p)) if arr.size else None for p in (50, 99)}
+
+
+def over_ros(
+    hand: str, obj: str, seed: int, config: Path, latency: float, duration: float
+) -> dict[str, Any]:
+    """One episode through the double (a second process) and the controller (this one)."""
+    endpoint = loopback_endpoint()
+    hw_config = replace(load_hardware_config(config), connect=(endpoint,), listen=())
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "sim.json"
+        argv = [sys.executable, "-m", "wholehand.cli.main", "hw-sim", "--config", str(config),
+                "--hand", hand, "--object", obj, "--seed", str(seed), "--latency", str(latency),
+                "--duration", str(duration), "--listen", endpoint, "--connect",
+                "--json", str(out)]  # fmt: skip
+        sim = subprocess.Popen(
+            argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+            env=os.environ.copy(),
+        )  # fmt: skip
+        try:
+            result = run_controller(
+                load_hand(hand), load_object(obj), hw_config, ControllerSpec(), trace=True,
+                stop=sim.poll,
+            )  # fmt: skip
+            _, err = sim.communicate(timeout=120)
+        finally:
+            if sim.poll() is None:
+                sim.kill()
+        if not out.exists():
+            raise ConfigError(f"bench pipeline: hw-sim failed on {obj} seed {seed}: {err[-2000:]}")
+        robot = json.loads(out.read_text())
+    loop = result["loop"]
+    row = _outcome(
+        loop["transitions"], robot["start_monotonic_s"], robot["complete"], robot["perturbations"]
+    )
+    cycle_ms = [1e3 * t for t in result["cycle_times_s"]]
+    return {
+        **row,
+        "cycle_ms": _percentiles(cycle_ms),
+        "overruns": loop["overruns"],
+        "late_cycles_double": robot["late_cycles"],
+        "rejected": result["backend"]["rejected"],
+        "guard": result["backend"]["guard"],
+        "arm_guard": result["backend"]["arm_guard"],
+        "events": robot["events"],
+    }
+
+
+def in_process(hand: str, obj: str, seed: int) -> dict[str, Any]:
+    """The same episode in process (``wholehand reach``)."""
+    from wholehand.reaching.episode import EpisodeSpec, run_episode
+
+    summary = run_episode(EpisodeSpec(hand=hand, object=obj, seed=seed), samples=True)
+    row = _outcome(
+        summary["transitions"], 0.0, bool(summary["complete"]), int(summary["perturbations"])
+    )
+    cycles = [t for times in summary["cycle_samples_us"].values() for t in times]
+    return {
+        **row,
+        "cycle_ms": _percentiles([1e-3 * t for t in cycles]),
+        "overruns": 0,
+        "events": summary["events"],
+    }
+
+
+def _rate(rows: list[dict[str, Any]], key: str) -> dict[str, float]:
+    x = np.array([bool(r[key]) for r in rows], dtype=float)
+    n = max(len(x), 1)
+    return {"rate": float(x.mean()), "se": float(math.sqrt(x.mean() * (1 - x.mean()) / n))}
+
+
+def _paired(a: list[dict[str, Any]], b: list[dict[str, Any]], key: str) -> dict[str, float]:
+    """Mean and standard error of the paired difference a - b of a yes/no column."""
+    d = np.array([float(bool(x[key])) - float(bool(y[key])) for x, y in zip(a, b, strict=True)])
+    se = float(d.std(ddof=1) / math.sqrt(len(d))) if len(d) > 1 else float("nan")
+    return {"difference": float(d.mean()), "se": se}
+
+
+def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    regrasp = [t for r in rows for t in r["time_to_regrasp_s"]]
+    grasp = [r["time_to_grasp_s"] for r in rows if r["time_to_grasp_s"] is not None]
+    cycles_p50 = [r["cycle_ms"]["p50"] for r in rows if r["cycle_ms"]["p50"] is not None]
+    cycles_p99 = [r["cycle_ms"]["p99"] for r in rows if r["cycle_ms"]["p99"] is not None]
+    return {
+        "episodes": len(rows),
+        "acquired": sum(r["acquired"] for r in rows),
+        "acquired_rate": _rate(rows, "acquired"),
+        "time_to_grasp_s_median": float(np.median(grasp)) if grasp else None,
+        "perturbations": sum(r["perturbations"] for r in rows),
+        "losses": sum(r["losses"] for r in rows),
+        "regrasps": sum(r["regrasps"] for r in rows),
+        "time_to_regrasp_s_median": float(np.median(regrasp)) if regrasp else None,
+        "returns_home": sum(r["returns_home"] for r in rows),
+        "completed": sum(r["complete"] for r in rows),
+        "completed_rate": _rate(rows, "complete"),
+        "cycle_ms_p50_median": float(np.median(cycles_p50)) if cycles_p50 else None,
+        "cycle_ms_p99_max": float(max(cycles_p99)) if cycles_p99 else None,
+        "overruns": sum(r["overruns"] for r in rows),
+    }
+
+
+def run_pipeline_benchmark(
+    hand: str = RIG,
+    objects: Sequence[str] = ("077_rubiks_cube",),
+    episodes: int = 3,
+    seed: int = 0,
+    latency: float = 0.033,
+    duration: float = 14.0,
+    config: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Run ``episodes`` seeded episodes per object over ROS and in process (seeds as ``wholehand
+    study reach`` derives them); JSON-ready rows and totals per mode, with the paired
+    differences of acquisition and completion."""
+    if episodes < 1:
+        raise ConfigError(f"bench pipeline: episodes must be >= 1, got {episodes}")
+    config_path = hand_hardware_config(hand) if config is None else Path(config)
+    ros, local, rows = [], [], []
+    for oi, obj in enumerate(objects):
+        for episode in range(episodes):
+            episode_seed = derive_seed(seed, oi, episode)
+            a = over_ros(hand, obj, episode_seed, config_path, latency, duration)
+            b = in_process(hand, obj, episode_seed)
+            ros.append(a)
+            local.append(b)
+            rows.append({"object": obj, "seed": episode_seed, "ros2": a, "in_process": b})
+            if progress is not None:
+                progress(
+                    f"{obj} seed {episode_seed}: over ROS 2 acquired={a['acquired']} "
+                    f"losses={a['losses']} regrasps={a['regrasps']} complete={a['complete']}; "
+                    f"in process acquired={b['acquired']} losses={b['losses']} "
+                    f"regrasps={b['regrasps']} complete={b['complete']}"
+                )
+    return {
+        "hand": hand,
+        "objects": list(objects),
+        "episodes_per_object": episodes,
+        "tracker": {
+            "rate_hz": load_hardware_config(config_path).object_pose_rate,
+            "latency_s": latency,
+        },  # fmt: skip
+        "ros2": _totals(ros),
+        "in_process": _totals(local),
+        "paired_ros2_minus_in_process": {
+            "acquired": _paired(ros, local, "acquired"),
+            "completed": _paired(ros, local, "complete"),
+        },
+        "rows": rows,
+    }

@@ -1,0 +1,319 @@
+"""``wholehand hw-sim`` on an arm-hand: the robot double plays the whole reach episode.
+
+The scene of ``wholehand reach`` with the same seed (:func:`~wholehand.reaching.episode.
+episode_scene`: the arm at home, the person holding the object out) runs in MuJoCo in real time.
+The arm is behind a position controller (the newest target of the arm topic, held, tracked by
+the arm's PD law with gravity feed-forward, as ros2_control's forward command controller on a
+position interface and the arm's drives do), the hand behind a torque controller
+(:class:`~wholehand.hardware.double.RemoteTorque`). The person of ``wholehand reach`` moves the
+object while the hand reaches, lets go once it is held, pushes and twists it, and snatches it
+away; the double cannot see the controller's stage, so the person judges that the hand holds the
+object by the simulated contacts (the thumb and two other fingers touching). With ``away`` the
+person instead carries the object out of the arm's workspace and back, for the home rule.
+
+Joint states (arm and hand) go out at the joint-state rate, the tracked pose at the tracker's
+rate with its latency, noise and dropouts, as in :mod:`wholehand.hardware.double`.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.errors import ConfigError
+from wholehand.hardware.config import HardwareConfig
+from wholehand.hardware.double import RealTimePacer, RemoteTorque, RobotPublisher, wait_for_command
+from wholehand.hardware.inputs import JointStateReader, arm_command_dofs, command_dofs
+from wholehand.hardware.messages import (
+    FLOAT64_ARRAY,
+    JOINT_STATE,
+    JOINT_TRAJECTORY,
+    POSE_STAMPED,
+    MessageError,
+    decode_array,
+    decode_joint_trajectory,
+)
+from wholehand.hardware.rmw_zenoh import Publisher, Subscriber, open_session
+from wholehand.loop.command import Command, JointTargets
+from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.loop.reach import ArmServo
+from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.loop.trial import tracking_filters
+from wholehand.models.hand import HandModel
+from wholehand.reaching.episode import EpisodeSpec, episode_scene
+from wholehand.reaching.person import PERTURBATIONS, Event, Person, grip
+
+FloatArray = npt.NDArray[np.float64]
+
+AWAY_OFFSET = (0.0, 0.6, 0.0)
+"""Where the person carries the object with ``away``, from where it is held [m]."""
+AWAY_SPEED = 0.5
+"""How fast the person carries it there and back [m/s]."""
+
+
+@dataclass(frozen=True)
+class EpisodeDoubleSpec:
+    """The episode the double plays and how its streams behave."""
+
+    episode: EpisodeSpec = field(
+        default_factory=lambda: EpisodeSpec(hand="flexiv_rizon4_hx5_d20_right")
+    )
+    latency: float = 0.033
+    """Pose latency: image time to publication [s]."""
+    noise_mm: float = 0.0
+    noise_deg: float = 0.0
+    dropouts: tuple[tuple[float, float], ...] = ()
+    """``(start, duration)`` [s] without poses."""
+    command_timeout: float = 0.1
+    """The hand's drives hold the last torque this long [s], then apply zero."""
+    away: tuple[float, float] | None = None
+    """``(start, duration)`` [s]: the person carries the object out of the workspace at
+    ``start`` and back after ``duration`` (instead of the episode's perturbations)."""
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.latency) and self.latency >= 0.0):
+            raise ConfigError(f"hw-sim: latency must be >= 0 [s], got {self.latency!r}")
+        if not (np.isfinite(self.command_timeout) and self.command_timeout > 0.0):
+            raise ConfigError("hw-sim: command_timeout must be > 0 [s]")
+        if self.away is not None and not (self.away[0] >= 0.0 and self.away[1] > 0.0):
+            raise ConfigError(
+                f"hw-sim: away needs a start >= 0 and a duration > 0 [s], got {self.away}"
+            )
+
+
+class RemoteArmHand(Stage):
+    """The robot's controllers: the hand's torques (:class:`RemoteTorque`) and the arm's newest
+    position target, held (before any: where the arm started), servoed with the arm's gains and
+    its gravity feed-forward.
+
+    Statuses: those of :class:`RemoteTorque`.
+    """
+
+    name = "drives"
+    needs_object_pose = False
+
+    def __init__(
+        self, hand: HandModel, config: HardwareConfig, timeout: float, q0: FloatArray
+    ) -> None:
+        self.hand = hand
+        self.trajectory = config.arm.interface == "trajectory"
+        self.torque = RemoteTorque(hand, command_dofs(hand, config), timeout)
+        self.arm = ArmServo(hand)
+        self.arm_dofs = arm_command_dofs(hand, config)
+        """(n_arm,) velocity indices of the arm command's joints, in its order."""
+        reader = JointStateReader(hand, config)
+        self.arm_names = tuple(reader.msg_name[hand.joint_names[i]] for i in self.arm_dofs)
+        self.target = np.asarray(q0, dtype=float)[self.arm_dofs].copy()
+        self.arm_messages = 0
+        self.malformed_arm = 0
+        self._lock = threading.Lock()
+
+    def on_arm(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+        """A Float64MultiArray or JointTrajectory of arm positions (the controller's order)."""
+        try:
+            if self.trajectory:
+                names, data = decode_joint_trajectory(payload)
+                if names != self.arm_names:
+                    raise MessageError(f"trajectory joints {names} are not {self.arm_names}")
+            else:
+                data = decode_array(payload)
+        except MessageError:
+            self.malformed_arm += 1
+            return
+        if data.shape != self.arm_dofs.shape or not np.isfinite(data).all():
+            self.malformed_arm += 1
+            return
+        with self._lock:
+            self.target = data
+            self.arm_messages += 1
+
+    def step(self, context: CycleContext) -> StageOutput:
+        out = self.torque.step(context)
+        assert out.command is not None
+        tau = out.command.tau.copy()
+        obs = context.obs
+        tau[self.arm.dofs] = self.arm.feedforward(obs.q, obs.wMb)
+        with self._lock:
+            target = self.target.copy()
+        kp, kd = np.full(target.size, self.arm.kp), np.full(target.size, self.arm.kd)
+        arm = JointTargets(self.arm_dofs, target, None, kp, kd, name="arm")
+        return StageOutput(Command(tau, (arm,)), out.status)
+
+
+HOLD_MEMORY = 0.25
+"""The person believes the hand holds the object for this long [s] after the thumb and two
+other fingers last touched it together (contacts flicker while a grasp is regulated)."""
+
+
+class ContactHolds:
+    """The person's view of a grasp: the thumb and two other fingers touched the object in the
+    simulation within the last :data:`HOLD_MEMORY` (checked once per cycle; MuJoCo's forward
+    pass gives the contacts)."""
+
+    def __init__(self, hand: HandModel, backend: Any) -> None:
+        self.backend = backend
+        finger_of = {}
+        for finger, links in hand.config.fingers.items():
+            for link in links:
+                if link in hand.link_names:
+                    finger_of[hand.link_index(link)] = finger
+        self.finger_of, self.thumb = finger_of, hand.config.thumb
+        self._checked = -np.inf
+        self._touched = -np.inf
+
+    def __call__(self, cycle: Cycle) -> bool:
+        if self._checked != cycle.t:
+            self._checked = cycle.t
+            touching = {
+                self.finger_of[int(i)]
+                for i in self.backend.ground_truth_contacts().link
+                if int(i) in self.finger_of
+            }
+            if self.thumb in touching and len(touching - {self.thumb}) >= 2:
+                self._touched = cycle.t
+        return cycle.t - self._touched <= HOLD_MEMORY
+
+
+class CarryAway(Observer):
+    """The person holds the object out, carries it out of the arm's workspace at ``start``, and
+    back to where it was held after ``duration`` [s]; then holds it there."""
+
+    def __init__(
+        self,
+        backend: Any,
+        wMo_hold: FloatArray,
+        mass_inertia: tuple[float, float],
+        start: float,
+        duration: float,
+    ) -> None:
+        self.backend, self.wMo_hold = backend, wMo_hold
+        self.mass_inertia = mass_inertia
+        self.start, self.duration = start, duration
+        self.events: list[Event] = []
+        self._away = wMo_hold.copy()
+        self._away[:3, 3] += AWAY_OFFSET
+
+    def on_start(self, loop: ControlLoop) -> None:
+        grip(self.backend, self.wMo_hold, self.mass_inertia)
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        t = cycle.t - self.start
+        if t < 0.0:
+            return None
+        travel = float(np.linalg.norm(AWAY_OFFSET)) / AWAY_SPEED
+        out = min(t, travel) if t < self.duration else max(0.0, travel - (t - self.duration))
+        target = self.wMo_hold.copy()
+        target[:3, 3] += (out / travel) * np.asarray(AWAY_OFFSET)
+        grip(self.backend, target, self.mass_inertia)
+        if not self.events:
+            self.events.append(Event(round(cycle.t, 4), "person carries the object away"))
+        elif len(self.events) == 1 and t >= self.duration:
+            self.events.append(Event(round(cycle.t, 4), "person brings the object back"))
+        return None
+
+
+def run_episode_double(
+    spec: EpisodeDoubleSpec, config: HardwareConfig, wait_for_controller: float = 30.0
+) -> dict[str, Any]:
+    """Play the robot through the episode of ``spec``: wait for the first torque command, then
+    run in real time until the person's script ends or ``episode.duration`` has passed.
+
+    Returns:
+        A JSON-ready summary: ``complete``, the person's ``events`` (times from the start of the
+        run, which lies at ``start_monotonic_s`` on this machine's monotonic clock: the
+        controller's transitions are on it too), ``perturbations``, the statuses of the drives,
+        message counts, ``late_cycles``, MuJoCo's warnings.
+
+    Raises:
+        ConfigError: no torque command within ``wait_for_controller`` [s]; a hand without an arm
+            or a config without an arm topic.
+    """
+    if not config.topics["arm_command"]:
+        raise ConfigError(
+            f"{config.path or 'hardware config'}: the episode double plays an arm: set [topics] "
+            "arm_command and [arm] joints"
+        )
+    scene = episode_scene(spec.episode)
+    hand, obj, backend = scene.hand, scene.obj, scene.backend
+    if not hand.arm_dofs.any():
+        raise ConfigError(
+            f"hw-sim: {hand.name!r} has no arm; the episode double plays an arm-hand assembly"
+        )
+    first = backend.observe()
+    drives = RemoteArmHand(hand, config, spec.command_timeout, first.q)
+    inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
+    mass_inertia = (obj.mass, inertia)
+    rim = 0.5 * float(np.max(obj.extents))
+    script: Person | CarryAway
+    if spec.away is None:
+        holds = ContactHolds(hand, backend)
+        script = Person(
+            spec.episode,
+            backend,
+            scene.wMo,
+            scene.rng,
+            mass_inertia,
+            hand.palm_link,
+            rim,
+            scene.on_table,
+            holds=holds,
+        )
+    else:
+        script = CarryAway(backend, scene.wMo, mass_inertia, *spec.away)
+    reader = JointStateReader(hand, config)
+    names = [reader.msg_name[j] for j in hand.joint_names]
+    tracking: dict[str, Any] = {"rate_hz": config.object_pose_rate, "latency_s": spec.latency}
+    if spec.noise_mm or spec.noise_deg:
+        tracking.update(
+            noise_mm=spec.noise_mm, noise_deg=spec.noise_deg, noise_seed=spec.episode.seed
+        )
+    if spec.dropouts:
+        tracking["dropouts"] = [list(d) for d in spec.dropouts]
+    arm_type = JOINT_TRAJECTORY if config.arm.interface == "trajectory" else FLOAT64_ARRAY
+    session = open_session(config)
+    try:
+        joints = Publisher(session, config, "joint_states", JOINT_STATE)
+        poses = Publisher(session, config, "object_pose", POSE_STAMPED)
+        subs = [
+            Subscriber(session, config, "torque_command", FLOAT64_ARRAY, drives.torque.on_message),
+            Subscriber(session, config, "arm_command", arm_type, drives.on_arm),
+        ]
+        publisher = RobotPublisher(joints, poses, names, config.frame_id, "image")
+        pacer = RealTimePacer()
+        loop = ControlLoop(
+            backend,
+            hand,
+            obj,
+            drives,
+            rate=config.joint_state_rate,
+            filters=tracking_filters(tracking, obj.com),
+            observers=[script, publisher, pacer],
+        )
+        wait_for_command(backend, drives.torque, joints, poses, names, config, wait_for_controller)
+        report = loop.run(spec.episode.duration)
+        for sub in subs:
+            sub.close()
+    finally:
+        session.close()
+    events = [asdict(e) for e in script.events]
+    return {
+        "spec": {**asdict(spec.episode), "latency": spec.latency, "away": spec.away},
+        "complete": bool(getattr(script, "done", False)),
+        "events": events,
+        "perturbations": sum(e["what"].startswith(PERTURBATIONS) for e in events),
+        "duration_s": backend.time,
+        "start_monotonic_s": pacer.mono0,
+        "cycles": report.cycles,
+        "statuses": dict(report.status_counts),
+        "late_cycles": pacer.late,
+        "torque_messages": drives.torque.received,
+        "malformed_commands": drives.torque.malformed + drives.malformed_arm,
+        "arm_messages": drives.arm_messages,
+        "pose_messages": publisher.pose_messages,
+        "max_torque_rate_Nm_s": drives.torque.max_rate,
+        "sim_warnings": backend.warnings(),
+    }

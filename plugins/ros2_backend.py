@@ -21,7 +21,8 @@ Every joint state is kept in the joint history, so the contacts of a pose are es
 joint configuration of the pose's stamp (paper Sec. V-D). With ``sync_to_joint_states`` (the
 default) a cycle whose newest joint state is no longer fresh waits for the next one, briefly
 (:mod:`wholehand.hardware.config`), so that the torque answers a joint state just measured.
-Incoming messages that fail their checks (:mod:`wholehand.hardware.inputs`) are counted by reason
+Incoming messages that fail their checks (:mod:`wholehand.hardware.inputs`), and samples without
+rmw_zenoh's attachment (dropped, as rmw_zenoh drops them), are counted by reason
 and the last good sample stays; every outgoing torque passes the safety rules of
 :class:`~wholehand.hardware.guard.TorqueGuard`, and a watchdog thread ramps the torque down when
 the loop stops sending.
@@ -65,7 +66,7 @@ from wholehand.hardware.messages import (
     encode_array,
     encode_joint_trajectory,
 )
-from wholehand.hardware.rmw_zenoh import Publisher, Subscriber, open_session
+from wholehand.hardware.rmw_zenoh import Attachment, Node, Publisher, Subscriber, open_session
 from wholehand.loop.command import Command
 from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
 
@@ -79,6 +80,9 @@ FloatArray = npt.NDArray[np.float64]
 
 TRACE_SAMPLES = 100_000
 """Torque messages whose timing :attr:`Ros2Backend.trace` keeps (for ``wholehand bench hw``)."""
+
+NODE_NAME = "wholehand_control"
+"""The controller's node name in the ROS 2 graph (``ros2 node list``)."""
 
 TRAJECTORY_LEAD = 2.0
 """A JointTrajectory's point is reached this many control periods after it is sent."""
@@ -177,17 +181,22 @@ class Ros2Backend(Backend):
         self._closed = threading.Event()
         self.session = open_session(config)
         try:
-            self._torque = Publisher(self.session, config, "torque_command", FLOAT64_ARRAY)
+            self.node = node = Node(self.session, config, NODE_NAME)
+            self._torque = Publisher(self.session, config, "torque_command", FLOAT64_ARRAY, node)
             arm_type = JOINT_TRAJECTORY if config.arm.interface == "trajectory" else FLOAT64_ARRAY
             self._arm = (
-                Publisher(self.session, config, "arm_command", arm_type) if has_arm else None
+                Publisher(self.session, config, "arm_command", arm_type, node) if has_arm else None
             )
             self._subs = [
-                Subscriber(self.session, config, "joint_states", JOINT_STATE, self._on_joints),
-                Subscriber(self.session, config, "object_pose", POSE_STAMPED, self._on_pose),
+                Subscriber(
+                    self.session, config, "joint_states", JOINT_STATE, self._on_joints, node
+                ),
+                Subscriber(self.session, config, "object_pose", POSE_STAMPED, self._on_pose, node),
             ]
             if config.topics["stop"]:
-                self._subs.append(Subscriber(self.session, config, "stop", BOOL, self._on_stop))
+                self._subs.append(
+                    Subscriber(self.session, config, "stop", BOOL, self._on_stop, node)
+                )
         except Exception:
             self.session.close()
             raise
@@ -205,7 +214,22 @@ class Ros2Backend(Backend):
         if first:
             log.warning("rejected a message (%s): %s", reason, detail)
 
+    def _attached(self, attachment: bytes | None) -> bool:
+        """Whether a sample carries rmw_zenoh's attachment, as rmw_zenoh requires: one without
+        it (``no_attachment``) or with a malformed one (``bad_attachment``) is dropped."""
+        if attachment is None:
+            self._reject("no_attachment", "a sample without rmw_zenoh's attachment")
+            return False
+        try:
+            Attachment.decode(attachment)
+        except MessageError as err:
+            self._reject("bad_attachment", str(err))
+            return False
+        return True
+
     def _on_joints(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+        if not self._attached(attachment):
+            return
         try:
             sample = self.reader.read(decode_joint_state(payload), time.time())
         except MessageError as err:
@@ -225,6 +249,8 @@ class Ros2Backend(Backend):
             self._joint_arrived.notify_all()
 
     def _on_pose(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+        if not self._attached(attachment):
+            return
         config = self.config
         try:
             msg = decode_pose(payload)
@@ -245,6 +271,8 @@ class Ros2Backend(Backend):
             self.received["object_pose"] += 1
 
     def _on_stop(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+        if not self._attached(attachment):
+            return
         try:
             stop = decode_bool(payload)
         except MessageError as err:
@@ -315,7 +343,7 @@ class Ros2Backend(Backend):
         with self._lock:
             now, stamp_ns = time.monotonic(), time.time_ns()
             joint, joint_age = self._joint, now - self._joint_received
-            pose_age = now - self._pose_received
+            pose_age = self._pose_age(now, joint)
             self._last_apply = now
             if joint is not None:
                 self.guard.start_from(joint.effort, now)
@@ -328,6 +356,15 @@ class Ros2Backend(Backend):
             arm = self._arm_target(command, joint, joint_age, now)
         if arm is not None:
             self._publish_arm(arm)
+
+    def _pose_age(self, now: float, joint: JointSample | None) -> float:
+        """Age of the newest pose [s]: since it arrived, or, with header stamps, how much older
+        its stamp is than the newest joint state's, whichever is larger (a stalled tracker that
+        keeps sending its last, old-stamped pose gets the stale-pose rule)."""
+        age = now - self._pose_received
+        if self.config.stamp_source == "header" and joint is not None and self._pose is not None:
+            age = max(age, joint.stamp - self._pose[1])
+        return age
 
     def _hand_torques(self, command: Command, joint: JointSample | None) -> FloatArray:
         """(n_v,) the command's torques with each target group's PD law on the hand's joints,
@@ -464,6 +501,7 @@ class Ros2Backend(Backend):
         self._torque.close()
         if self._arm is not None:
             self._arm.close()
+        self.node.close()
         self.session.close()
 
     def release(self) -> None:

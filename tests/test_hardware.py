@@ -16,6 +16,7 @@ from wholehand.errors import ConfigError
 from wholehand.hardware import messages as msgs
 from wholehand.hardware.config import (
     HardwareConfig,
+    QoS,
     SafetyLimits,
     load_hardware_config,
     parse_hardware_config,
@@ -390,6 +391,42 @@ def test_backend_rejects_bad_messages_and_keeps_the_last_good_sample(allegro, ro
     assert obs.stamp_q == good.stamp_q and obs.stamp_object == good.stamp_object
 
 
+def test_samples_without_rmw_zenohs_attachment_are_dropped_and_counted(allegro, robot_and_backend):
+    robot, backend = robot_and_backend
+    names, q = list(allegro.joint_names), allegro.neutral()
+    _until_connected(robot, backend, names, q)
+    good = backend.observe()
+    moved = q + 0.01
+    raw = robot.session.declare_publisher(robot.joints.key)
+    raw.put(msgs.encode_joint_state(time.time(), names, moved))  # no attachment
+    raw.put(msgs.encode_joint_state(time.time(), names, moved), attachment=b"\x01\x02\x03")
+    _until(lambda: sum(backend.rejected.values()) >= 2)
+    assert backend.rejected == {"no_attachment": 1, "bad_attachment": 1}
+    np.testing.assert_array_equal(backend.observe().q, good.q)
+    raw.undeclare()
+
+
+def test_poses_stamped_far_behind_the_joint_states_get_the_stale_pose_rule(
+    allegro, robot_and_backend
+):
+    from wholehand.loop.command import Command
+
+    robot, backend = robot_and_backend
+    names, q = list(allegro.joint_names), allegro.neutral()
+    _until_connected(robot, backend, names, q, stamp_age=0.35)
+    statuses = []
+    start = time.monotonic()
+    while time.monotonic() - start < 0.5:
+        now = time.time()
+        robot.joints.put(msgs.encode_joint_state(now, names, q))
+        # A tracker that still sends, but whose images are 0.35 s old (pose_timeout 0.3 s).
+        robot.poses.put(msgs.encode_pose(now - 0.35, "world", np.eye(4)))
+        time.sleep(0.01)
+        backend.apply(Command.torques(np.full(allegro.nv, 0.05)))
+        statuses.append(backend.guard.counts["pose_stale"])
+    assert backend.rejected == {} and statuses[-1] > 20
+
+
 def _until_connected(robot, backend, names, q, stamp_age=0.0):
     """Publish until the backend has a joint state and a pose (the session may still be
     connecting), stamped ``stamp_age`` seconds in the past."""
@@ -571,3 +608,67 @@ def test_the_controller_allocator_gets_the_deadline_and_edge_screening(allegro):
     assert tips.screen_edges  # a QP allocator too
     feedforward = controller_allocator(ControllerSpec(allocator="feedforward"), allegro)
     assert not hasattr(feedforward, "screen_edges")  # parameters it does not take: not passed
+
+
+def _parse_token(key: str) -> dict:
+    """A liveliness token read as rmw_zenoh's graph cache reads it (Entity::make): 9 chunks for
+    a node, 13 for a publisher or subscriber; '%' back to '/'; the QoS fields by ':' and ','."""
+    parts = key.split("/")
+    assert parts[0] == "@ros2_lv" and len(parts) in (9, 13) and all(parts), key
+    entity = {
+        "domain": int(parts[1]),
+        "zid": parts[2],
+        "kind": parts[5],
+        "namespace": parts[7].replace("%", "/"),
+        "node": parts[8].replace("%", "/"),
+    }
+    if len(parts) == 13:
+        reliability, durability, history, deadline, lifespan, liveliness = parts[12].split(":")
+        kind, depth = history.split(",")
+        entity.update(
+            topic=parts[9].replace("%", "/"),
+            type=parts[10],
+            hash=parts[11],
+            qos=(int(reliability), int(durability), int(kind), int(depth)),
+        )
+        assert deadline.count(",") == 1 and lifespan.count(",") == 1
+        assert liveliness.count(",") == 2
+    return entity
+
+
+def test_the_controller_declares_rmw_zenohs_liveliness_tokens(allegro):
+    from wholehand_plugins.ros2_backend import NODE_NAME, Ros2Backend
+
+    endpoint = loopback_endpoint()
+    qos = {"torque_command": QoS("best_effort", "keep_last", 3)}
+    config = HardwareConfig(connect=(endpoint,), command_joints=ALLEGRO_ORDER, domain_id=5, qos=qos)
+    watcher = open_session(HardwareConfig(listen=(endpoint,), connect=()))
+    try:
+        with Ros2Backend(allegro, None, config) as backend:
+            entities = []
+            deadline = time.monotonic() + 5.0
+            while len(entities) < 5 and time.monotonic() < deadline:
+                replies = watcher.liveliness().get("@ros2_lv/**")
+                entities = [_parse_token(str(r.ok.key_expr)) for r in replies if r.ok]
+                time.sleep(0.05)
+            zid = str(backend.session.info.zid())
+        by_topic = {e.get("topic"): e for e in entities}
+        node = by_topic.pop(None)
+        assert node == {"domain": 5, "zid": zid, "kind": "NN", "namespace": "/", "node": NODE_NAME}
+        assert {t: e["kind"] for t, e in by_topic.items()} == {
+            "/hand_effort_controller/commands": "MP",
+            "/joint_states": "MS",
+            "/object_pose": "MS",
+            "/wholehand/stop": "MS",
+        }
+        torque = by_topic["/hand_effort_controller/commands"]
+        assert torque["qos"] == (2, 2, 1, 3)  # best effort, volatile, keep last 3
+        assert by_topic["/joint_states"]["qos"] == (1, 2, 1, 1)
+        # The token names the same type and hash as the data's key expression.
+        data_key = topic_key(5, "/hand_effort_controller/commands", msgs.FLOAT64_ARRAY)
+        assert data_key.split("/")[-2:] == [torque["type"], torque["hash"]]
+        # Closed: the node has left the graph.
+        time.sleep(0.2)
+        assert not [r for r in watcher.liveliness().get("@ros2_lv/**") if r.ok]
+    finally:
+        watcher.close()

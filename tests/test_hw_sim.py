@@ -132,3 +132,41 @@ def test_a_pose_dropout_ramps_the_torque_down_and_regulation_resumes(endpoint, t
     stale = guard.get("pose_stale", 0)
     assert 0.6 * 200 <= stale <= 1.0 * 200  # about (1.0 - 0.2) s at 200 Hz
     assert guard["ok"] > 200  # before and after the dropout
+
+
+ROUTER = """
+import json, sys, time, zenoh
+conf = zenoh.Config()
+conf.insert_json5("mode", '"router"')
+conf.insert_json5("scouting/multicast/enabled", "false")
+conf.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
+session = zenoh.open(conf)
+print("router up", flush=True)
+time.sleep(float(sys.argv[2]))
+"""
+"""A zenoh router on loopback, standing in for rmw_zenohd (which routes for clients only)."""
+
+
+def test_controller_and_double_as_clients_of_a_router_hold_the_grasp(endpoint, tmp_path):
+    from wholehand.hardware.config import hand_hardware_config
+
+    router = subprocess.Popen(
+        [sys.executable, "-c", ROUTER, endpoint, "120"], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert router.stdout is not None and "router up" in router.stdout.readline()
+        config = tmp_path / "client.toml"
+        text = hand_hardware_config("allegro_right").read_text()
+        config.write_text(text.replace('mode = "peer"', 'mode = "client"'))
+        assert 'mode = "client"' in config.read_text()
+        common = ("--config", str(config), "--connect", endpoint, "--listen")
+        sim = _wholehand("hw-sim", "--quick", *common, "--json", str(tmp_path / "sim.json"))
+        control = _wholehand("control", "--duration", "4", *common)
+        _, err = sim.communicate(timeout=180)
+        assert sim.returncode == 0, err[-3000:]
+        control.communicate(timeout=60)
+        robot = json.loads((tmp_path / "sim.json").read_text())
+        assert robot["held"] and robot["torque_messages"] > 200, robot["statuses"]
+    finally:
+        router.kill()
+        router.wait()

@@ -35,7 +35,7 @@ from wholehand.hardware.messages import (
     encode_joint_state,
     encode_pose,
 )
-from wholehand.hardware.rmw_zenoh import Attachment, Publisher, Subscriber, open_session
+from wholehand.hardware.rmw_zenoh import Attachment, Node, Publisher, Subscriber, open_session
 from wholehand.loop.command import Command
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossMonitor
@@ -50,6 +50,9 @@ from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 
 FloatArray = npt.NDArray[np.float64]
+
+DOUBLE_NODE = "wholehand_hw_sim"
+"""The double's node name in the ROS 2 graph."""
 
 POSE_STAMPS = ("image", "processing")
 """What the double's tracker stamps a pose with: the image time (correct) or the time it
@@ -265,9 +268,12 @@ def run_double(
     protocol.check_rate(rate)
     session = open_session(config)
     try:
-        joints = Publisher(session, config, "joint_states", JOINT_STATE)
-        poses = Publisher(session, config, "object_pose", POSE_STAMPED)
-        commands = Subscriber(session, config, "torque_command", FLOAT64_ARRAY, drives.on_message)
+        node = Node(session, config, DOUBLE_NODE)
+        joints = Publisher(session, config, "joint_states", JOINT_STATE, node)
+        poses = Publisher(session, config, "object_pose", POSE_STAMPED, node)
+        commands = Subscriber(
+            session, config, "torque_command", FLOAT64_ARRAY, drives.on_message, node
+        )
         publisher = RobotPublisher(joints, poses, names, config.frame_id, spec.pose_stamp)
         driver = ProtocolDriver(protocol, obj)
         loss = GraspLossMonitor(hand, obj, stop_on_loss=False)

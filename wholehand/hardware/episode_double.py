@@ -26,7 +26,13 @@ import numpy.typing as npt
 
 from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.double import RealTimePacer, RemoteTorque, RobotPublisher, wait_for_command
+from wholehand.hardware.double import (
+    DOUBLE_NODE,
+    RealTimePacer,
+    RemoteTorque,
+    RobotPublisher,
+    wait_for_command,
+)
 from wholehand.hardware.inputs import JointStateReader, arm_command_dofs, command_dofs
 from wholehand.hardware.messages import (
     FLOAT64_ARRAY,
@@ -37,7 +43,7 @@ from wholehand.hardware.messages import (
     decode_array,
     decode_joint_trajectory,
 )
-from wholehand.hardware.rmw_zenoh import Publisher, Subscriber, open_session
+from wholehand.hardware.rmw_zenoh import Node, Publisher, Subscriber, open_session
 from wholehand.loop.command import Command, JointTargets
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.reach import ArmServo
@@ -276,11 +282,14 @@ def run_episode_double(
     arm_type = JOINT_TRAJECTORY if config.arm.interface == "trajectory" else FLOAT64_ARRAY
     session = open_session(config)
     try:
-        joints = Publisher(session, config, "joint_states", JOINT_STATE)
-        poses = Publisher(session, config, "object_pose", POSE_STAMPED)
+        node = Node(session, config, DOUBLE_NODE)
+        joints = Publisher(session, config, "joint_states", JOINT_STATE, node)
+        poses = Publisher(session, config, "object_pose", POSE_STAMPED, node)
         subs = [
-            Subscriber(session, config, "torque_command", FLOAT64_ARRAY, drives.torque.on_message),
-            Subscriber(session, config, "arm_command", arm_type, drives.on_arm),
+            Subscriber(
+                session, config, "torque_command", FLOAT64_ARRAY, drives.torque.on_message, node
+            ),
+            Subscriber(session, config, "arm_command", arm_type, drives.on_arm, node),
         ]
         publisher = RobotPublisher(joints, poses, names, config.frame_id, "image")
         pacer = RealTimePacer()

@@ -10,8 +10,16 @@ Humble) with a CDR payload, and attaches to every sample its sequence number, so
 subscribing the same way makes wholehand's topics ordinary topics to every rmw_zenoh node,
 without a ROS installation here.
 
-Liveliness tokens (how ``ros2 topic list`` discovers entities) are not declared: data flows
-without them, but ROS 2 graph tools do not list wholehand's publishers.
+Each process also declares rmw_zenoh's liveliness tokens, which is how ROS 2's graph tools
+(``ros2 node list``, ``ros2 topic list``, ``ros2 topic info``) discover entities: one for its
+node and one per publisher and subscriber (:class:`Node`), in rmw_zenoh's layout
+
+    @ros2_lv/<domain>/<zenoh id>/<node id>/<entity id>/<NN|MP|MS>/<enclave>/<namespace>/<node>
+        [/<topic>/<type>/<type hash>/<qos>]
+
+with every ``/`` inside a name written ``%`` and the QoS as
+``<reliability>:<durability>:<history>,<depth>:<deadline>:<lifespan>:<liveliness>`` (rmw's enum
+values; empty fields take the defaults).
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import zenoh
 import zenoh.ext
@@ -110,14 +119,94 @@ def _json_list(items: tuple[str, ...]) -> str:
     return "[" + ",".join(f'"{s}"' for s in items) + "]"
 
 
+LIVELINESS = "@ros2_lv"
+"""rmw_zenoh's admin space for liveliness tokens."""
+RELIABILITY = {"reliable": 1, "best_effort": 2}
+"""rmw's ``rmw_qos_reliability_policy_e`` values."""
+HISTORY = {"keep_last": 1, "keep_all": 2}
+"""rmw's ``rmw_qos_history_policy_e`` values."""
+VOLATILE = 2
+"""rmw's ``RMW_QOS_POLICY_DURABILITY_VOLATILE`` (wholehand publishes no late-joiner history)."""
+
+
+def mangle(name: str) -> str:
+    """A ROS 2 name as one key chunk: every ``/`` written ``%``."""
+    return name.replace("/", "%")
+
+
+def qos_key(qos: QoS) -> str:
+    """A QoS profile as rmw_zenoh's liveliness tokens write it (deadline, lifespan and
+    liveliness left empty: the defaults)."""
+    return f"{RELIABILITY[qos.reliability]}:{VOLATILE}:{HISTORY[qos.history]},{qos.depth}:,:,:,,"
+
+
+class Node:
+    """A ROS 2 node's identity in the graph: declares its liveliness token and, through
+    :meth:`token`, those of its publishers and subscribers.
+
+    Args:
+        session: the process's zenoh session.
+        config: the domain id (and the distro, for type hashes).
+        name: the node's name (namespace ``/``).
+    """
+
+    def __init__(self, session: zenoh.Session, config: HardwareConfig, name: str) -> None:
+        self.session, self.config, self.name = session, config, name
+        self.zid = str(session.info.zid())
+        self._next_id = 1
+        self._tokens: list[Any] = []
+        self.keys: list[str] = []
+        """Every token declared, in order (the node's first)."""
+        self._declare(self._prefix(0, "NN"))
+
+    def _prefix(self, entity_id: int, kind: str) -> str:
+        return (
+            f"{LIVELINESS}/{self.config.domain_id}/{self.zid}/0/{entity_id}/{kind}/"
+            f"{mangle('/')}/{mangle('/')}/{mangle(self.name)}"
+        )
+
+    def _declare(self, key: str) -> Any:
+        token = self.session.liveliness().declare_token(key)
+        self._tokens.append(token)
+        self.keys.append(key)
+        return token
+
+    def token(self, kind: str, topic_name: str, msgtype: str) -> Any:
+        """Declare the token of a publisher (``kind="MP"``) or subscriber (``"MS"``) of the
+        config's topic ``topic_name`` (a key of ``[topics]``); returns it (undeclare on close)."""
+        config = self.config
+        topic = config.topics[topic_name]
+        digest = "TypeHashNotSupported" if config.distro == "humble" else type_hash(msgtype)
+        key = (
+            f"{self._prefix(self._next_id, kind)}/{mangle(topic)}/{dds_type_name(msgtype)}/"
+            f"{digest}/{qos_key(config.qos_of(topic_name))}"
+        )
+        self._next_id += 1
+        return self._declare(key)
+
+    def close(self) -> None:
+        """Undeclare every token (the node leaves the graph)."""
+        for token in self._tokens:
+            token.undeclare()
+        self._tokens.clear()
+
+
 class Publisher:
-    """Publishes CDR payloads on a ROS 2 topic with rmw_zenoh's attachment."""
+    """Publishes CDR payloads on a ROS 2 topic with rmw_zenoh's attachment (and declares its
+    liveliness token when given the ``node``)."""
 
     def __init__(
-        self, session: zenoh.Session, config: HardwareConfig, topic_name: str, msgtype: str
+        self,
+        session: zenoh.Session,
+        config: HardwareConfig,
+        topic_name: str,
+        msgtype: str,
+        node: Node | None = None,
     ) -> None:
         qos = config.qos_of(topic_name)
         self.key = topic_key(config.domain_id, config.topics[topic_name], msgtype, config.distro)
+        if node is not None:
+            node.token("MP", topic_name, msgtype)
         self._pub = session.declare_publisher(
             self.key,
             congestion_control=_congestion(qos),
@@ -147,7 +236,8 @@ Received = Callable[[bytes, bytes | None, float], None]
 
 
 class Subscriber:
-    """Calls ``callback`` from zenoh's thread for every sample of a ROS 2 topic."""
+    """Calls ``callback`` from zenoh's thread for every sample of a ROS 2 topic (and declares
+    its liveliness token when given the ``node``)."""
 
     def __init__(
         self,
@@ -156,8 +246,11 @@ class Subscriber:
         topic_name: str,
         msgtype: str,
         callback: Received,
+        node: Node | None = None,
     ) -> None:
         self.key = topic_key(config.domain_id, config.topics[topic_name], msgtype, config.distro)
+        if node is not None:
+            node.token("MS", topic_name, msgtype)
 
         def handler(sample: zenoh.Sample) -> None:
             received = time.monotonic()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 
+import numpy as np
 import pytest
 
 from wholehand.cli.main import main
@@ -167,3 +168,43 @@ def test_run_takes_the_dexgraspbench_protocol(capsys):
     out = capsys.readouterr().out
     assert "DexGraspBench load test: allegro_right, 077_rubiks_cube grasp 0, feedforward" in out
     assert "  +x         no" in out and "settle" in out and "held: no" in out
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["run", "--object", ""],
+        ["info", "--hand", " "],
+        ["grasps", "generate", "--object", ""],
+        ["bench", "cycle", "--object", ""],
+        ["control", "--config", ""],
+        ["hand", "check", ""],
+    ],
+)
+def test_an_empty_value_is_refused_not_replaced_by_a_default(argv, capsys):
+    from wholehand.cli.main import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert "is empty; give a value or leave it out" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["truncated", "text", "pickled", "missing"])
+def test_view_names_a_file_that_is_not_a_run_record(kind, tmp_path, capsys):
+    from wholehand.cli.main import main
+
+    path = tmp_path / "run.npz"
+    if kind == "truncated":
+        np.savez(path, phases=np.array(["settle"]), meta=np.array("{}"), q=np.zeros((50, 16)))
+        path.write_bytes(path.read_bytes()[:300])
+    elif kind == "text":
+        path.write_text("not a record\n")
+    elif kind == "pickled":
+        np.save(path, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+        path = path.with_name("run.npz.npy")
+    assert main(["view", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "Traceback" not in err
+    assert {"truncated": "truncated", "text": "not a", "pickled": "not a run record",
+            "missing": "no run record at"}[kind] in err  # fmt: skip

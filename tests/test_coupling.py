@@ -64,6 +64,16 @@ def test_bad_hand_toml_couplings_are_named(tmp_path, toml, message):
         load_hand(folder)
 
 
+def test_a_coupling_cycle_declared_in_hand_toml_is_blamed_on_hand_toml(tmp_path):
+    cycle = 'coupled = { f1_j2 = { leader = "f1_j1" }, f1_j1 = { leader = "f1_j2" } }'
+    folder = write_toy_hand(tmp_path / "toy", tables=f"[joints]\n{cycle}\n", coupled_close=True)
+    with pytest.raises(ConfigError) as err:
+        load_hand(folder)
+    message = str(err.value)
+    assert "form a cycle" in message and "f1_j1: [joints] coupled in hand.toml" in message
+    assert "<mimic>" not in message
+
+
 def test_a_hand_toml_follower_named_as_a_motor_is_refused_with_its_declaration(tmp_path):
     tables = '[joints]\nactuated = ["f1_j2"]\ncoupled = { f1_j2 = { leader = "f1_j1" } }\n'
     folder = write_toy_hand(tmp_path / "toy", tables=tables, coupled_close=True)

@@ -44,11 +44,11 @@ def test_generation_is_deterministic_and_reproduces_the_shipped_grasps(allegro):
 
 
 def test_round_trip_and_bad_files(tmp_path, allegro):
-    grasp = Grasp(0, np.eye(4), dict.fromkeys(allegro.joint_names, 0.1), contacts=4)
+    grasp = Grasp(0, np.eye(4), dict.fromkeys(allegro.joint_names, 0.3), contacts=4)
     path = save_grasps(tmp_path / "g.json", "allegro_right", "box", [grasp], {"seed": 1})
     (loaded,) = load_grasps(path)
     np.testing.assert_array_equal(loaded.oMb, np.eye(4))
-    np.testing.assert_allclose(loaded.q_array(allegro), 0.1)
+    np.testing.assert_allclose(loaded.q_array(allegro), 0.3)
 
     raw = json.loads(path.read_text())
     raw["format"] = "other/1"
@@ -74,6 +74,30 @@ def test_round_trip_and_bad_files(tmp_path, allegro):
     partial = Grasp(0, np.eye(4), {"joint_0.0": 0.0})
     with pytest.raises(ConfigError, match="no angle for joints"):
         partial.q_array(allegro)
+
+
+def test_a_grasp_with_a_joint_past_its_limit_is_refused_naming_it(tmp_path, allegro, capsys):
+    from wholehand.cli.main import main
+    from wholehand.grasps.store import LIMIT_SLACK
+
+    i = allegro.model.joints[allegro.model.getJointId("joint_1.0")].idx_q
+    upper = allegro.q_upper[i]
+    q = dict.fromkeys(allegro.joint_names, 0.3)  # within every joint's limits
+    q["joint_1.0"] = upper + 0.9 * LIMIT_SLACK  # a settled grasp's excess: used
+    ok = Grasp(0, np.eye(4), q)
+    assert ok.q_array(allegro)[i] == q["joint_1.0"]
+    q["joint_1.0"] = 5.0
+    path = save_grasps(
+        tmp_path / "g.json", "allegro_right", "077_rubiks_cube", [Grasp(3, np.eye(4), q)], {}
+    )
+    (bad,) = load_grasps(path)
+    with pytest.raises(ConfigError) as err:
+        bad.q_array(allegro)
+    message = str(err.value)
+    assert str(path) in message and "grasp 3" in message and "'joint_1.0' at 5 rad" in message
+    assert f"{upper:.4g}]" in message
+    assert main(["run", "--grasps", str(path), "--grasp", "0"]) == 2
+    assert "outside its limits" in capsys.readouterr().err
 
 
 PRECISION_FINGERS = ["index", "middle", "thumb"]
@@ -231,3 +255,16 @@ def test_any_named_grasp_style_and_its_errors(tmp_path):
     toml.write_text(base.replace("[grasping]\n", "[grasping]\nlateral = 1\n", 1))
     with pytest.raises(ConfigError, match="unknown keys \\['lateral'\\] in \\[grasping\\]"):
         load_hand(folder)
+
+
+def test_a_mesh_path_files_its_grasps_by_its_stem_however_it_is_written(tmp_path, monkeypatch):
+    from wholehand.grasps.store import grasp_file
+
+    (tmp_path / "meshes").mkdir()
+    monkeypatch.chdir(tmp_path)
+    absolute = str(tmp_path / "meshes" / "box.stl")
+    by_name = grasp_file("allegro_right", "box")
+    assert grasp_file("allegro_right", "meshes/box.stl") == by_name
+    assert grasp_file("allegro_right", "./meshes/box.stl") == by_name
+    assert grasp_file("allegro_right", absolute) == by_name
+    assert grasp_file("allegro_right", "077_rubiks_cube").name == "077_rubiks_cube.json"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from toy_hand import write_toy_hand
 
 from wholehand.cli.main import main
@@ -51,3 +52,27 @@ def test_a_broken_hand_toml_is_a_finding_not_a_traceback(tmp_path, capsys):
     assert main(["hand", "check", str(folder)]) == 1
     out = capsys.readouterr().out
     assert out.startswith("hand ? from") and "ERROR:" in out and "not valid TOML" in out
+
+
+def test_a_revolute_joint_without_limit_is_named_with_the_fix(tmp_path):
+    from wholehand.errors import AssetError
+    from wholehand.models.hand import load_hand
+
+    folder = write_toy_hand(tmp_path / "toy")
+    urdf = folder / "toy.urdf"
+    text = urdf.read_text()
+    start = text.index("<limit")
+    urdf.write_text(text[:start] + text[text.index("/>", start) + 2 :])  # the first joint's
+    with pytest.raises(AssetError) as err:
+        load_hand(folder)
+    assert "(revolute) has no <limit>; add <limit lower=" in str(err.value)
+    assert "one root link" not in str(err.value)
+
+
+def test_an_infinite_torque_limit_is_refused_when_the_hand_is_read(tmp_path):
+    from wholehand.errors import ConfigError
+    from wholehand.models.hand_config import parse_hand_config
+
+    folder = write_toy_hand(tmp_path / "toy", tables="[joints]\ntorque_limit = { default = inf }\n")
+    with pytest.raises(ConfigError, match="torque_limit.default must be a finite number, got inf"):
+        parse_hand_config(folder)

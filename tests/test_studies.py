@@ -400,6 +400,32 @@ def test_resume_from_trials_csv_mixing_older_and_newer_rows(tmp_path, tiny_fresh
     assert result.summary["groups"] == tiny_fresh.summary["groups"]
 
 
+def test_resume_reruns_rows_without_a_result_and_names_a_cut_line(tmp_path, tiny_fresh, capsys):
+    """A trials.csv whose ``held`` column was removed by hand, and one whose last line was cut:
+    those rows are damaged, said so, and their trials run again."""
+    no_held = [{k: v for k, v in r.items() if k != "held"} for r in tiny_fresh.rows]
+    write_csv(no_held, tmp_path / "trials.csv")
+    kwargs = {"executor": "serial", "progress": False, "resume": True, "limit": 0}
+    result = run_study(get_study("perturbation"), "tiny", tmp_path, **kwargs)
+    assert result.summary["n_reused"] == 0 and not result.complete
+    assert "4 damaged rows (no result) re-run" in capsys.readouterr().err
+    assert _journal_lines(tmp_path) == []  # nothing damaged is journaled
+    folder = tmp_path / "cut"
+    folder.mkdir()
+    path = write_csv(tiny_fresh.rows, folder / "trials.csv")
+    text = path.read_text().rstrip("\n")
+    cut = text[: text.rindex(",")] + "\n"  # the last line lost its last cell
+    path.write_text(cut)
+    (tmp_path / "cut.csv").write_text(cut)
+    result = run_study(get_study("perturbation"), "tiny", folder, **kwargs)
+    err = capsys.readouterr().err
+    assert result.summary["n_reused"] == 3
+    assert "1 damaged rows (no result) re-run (trials.csv lines cut short: [5])" in err
+    assert "0 rows matching no job" in err
+    with pytest.raises(ConfigError, match="line 5: fewer cells than the header"):
+        read_csv(tmp_path / "cut.csv")
+
+
 def test_resume_reruns_trials_that_raised_and_keeps_diverged_ones(tmp_path, tiny_fresh):
     rows = [dict(r) for r in tiny_fresh.rows]
     outcome = set(rows[1]) - set(SPEC_COLUMNS) - {"index", "kind", "method", "repeat"}

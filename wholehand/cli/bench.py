@@ -207,7 +207,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_contacts)
 
     p = bsub.add_parser("allocate", help="force-allocation QP solve time vs contact count")
-    p.add_argument("--solvers", default="", help="comma-separated qpsolvers names")
+    p.add_argument("--solvers", help="comma-separated qpsolvers names (default: every installed)")
     p.add_argument("--cycles", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="out/bench", help="folder for allocate.png")

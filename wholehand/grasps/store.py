@@ -39,6 +39,10 @@ from wholehand.models.poses import check_pose, inverse
 FloatArray = npt.NDArray[np.float64]
 FORMAT = "wholehand-grasps/1"
 
+LIMIT_SLACK = 0.05
+"""How far past a joint limit a stored angle may lie [rad]: grasps settle in MuJoCo, whose
+limits are soft (the shipped grasps lie at most 0.015 rad past theirs)."""
+
 
 @dataclass(frozen=True)
 class Grasp:
@@ -52,16 +56,31 @@ class Grasp:
     type: str = "power"
     contacts: int | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    source: str = ""
+    """The file it was read from ("" if none), for errors."""
 
     def q_array(self, hand: HandModel) -> FloatArray:
-        """(n_q,) joint angles in the hand model's order; a missing joint raises ConfigError."""
+        """(n_q,) joint angles in the hand model's order.
+
+        Raises:
+            ConfigError: a joint of the hand has no angle, or an angle lies more than
+                :data:`LIMIT_SLACK` past its joint's limits (naming the file, grasp, joint,
+                angle and limits).
+        """
+        where = f"{self.source}: grasp {self.id}" if self.source else f"grasp {self.id}"
         missing = [name for name in hand.joint_names if name not in self.q]
         if missing:
-            raise ConfigError(f"grasp {self.id} has no angle for joints {missing} of {hand.name!r}")
+            raise ConfigError(f"{where} has no angle for joints {missing} of {hand.name!r}")
         q = np.zeros(hand.nq)
         for name in hand.joint_names:
-            jid = hand.model.getJointId(name)
-            q[hand.model.joints[jid].idx_q] = self.q[name]
+            i = hand.model.joints[hand.model.getJointId(name)].idx_q
+            q[i] = value = self.q[name]
+            lower, upper = hand.q_lower[i], hand.q_upper[i]
+            if not lower - LIMIT_SLACK <= value <= upper + LIMIT_SLACK:
+                raise ConfigError(
+                    f"{where}: joint {name!r} at {value:.4g} rad is outside its limits "
+                    f"[{lower:.4g}, {upper:.4g}] of {hand.name!r}; fix or remove the grasp"
+                )
         return q
 
     def object_pose(self, wMb: FloatArray) -> FloatArray:
@@ -93,8 +112,21 @@ def grasp_file(hand: str | Path, obj: str, style: str = "power", on_table: bool 
     ``<style>/<object>.json`` for another grasp style (e.g. ``precision``), in
     :func:`hand_grasps_dir`; grasps of the object resting on a table (``on_table``, made with
     ``wholehand grasps generate --on-table``) in a subfolder ``on_table/`` of those. ``hand`` is
-    a shipped hand's name or a hand folder."""
-    return _style_dir(hand, style, on_table) / f"{obj}.json"
+    a shipped hand's name or a hand folder; ``obj`` an object's name or its mesh file's path,
+    written any way (relative or absolute: the file's stem names the object, as
+    :func:`~wholehand.models.object_catalogue.load_object` names it)."""
+    return _style_dir(hand, style, on_table) / f"{object_key(obj)}.json"
+
+
+def object_key(obj: str) -> str:
+    """The name an object's grasps are filed under: a mesh path's file stem, a YCB name or a
+    primitive spec as it is."""
+    from wholehand.models.object_catalogue import MESH_SUFFIXES
+
+    path = Path(obj)
+    if "/" in obj or "\\" in obj or path.suffix.lower() in MESH_SUFFIXES:
+        return path.stem
+    return obj
 
 
 def _style_dir(hand: str | Path, style: str, on_table: bool = False) -> Path:
@@ -184,6 +216,7 @@ def load_grasps(
                     for k, v in entry.items()
                     if k not in {"id", "oMb", "q", "type", "contacts"}
                 },
+                source=str(path),
             )
         )
     if not grasps:

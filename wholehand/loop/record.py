@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -116,9 +117,36 @@ class RunRecord:
 
     @classmethod
     def load(cls, path: str | Path) -> RunRecord:
+        """The record saved at ``path`` (:meth:`save`).
+
+        Raises:
+            ConfigError: no such file, or one that is not a whole run record (truncated, another
+                kind of file, another version), named with what is wrong.
+        """
+        if not Path(path).is_file():
+            raise ConfigError(f"{path}: no such run record; record one with `wholehand run --save`")
+        try:
+            return cls._read(path)
+        except ConfigError:
+            raise
+        except (zipfile.BadZipFile, EOFError, OSError) as err:
+            raise ConfigError(
+                f"{path}: not a readable run record (a truncated or damaged .npz file: "
+                f"{type(err).__name__}: {err}); record the run again"
+            ) from err
+        except (ValueError, KeyError, TypeError) as err:
+            raise ConfigError(
+                f"{path}: not a run record ({type(err).__name__}: {err}); give a file saved by "
+                "`wholehand run --save` or `wholehand reach --record`"
+            ) from err
+
+    @classmethod
+    def _read(cls, path: str | Path) -> RunRecord:
         import json
 
         with np.load(path, allow_pickle=False) as data:
+            if not hasattr(data, "files"):
+                raise ConfigError(f"{path}: a single numpy array, not a run record (.npz)")
             if "phases" not in data:
                 raise ConfigError(
                     f"{path}: not a run record of this wholehand version (no 'phases'); "

@@ -107,11 +107,21 @@ def mjcf_mimics(mjcf_path: Path) -> dict[str, Mimic]:
     return out
 
 
-def resolve_chains(mimics: dict[str, Mimic], joints: list[str], where: Path) -> dict[str, Mimic]:
+def resolve_chains(
+    mimics: dict[str, Mimic],
+    joints: list[str],
+    where: Path,
+    sources: dict[str, str] | None = None,
+) -> dict[str, Mimic]:
     """Every follower coupled directly to a joint that follows nobody (chains composed).
 
+    Args:
+        sources: follower -> where its coupling is declared, for errors (default: a
+            ``<mimic>`` tag of ``where``).
+
     Raises:
-        ConfigError: a leader that is not a moving joint of ``joints``, or a cycle.
+        ConfigError: a leader that is not a moving joint of ``joints``, or a cycle (naming
+            where each of its couplings is declared).
     """
     for follower, mimic in mimics.items():
         for name in (follower, mimic.leader):
@@ -128,8 +138,13 @@ def resolve_chains(mimics: dict[str, Mimic], joints: list[str], where: Path) -> 
             multiplier, offset = multiplier * m.multiplier, multiplier * m.offset + offset
             leader = m.leader
             if leader in seen:
+                declared = "; ".join(
+                    f"{j}: {(sources or {}).get(j, f'<mimic> in {where.name}')}"
+                    for j in sorted(seen)
+                )
                 raise ConfigError(
-                    f"{where}: the <mimic> tags of joints {sorted(seen)} form a cycle"
+                    f"{where}: the couplings of joints {sorted(seen)} form a cycle ({declared}); "
+                    "remove one of them"
                 )
             seen.add(leader)
         resolved[follower] = Mimic(leader, multiplier, offset)

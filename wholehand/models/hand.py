@@ -32,6 +32,7 @@ from wholehand.models.mesh_files import check_meshes
 from wholehand.models.mjcf_file import mjcf_for_parsers
 from wholehand.models.poses import pose_from_xyz_rpy
 from wholehand.models.surface import link_mesh_in_joint_frame
+from wholehand.models.urdf_check import urdf_problems
 
 log = logging.getLogger(__name__)
 
@@ -112,6 +113,11 @@ class HandModel:
                 return pin.buildModelFromMJCF(str(self.parsed_model_path))
             return pin.buildModelFromUrdf(str(cfg.model_path))
         except Exception as err:
+            problems = [] if mjcf else urdf_problems(cfg.model_path)
+            if problems:
+                raise AssetError(
+                    f"{cfg.model_path}: Pinocchio cannot parse this URDF: " + "; ".join(problems)
+                ) from err
             raise AssetError(
                 f"{cfg.model_path}: Pinocchio cannot parse this {cfg.model_format.upper()} "
                 f"({err}); check that it is well-formed XML"
@@ -262,7 +268,14 @@ class HandModel:
                 )
             if follower in locked:
                 del mimics[follower]
-        return resolve_chains(mimics, moving, cfg.model_path)
+        tag = "<mimic>" if cfg.model_format == "urdf" else "<equality><joint>"
+        sources = {
+            follower: f"[joints] coupled in {cfg.path.name}"
+            if follower in cfg.coupled_joints
+            else f"{tag} in {cfg.model_path.name}"
+            for follower in mimics
+        }
+        return resolve_chains(mimics, moving, cfg.model_path, sources)
 
     def _build_joint_tables(self) -> None:
         cfg, model = self.config, self.model

@@ -192,6 +192,8 @@ def _str_list(
 def _number(value: Any, what: str, where: Path, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{where}: {what} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{where}: {what} must be a finite number, got {value!r}")
     if positive and not value > 0:
         raise ConfigError(f"{where}: {what} must be > 0, got {value!r}")
     if value < 0:

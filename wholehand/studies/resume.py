@@ -32,6 +32,15 @@ def failed_to_run(row: dict[str, Any]) -> bool:
     return row.get("failure_stage") == "error"
 
 
+RESULT_COLUMNS = ("held",)
+"""Result columns every finished row of every study has."""
+
+
+def has_result(row: dict[str, Any]) -> bool:
+    """The row holds every result column (:data:`RESULT_COLUMNS`)."""
+    return all(row.get(c) not in (None, "") for c in RESULT_COLUMNS)
+
+
 @dataclass(frozen=True)
 class Matched:
     """Finished rows of a folder matched to a study's jobs (:func:`match_rows`)."""
@@ -42,12 +51,16 @@ class Matched:
     """Rows that match no job of the study (another design, size or seed)."""
     n_failed: int
     """Rows skipped because the trial raised (their jobs run again)."""
+    n_damaged: int = 0
+    """Rows skipped because they lack a result every row has (:data:`RESULT_COLUMNS`; a
+    column removed by hand, a row cut short): their jobs run again."""
 
 
 def match_rows(jobs: Sequence[TrialJob], rows: Iterable[dict[str, Any]]) -> Matched:
     """Give each job the finished row of the same content (:func:`job_key`), whatever index the
     row had: rows of a narrower design with the same seeds fill the matching jobs of a wider
-    one. Rows of trials that raised (:func:`failed_to_run`) are not used; later rows win. A spec
+    one. Rows of trials that raised (:func:`failed_to_run`) and rows without a result
+    (:data:`RESULT_COLUMNS`) are not used; later rows win. A spec
     column a row lacks, or holds empty (written before the field existed: such a row read back
     from a ``trials.csv`` that also holds newer rows has an empty cell there), counts as the
     field's default; no spec field has the empty string as a valid value. A matched row gets
@@ -59,10 +72,13 @@ def match_rows(jobs: Sequence[TrialJob], rows: Iterable[dict[str, Any]]) -> Matc
     label_sets = list(dict.fromkeys(tuple(job.labels) for job in jobs))
     default = spec_columns(TrialSpec())  # for spec fields a row predates (older versions)
     matched: dict[int, dict[str, Any]] = {}
-    n_ignored = n_failed = 0
+    n_ignored = n_failed = n_damaged = 0
     for row in rows:
         if failed_to_run(row):
             n_failed += 1
+            continue
+        if not has_result(row):
+            n_damaged += 1
             continue
         spec = [default[c] if row.get(c) in (None, "") else row[c] for c in SPEC_COLUMNS]
         hits: list[int] = []
@@ -75,7 +91,7 @@ def match_rows(jobs: Sequence[TrialJob], rows: Iterable[dict[str, Any]]) -> Matc
         for index in hits:
             job = jobs_by_index[index]
             matched[index] = {**row, "kind": job.kind, **spec_columns(job.spec), "index": index}
-    return Matched(matched, n_ignored, n_failed)
+    return Matched(matched, n_ignored, n_failed, n_damaged)
 
 
 def execution_order(jobs: Sequence[TrialJob]) -> list[TrialJob]:

@@ -42,6 +42,7 @@ from wholehand.studies.resume import (
     continue_command,
     execution_order,
     failed_to_run,
+    has_result,
     match_rows,
 )
 from wholehand.studies.rows import record_row, spec_columns
@@ -233,12 +234,16 @@ def run_study(
     done: dict[int, dict[str, Any]] = {}
     from_csv: list[dict[str, Any]] = []
     if resume:
-        from_csv, from_journal = folder_rows(folder)
+        cut: list[int] = []
+        from_csv, from_journal = folder_rows(folder, cut)
         matched = match_rows(jobs, from_csv + from_journal)
         done.update(matched.rows)
+        damaged = matched.n_damaged + len(cut)
+        where = f" (trials.csv lines cut short: {cut})" if cut else ""
         print(
             f"study {study.name}: resuming in {folder}: {len(done)} of {len(jobs)} trials "
             f"reused, {matched.n_failed} rows of trials that raised re-run, "
+            f"{damaged} damaged rows (no result) re-run{where}, "
             f"{matched.n_ignored} rows matching no job of this design ignored",
             file=sys.stderr,
         )
@@ -252,7 +257,7 @@ def run_study(
         in_journal = {content_key(r) for r in from_journal}
         for row in from_csv:
             key = content_key(row)
-            if not failed_to_run(row) and key not in in_journal:
+            if not failed_to_run(row) and has_result(row) and key not in in_journal:
                 in_journal.add(key)
                 journal.write(journal_line(row))
         journal.flush()

@@ -79,15 +79,19 @@ def _cell(text: str) -> Any:
     return text
 
 
-def read_csv(path: str | Path) -> list[dict[str, Any]]:
+def read_csv(path: str | Path, damaged: list[int] | None = None) -> list[dict[str, Any]]:
     """Rows of a CSV written by :func:`write_csv`, typed back: ``True``/``False`` as booleans,
     integers (no leading zeros) as int, numbers with a point or an exponent, ``nan`` and
     ``inf`` as float, an empty cell as None, anything else as a string. :data:`TEXT_COLUMNS`
     always stay strings (``""`` included), so the spec's JSON parameter dicts compare equal to
     :func:`spec_columns`.
 
+    A line with fewer cells than the header has columns (cut short) is damaged: with a
+    ``damaged`` list its line number goes there and the line is skipped.
+
     Raises:
-        ConfigError: a line has more cells than the header has columns.
+        ConfigError: a line has more cells than the header has columns, or, without
+            ``damaged``, fewer.
     """
     path = Path(path)
     rows: list[dict[str, Any]] = []
@@ -100,6 +104,14 @@ def read_csv(path: str | Path) -> list[dict[str, Any]]:
                     f"{len(reader.fieldnames or ())} columns; the file is not a trials.csv "
                     "written by wholehand (remove it, or the line, to go on)"
                 )
+            if None in raw.values():
+                if damaged is None:
+                    raise ConfigError(
+                        f"{path}, line {reader.line_num}: fewer cells than the header's "
+                        f"{len(reader.fieldnames or ())} columns (cut short?); remove the line"
+                    )
+                damaged.append(reader.line_num)
+                continue
             rows.append({k: (v if k in TEXT_COLUMNS else _cell(v or "")) for k, v in raw.items()})
     return rows
 
@@ -124,10 +136,13 @@ def read_journal(path: str | Path) -> list[dict[str, Any]]:
     return rows
 
 
-def folder_rows(folder: Path) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """(rows of ``trials.csv``, rows of the journal) of a folder, each empty if absent."""
+def folder_rows(
+    folder: Path, damaged: list[int] | None = None
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """(rows of ``trials.csv``, rows of the journal) of a folder, each empty if absent; the
+    line numbers of damaged lines of ``trials.csv`` go to ``damaged`` (:func:`read_csv`)."""
     csv_path, journal_path = folder / "trials.csv", folder / JOURNAL_NAME
-    from_csv = read_csv(csv_path) if csv_path.exists() else []
+    from_csv = read_csv(csv_path, damaged) if csv_path.exists() else []
     from_journal = read_journal(journal_path) if journal_path.exists() else []
     return from_csv, from_journal
 

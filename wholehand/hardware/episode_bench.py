@@ -32,6 +32,7 @@ from wholehand.hardware.rmw_zenoh import loopback_endpoint
 from wholehand.loop.reach import HOME, PREGRASP, REGULATE
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
+from wholehand.provenance import provenance
 from wholehand.studies.base import derive_seed
 
 RIG = "flexiv_rizon4_hx5_d20_right"
@@ -198,6 +199,7 @@ def run_pipeline_benchmark(
                     f"regrasps={b['regrasps']} complete={b['complete']}"
                 )
     return {
+        "provenance": provenance(),
         "hand": hand,
         "objects": list(objects),
         "episodes_per_object": episodes,

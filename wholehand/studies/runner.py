@@ -31,6 +31,7 @@ from typing import Any
 from wholehand import registry
 from wholehand.errors import ConfigError
 from wholehand.loop.trial import run_trial
+from wholehand.provenance import provenance
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, with_methods
 from wholehand.studies.consistency import net_force_row
 from wholehand.studies.dexgraspbench import load_test_row
@@ -294,6 +295,7 @@ def run_study(
         complete = len(rows) == len(jobs)
         summary = {
             "study": study.name,
+            "provenance": provenance(),
             "description": study.description,
             "hand": str(hand),
             "size": size,

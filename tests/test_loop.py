@@ -236,8 +236,10 @@ class FaultyBackend(Backend):
             wMo[:3, 3] += [10.0, 0.0, 0.0]
         elif fault == "jump":
             wMo[:3, 3] += [0.05, 0.0, 0.0]  # 5 cm in 5 ms
-        elif fault == "joint":
+        elif fault == "joint":  # no position a joint can have
             q[5] = 40.0
+        elif fault == "off_limit":  # past the gate's margin, not a broken reading
+            q[5] = 0.5 + float(self.sim.hand.q_upper[5])
         return Observation(q, obs.dq, wMb, obs.stamp_q, wMo, obs.stamp_object, obs.history)
 
     def apply(self, command):
@@ -601,7 +603,7 @@ def test_the_longest_hold_of_the_last_command_is_reported_and_warned_once(allegr
 def test_the_gate_refuses_a_glitch_and_accepts_a_sustained_change(allegro, cube):
     from wholehand.loop.gate import GateLimits, ObservationGate
 
-    faults = {10: "far", 11: "jump", 12: "joint", **{i: "joint" for i in range(20, 26)}}
+    faults = {10: "far", 11: "jump", 12: "off_limit", **{i: "off_limit" for i in range(20, 26)}}
     gate = ObservationGate(allegro, GateLimits(accept_after=4))
     seen = Last()
     backend = FaultyBackend(grasp_backend(allegro, cube), faults)
@@ -613,9 +615,9 @@ def test_the_gate_refuses_a_glitch_and_accepts_a_sustained_change(allegro, cube)
         assert statuses[i] == "bad_state", i
         np.testing.assert_array_equal(seen.cycles[i].command.tau, seen.cycles[9].command.tau)
     assert "beyond 1.0 m" in seen.cycles[10].fault and "m/s" in seen.cycles[11].fault
-    assert "joint 'joint_" in seen.cycles[12].fault and "40.000" in seen.cycles[12].fault
+    assert "joint 'joint_" in seen.cycles[12].fault and "by more than 0.2" in seen.cycles[12].fault
     assert statuses[13] == "ok"  # the glitches are over
-    # Six cycles of a joint at 40 rad: three refused, then accepted while it lasts.
+    # Six cycles of a joint 0.5 rad past its limit: three refused, then accepted while it lasts.
     assert statuses[20:23] == ["bad_state"] * 3 and statuses[23:26] == ["ok"] * 3
     assert gate.accepted == {"joints": 1} and gate.refused["joints"] == 4
     with pytest.raises(ConfigError, match="accept_after"):
@@ -897,3 +899,47 @@ def test_recorded_contact_benchmark_times_each_phase_of_the_loops_states():
     # The total is the phases' sum cycle by cycle, so its mean is the sum of their means.
     means = sum(out["phases"][p]["mean_us"] for p in PHASES)
     assert out["total"]["mean_us"] == pytest.approx(means, abs=0.02)
+
+
+def test_a_joint_reading_far_past_its_limit_is_refused_without_the_gate(allegro, cube):
+    """A joint 40 rad past its limit is no position: bad_state and the last torque, gate or not;
+    a reading a little past it (a pressed finger in MuJoCo) is used."""
+    from wholehand.loop.control_loop import BROKEN_READING
+
+    backend = FaultyBackend(grasp_backend(allegro, cube), {i: "joint" for i in range(10, 13)})
+    seen = Last()
+    loop = ControlLoop(backend, allegro, cube, regulation(allegro, cube), observers=[seen])
+    report = loop.run(0.1)
+    statuses = [c.output.status for c in seen.cycles]
+    assert statuses[10:13] == ["bad_state"] * 3 and statuses[13] == "ok"
+    assert "reads 40, more than 1.0 past its limits" in seen.cycles[10].fault
+    np.testing.assert_array_equal(seen.cycles[12].command.tau, seen.cycles[9].command.tau)
+    assert report.faults == {"bad_state": 3}
+    q = allegro.neutral()
+    q[5] = allegro.q_upper[5] + 0.9 * BROKEN_READING
+    loop._check_joint_range(q)  # past the limit, but a position the joint can be pushed to
+
+
+def test_a_pose_out_of_reach_holds_the_last_torque_then_ramps_it_to_zero(allegro, cube):
+    """A tracker glitch 10 m away while regulating: tracking_lost, the last torque held for
+    TRACKING_HOLD, then ramped linearly to zero over TRACKING_RAMP; back in reach, regulation
+    resumes."""
+    from wholehand.loop.tracking import TRACKING_HOLD, TRACKING_RAMP
+
+    glitch = range(20, 20 + 180)  # 0.9 s at 200 Hz
+    backend = FaultyBackend(grasp_backend(allegro, cube), dict.fromkeys(glitch, "far"))
+    seen = Last()
+    stage = regulation(allegro, cube)
+    assert 0.3 < stage.reach.radius < 1.0
+    loop = ControlLoop(backend, allegro, cube, stage, observers=[seen])
+    loop.run(1.1)
+    statuses = [c.output.status for c in seen.cycles]
+    assert statuses[19] == "ok" and set(statuses[20:200]) == {"tracking_lost"}
+    assert statuses[200] == "ok"
+    last = seen.cycles[19].command.tau
+    hold = round(TRACKING_HOLD * 200)
+    for k in range(180):
+        held = k * 0.005
+        scale = np.clip(1.0 - (held - TRACKING_HOLD) / TRACKING_RAMP, 0.0, 1.0)
+        np.testing.assert_allclose(seen.cycles[20 + k].command.tau, scale * last, atol=1e-12)
+    assert np.abs(seen.cycles[20 + hold + round(TRACKING_RAMP * 200)].command.tau).max() == 0.0

@@ -227,6 +227,9 @@ def test_hold_stage_reports_a_loss_only_when_the_object_left_the_hand(allegro, c
         def start(self, ctx):
             pass
 
+        def tracking_lost(self, ctx):
+            return None  # every pose here is within the hand's reach
+
         def step(self, ctx):
             return StageOutput(Command.torques(np.zeros(allegro.nv)), "ok")
 
@@ -733,3 +736,31 @@ def test_a_table_top_grasp_without_its_face_is_named(monkeypatch) -> None:
         episode.run_episode(episode.EpisodeSpec(start="floor"))
     with pytest.raises(ConfigError, match="push must be >= 0"):
         episode.run_episode(episode.EpisodeSpec(push=-1.0))
+
+
+def test_hold_stage_keeps_regulating_through_lost_tracking_until_the_ramp_ends(allegro, cube):
+    from wholehand.loop.tracking import TRACKING_HOLD, TRACKING_RAMP
+
+    class Regulation:
+        hand = allegro
+        lost_for: float | None = None
+
+        def start(self, ctx):
+            pass
+
+        def tracking_lost(self, ctx):
+            return self.lost_for
+
+        def step(self, ctx):
+            return StageOutput(None, "tracking_lost")
+
+    regulation = Regulation()
+    stage = HoldStage(regulation, GraspLossCheck(allegro, cube))  # type: ignore[arg-type]
+    far = np.eye(4)
+    far[:3, 3] = [10.0, 0.0, 0.0]  # the hull check alone would call this a loss
+    regulation.lost_for = TRACKING_HOLD + TRACKING_RAMP - 0.01
+    out = run_stage(stage, context(allegro, allegro.neutral(), np.eye(4), far))
+    assert out.next is None and out.status == "tracking_lost"
+    regulation.lost_for = TRACKING_HOLD + TRACKING_RAMP
+    out = stage.step(context(allegro, allegro.neutral(), np.eye(4), far))
+    assert out.next == PREGRASP and "out of the hand's reach for 0.70 s" in out.reason

@@ -28,4 +28,5 @@ def test_a_short_soak_meets_every_requirement(capsys):
     counts = loop["status_counts"]
     kept = sum(loop["faults"].values()) + counts["bad_contacts"] + counts["solver_failed"]
     assert loop["held_commands"] == kept and loop["longest_hold"] == 1
-    assert loop["gate_refused"]["joints"] == 2 and loop["gate_refused"]["workspace"] == 2
+    # A joint 40 rad past its limit is a broken reading, refused before the gate sees it.
+    assert "joints" not in loop["gate_refused"] and loop["gate_refused"]["workspace"] == 2

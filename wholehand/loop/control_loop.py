@@ -18,11 +18,12 @@ Time comes from the backend's clock: the run ends once ``duration`` of backend t
 and on a wall-clock backend a cycle that computes past its period is an overrun, counted with its
 size in the :class:`LoopReport`, never silently absorbed.
 
-Nothing raises out of a cycle. An :class:`~wholehand.errors.ObservationError` gives status
-``bad_state`` with the reason logged; any other exception in a stage gives ``stage_error`` and is
-kept with its traceback in the report (``loop.report.errors``). Either way the last feasible
-command stays applied. Errors of observers and of the backend itself are not caught: they are
-bugs of the set-up, not faults of a grasp.
+Nothing raises out of a cycle. An :class:`~wholehand.errors.ObservationError` (an unusable
+observation, a joint reading :data:`BROKEN_READING` past its limits, a refusal of the gate)
+gives status ``bad_state`` with the reason logged; any other exception in a stage gives
+``stage_error`` and is kept with its traceback in the report (``loop.report.errors``). Either
+way the last feasible command stays applied. Errors of observers and of the backend itself are
+not caught: they are bugs of the set-up, not faults of a grasp.
 """
 
 from __future__ import annotations
@@ -54,6 +55,11 @@ log = logging.getLogger(__name__)
 
 MAX_KEPT_ERRORS = 20
 """Stage exceptions kept with their traceback (later ones are counted only)."""
+
+BROKEN_READING = 1.0
+"""A joint reading this far past its joint's limits [rad or m] is no position the joint can
+have (a broken encoder, a unit or mapping error): the cycle is refused (``bad_state``, the last
+feasible command kept), with or without the plausibility gate, for as long as it lasts."""
 
 HOLD_WARNING_S = 0.1
 """A hold of the last feasible command this long [s] is logged as a warning, once per hold."""
@@ -237,6 +243,8 @@ class ControlLoop:
         """The last feasible command (the one memory of it)."""
         self.report = LoopReport()
         self._tau_max = np.where(hand.actuated_dofs | hand.arm_dofs, hand.tau_max, 0.0)
+        self._q_lowest = hand.q_lower - BROKEN_READING
+        self._q_highest = hand.q_upper + BROKEN_READING
         self._kin_now = HandKinematics(hand)
         self._kin_then = HandKinematics(hand)
         self._started: set[str] = set()
@@ -328,6 +336,7 @@ class ControlLoop:
         context: CycleContext | None = None
         try:
             check_observation(truth, self.hand.nq, self.hand.nv)
+            self._check_joint_range(truth.q)
             if self.gate is not None:
                 self.gate.check(truth)
             for f in self.filters:
@@ -388,6 +397,24 @@ class ControlLoop:
             self.command,
             time.perf_counter() - started,
             fault,
+        )
+
+    def _check_joint_range(self, q: np.ndarray) -> None:
+        """Raise :class:`ObservationError` for a joint reading :data:`BROKEN_READING` or more
+        past its limits."""
+        lowest, highest = self._q_lowest, self._q_highest
+        if (q >= lowest).all() and (q <= highest).all():
+            return
+        i = int(np.flatnonzero((q < lowest) | (q > highest))[0])
+        hand = self.hand
+        name = next(
+            (n for n in hand.joint_names if hand.model.joints[hand.model.getJointId(n)].idx_q == i),
+            f"q[{i}]",
+        )
+        raise ObservationError(
+            f"joint {name!r} reads {q[i]:.4g}, more than {BROKEN_READING} past its limits "
+            f"[{hand.q_lower[i]:.4g}, {hand.q_upper[i]:.4g}]: not a position it can have "
+            "(a broken encoder, a unit or mapping error)"
         )
 
     def _held(self, t: float, status: str) -> None:

@@ -44,6 +44,7 @@ from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.observation import Observation
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.loop.tracking import TRACKING_HOLD, TRACKING_RAMP
 from wholehand.models.gravity import GravityCompensation
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
@@ -358,10 +359,21 @@ class HoldStage(Stage):
 
     def step(self, context: CycleContext) -> StageOutput:
         assert context.obs.wMo is not None
+        held = self.regulation.tracking_lost(context)
+        if held is not None and held < TRACKING_HOLD + TRACKING_RAMP:
+            # A pose the hand cannot be touching: the tracker's, not the grasp's (the last
+            # torque is held, then ramped down); still so after the ramp, the grasp is lost.
+            return self._with_arm(self.regulation.step(context), context)
+        if held is not None:
+            reason = f"grasp lost: the pose stayed out of the hand's reach for {held:.2f} s"
+            return StageOutput(None, "lost", next=PREGRASP, reason=reason)
         if not self.loss.held(context.kinematics, context.obs.wMo):
             reason = "grasp lost: the hull of fingertips and palm left the object's box"
             return StageOutput(None, "lost", next=PREGRASP, reason=reason)
-        out = self.regulation.step(context)
+        return self._with_arm(self.regulation.step(context), context)
+
+    def _with_arm(self, out: StageOutput, context: CycleContext) -> StageOutput:
+        """The regulation's output with the arm held where it grasped (an assembly)."""
         if self.arm is None or out.command is None:
             return out
         tau = out.command.tau.copy()

@@ -11,6 +11,10 @@ Each cycle, in two halves as the paper's hardware loop runs them (Sec. V-D):
    the links' gravity torques when ``gravity_compensation`` is on.
 
 With exact, current observations both halves run at one configuration and nothing is moved.
+
+A pose that puts the object out of the hand's reach is a tracker's glitch, not an empty grasp:
+status ``tracking_lost``, the last torque held, then ramped to zero (:mod:`wholehand.loop.
+tracking`).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from wholehand.contacts.kernels import unit_normals
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.loop.tracking import TRACKING_LOST, ReachBound, ramp_scale
 from wholehand.models.gravity import GravityCompensation
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
@@ -136,17 +141,45 @@ class ForceRegulation(Stage):
         """The links' gravity torques, when compensated."""
         self.degenerate_normals = 0
         """Contacts dropped because their normal was not a unit vector."""
+        self.reach = ReachBound(hand, obj)
+        """Which poses the hand can be touching (:mod:`wholehand.loop.tracking`)."""
+        self.lost_since: float | None = None
+        """Time tracking was lost [s] (None: it is not)."""
+        self._last: Command | None = None
         unit_normals(np.zeros((0, 3)), UNIT_TOL)  # load the compiled check now
 
     def start(self, context: CycleContext) -> None:
         """Let the allocator prepare (baselines allocate once here)."""
         self.allocator.start(context)
+        self.lost_since, self._last = None, None
+
+    def tracking_lost(self, context: CycleContext) -> float | None:
+        """How long [s] the pose has put the object out of the hand's reach (None: it does not
+        now)."""
+        assert context.obs.wMo is not None
+        if not self.reach.out_of_reach(context.kinematics, context.obs.wMo):
+            self.lost_since = None
+            return None
+        if self.lost_since is None:
+            self.lost_since = context.t
+        return context.t - self.lost_since
+
+    def _hold_then_ramp(self, held: float) -> StageOutput:
+        """Tracking lost for ``held`` [s]: the last torque kept, then ramped to zero."""
+        scale = ramp_scale(held)
+        if self._last is None or scale == 1.0:
+            return StageOutput(None, TRACKING_LOST)
+        last = self._last
+        return StageOutput(Command(last.tau * scale, last.targets, last.base), TRACKING_LOST)
 
     def step(self, context: CycleContext) -> StageOutput:
         started = time.perf_counter()
         obs = context.obs
         wMo = obs.wMo
         assert wMo is not None  # the loop runs no stage without a pose
+        held = self.tracking_lost(context)
+        if held is not None:
+            return self._hold_then_ramp(held)
         if self.allocate_every == "pose":
             if obs.stamp_object == self._allocated_stamp:
                 return StageOutput(None, POSE_HELD)
@@ -175,6 +208,8 @@ class ForceRegulation(Stage):
         if tau is not None and bias is not None:
             tau = tau + bias
         command = None if tau is None else Command.torques(self.hand.joint_torques(tau))
+        if command is not None:
+            self._last = command
         return StageOutput(
             command, allocation.status.value, contacts, allocation, estimated - started
         )

@@ -56,6 +56,7 @@ def _outcome(
         "time_to_grasp_s": grasps[0] if grasps else None,
         "perturbations": perturbations,
         "losses": len(losses),
+        "loss_times_s": losses,
         "regrasps": len(regrasp_times),
         "time_to_regrasp_s": regrasp_times,
         "returns_home": sum(t["target"] == HOME for t in transitions),

@@ -22,15 +22,18 @@ import pinocchio as pin
 from wholehand.errors import ConfigError, WholehandError
 from wholehand.hardware.config import HardwareConfig
 from wholehand.hardware.messages import JointStateMsg, PoseMsg
+from wholehand.loop.control_loop import BROKEN_READING
 from wholehand.models.hand import HandModel
 
 FloatArray = npt.NDArray[np.float64]
 
-LIMIT_SLACK = 0.2
-"""How far past a joint limit a measured position is still believed [rad]: encoders and
+LIMIT_SLACK = BROKEN_READING
+"""How far past a joint limit a measured position is still believed [rad]: the loop's own bound
+for a broken reading (:data:`~wholehand.loop.control_loop.BROKEN_READING`). Encoders and
 calibration put real joints a little past their URDF limits, and a finger pressed on an object
-goes past them too (0.074 rad in the robot double's reach episode). The same margin as the
-observation gate's ``joint_margin``."""
+goes past them too (0.2 rad in the robot double's reach episodes); rejecting the whole joint
+state for it would leave every joint without a fresh reading. The gate of ``wholehand control``
+still refuses a joint past its limit by more than its ``joint_margin`` until it persists."""
 
 
 class RejectedMessage(WholehandError):  # noqa: N818 - a verdict, not a failure

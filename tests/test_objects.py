@@ -249,16 +249,25 @@ def test_non_watertight_mesh_needs_explicit_repair(tmp_path: Path) -> None:
     assert "repaired" in fixed.source and "cm^3" in fixed.source
 
 
-def test_open_shell_falls_back_to_voxel_remesh() -> None:
-    cylinder = trimesh.creation.cylinder(radius=0.02, height=0.04, sections=64)
-    cup = trimesh.Trimesh(
-        cylinder.vertices, cylinder.faces[cylinder.triangles_center[:, 2] < 0.0199]
-    )
-    fixed, note = repair_mesh(cup, "cup")
-    assert fixed.is_watertight and fixed.volume > 0.0
-    assert "marching cubes" in note and "%" in note
-    # The shell keeps the cup's outer size to within about a voxel.
-    np.testing.assert_allclose(fixed.extents, cup.extents, atol=2.5e-3)
+@pytest.mark.parametrize("shape", ["cup_shell", "sheet"])
+def test_an_open_surface_is_not_made_a_solid_of_invented_volume(shape: str) -> None:
+    """A single-layer cup without a lid, or a flat sheet, closes only by the voxel remesh, which
+    gives it walls a voxel thick: a volume the surface never enclosed. Refused, with the
+    volumes and the bound."""
+    if shape == "cup_shell":
+        cylinder = trimesh.creation.cylinder(radius=0.02, height=0.04, sections=64)
+        mesh = trimesh.Trimesh(
+            cylinder.vertices, cylinder.faces[cylinder.triangles_center[:, 2] < 0.0199]
+        )
+    else:
+        square = [[0, 0, 0], [0.05, 0, 0], [0.05, 0.05, 0], [0, 0.05, 0]]
+        mesh = trimesh.Trimesh(vertices=square, faces=[[0, 1, 2], [0, 2, 3]])
+    with pytest.raises(AssetError) as err:
+        repair_mesh(mesh, shape)
+    message = str(err.value)
+    assert f"mesh of {shape!r} cannot be closed without changing its volume" in message
+    assert "voxel remesh" in message
+    assert "more than the 10 % a repair may change" in message and "cm^3" in message
 
 
 def test_inconsistent_winding_needs_repair() -> None:

@@ -19,6 +19,10 @@ log = logging.getLogger(__name__)
 REPAIR_VOXEL_PITCH: float = 0.001
 """Voxel size of the last-resort remesh of ``repair=True`` [m] (raised for large objects so that
 the voxel grid stays below 400 cells per axis)."""
+REPAIR_MAX_CHANGE: float = 10.0
+"""Largest change of the enclosed volume the voxel remesh may make [%], against the cleaned,
+hole-filled surface (the YCB meshes registered for repair need no remesh and change by less
+than 0.01 %); an open sheet would become a slab of made-up volume."""
 
 MIN_EXTENT: float = 0.005
 """Smallest plausible largest extent of an object [m]; below, the mesh is probably in metres
@@ -89,7 +93,9 @@ def repair_mesh(mesh: trimesh.Trimesh, name: str = "mesh") -> tuple[trimesh.Trim
     a voxel and closes thin openings; the note reports the volume change.
 
     Raises:
-        AssetError: nothing watertight could be made.
+        AssetError: nothing watertight could be made, or only by a voxel remesh that changes the
+            enclosed volume by more than :data:`REPAIR_MAX_CHANGE` (an open sheet becomes a
+            slab).
     """
     t0 = time.perf_counter()
     before = describe_defects(mesh)
@@ -113,7 +119,9 @@ def repair_mesh(mesh: trimesh.Trimesh, name: str = "mesh") -> tuple[trimesh.Trim
         "holes, fixed winding"
     )
     if not (out.is_watertight and out.is_winding_consistent):
+        filled = abs(float(out.volume)) if len(out.faces) else 0.0
         out = _voxel_remesh(out if len(out.faces) else mesh)
+        _check_remesh_volume(name, filled, abs(float(out.volume)))
         pitch_mm = _voxel_pitch(mesh) * 1e3
         steps += f"; still open: remeshed by marching cubes of its filled {pitch_mm:.1f} mm voxels"
         if not out.is_watertight:
@@ -165,6 +173,21 @@ def _drop_coincident_faces(
             keep[members[signs == np.sign(balance)][0]] = True
         removed += len(members) - (balance != 0)
     return keep, removed
+
+
+def _check_remesh_volume(name: str, filled: float, remeshed: float) -> None:
+    """Refuse a voxel remesh that changes the volume of the cleaned, hole-filled surface by more
+    than :data:`REPAIR_MAX_CHANGE`: the surface was no solid's (a sheet, a single-layer shell),
+    and the remesh would give it walls a voxel thick."""
+    change = 100.0 * (remeshed - filled) / filled if filled > 0.0 else float("inf")
+    if not abs(change) <= REPAIR_MAX_CHANGE:
+        raise AssetError(
+            f"mesh of {name!r} cannot be closed without changing its volume: the cleaned, "
+            f"hole-filled surface encloses {filled * 1e6:.3f} cm^3, its voxel remesh "
+            f"{remeshed * 1e6:.3f} cm^3 ({change:+.1f} %, more than the {REPAIR_MAX_CHANGE:g} % a "
+            "repair may change); an open surface (a sheet, a shell without a back) is not a "
+            "solid: close it offline (e.g. MeshLab, Blender 3D-Print Toolbox)"
+        )
 
 
 def _voxel_pitch(mesh: trimesh.Trimesh) -> float:

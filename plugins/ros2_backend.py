@@ -9,7 +9,11 @@ and a stop topic (``std_msgs/msg/Bool``); publishes the hand's torque commands a
 
 The hand gets torques throughout: a stage's joint targets on hand joints (the reacher's finger
 servo) become the PD law of :mod:`wholehand.loop.command` evaluated here on the newest joint
-state, within the torque limits. Arm targets pass :class:`~wholehand.hardware.arm_guard.ArmGuard`.
+state, within the torque limits. With ``[topics] hand_position_command`` set, a command with
+hand targets (reaching) instead sends the targets, within the joint limits, on that topic in the
+torque command's joint order, for hand drivers that switch to a position interface on it, and
+a command without (regulating) sends torques. Arm targets pass
+:class:`~wholehand.hardware.arm_guard.ArmGuard`.
 A stop request freezes the arm and ramps the hand torques to zero; on every exit (:meth:`close`,
 reached on the loop's end, Ctrl-C, SIGTERM and a fault of the loop) the arm holds its measured
 position and the hand torques ramp to zero over ``exit_ramp``.
@@ -134,7 +138,7 @@ class Ros2Backend(Backend):
         self.command_names = [self.reader.msg_name[hand.joint_names[i]] for i in self.command_dofs]
         """The torque command's joints as the robot names them (the effort controller's
         ``joints``, in order)."""
-        has_arm = bool(config.topics["arm_command"])
+        has_arm = bool(config.topic("arm_command"))
         self.arm_dofs = arm_command_dofs(hand, config) if has_arm else np.zeros(0, np.intp)
         """(n_arm,) velocity indices of the arm command's joints, in its order."""
         self.arm_names = [self.reader.msg_name[hand.joint_names[i]] for i in self.arm_dofs]
@@ -153,6 +157,9 @@ class Ros2Backend(Backend):
         """A stop message asked the robot to stop (until one that releases it)."""
         self.stops = 0
         """Stop requests received (each true after a false or none)."""
+        self.hand_position_messages = 0
+        """Position commands sent to the hand (``[topics] hand_position_command``)."""
+        self._hand_in_position = False
         self.received: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
         self.last_rejection = ""
@@ -187,13 +194,18 @@ class Ros2Backend(Backend):
             self._arm = (
                 Publisher(self.session, config, "arm_command", arm_type, node) if has_arm else None
             )
+            self._hand_position = (
+                Publisher(self.session, config, "hand_position_command", FLOAT64_ARRAY, node)
+                if config.topic("hand_position_command")
+                else None
+            )
             self._subs = [
                 Subscriber(
                     self.session, config, "joint_states", JOINT_STATE, self._on_joints, node
                 ),
                 Subscriber(self.session, config, "object_pose", POSE_STAMPED, self._on_pose, node),
             ]
-            if config.topics["stop"]:
+            if config.topic("stop"):
                 self._subs.append(
                     Subscriber(self.session, config, "stop", BOOL, self._on_stop, node)
                 )
@@ -283,7 +295,7 @@ class Ros2Backend(Backend):
                 self.stops += 1
                 log.warning(
                     "stop requested on %s: arm frozen, hand ramping to zero",
-                    self.config.topics["stop"],
+                    self.config.topic("stop"),
                 )
             self.stop_requested = stop
 
@@ -347,12 +359,24 @@ class Ros2Backend(Backend):
             self._last_apply = now
             if joint is not None:
                 self.guard.start_from(joint.effort, now)
+            positions, position_pub = None, self._hand_position
+            self._hand_in_position = False
             if self.stop_requested:
                 tau = self.guard.ramp_down(now, self.config.safety.pose_ramp, "stop")
+            elif position_pub is not None and joint_age <= self.config.safety.joint_timeout:
+                positions = self._hand_targets(command)
+            if positions is not None and position_pub is not None:
+                position_pub.put(encode_array(positions))
+                self.hand_position_messages += 1
+                self._hand_in_position = True
+                # The drives servo the position; the first torque command after it is
+                # rate-limited from the effort they then report, as after a restart.
+                self.guard.last = None
             else:
-                wanted = self._hand_torques(command, joint)
-                tau, _ = self.guard.filter(wanted, now, joint_age, pose_age)
-            self._publish(tau, stamp_ns)
+                if not self.stop_requested:
+                    wanted = self._hand_torques(command, joint)
+                    tau, _ = self.guard.filter(wanted, now, joint_age, pose_age)
+                self._publish(tau, stamp_ns)
             arm = self._arm_target(command, joint, joint_age, now)
         if arm is not None:
             self._publish_arm(arm)
@@ -365,6 +389,19 @@ class Ros2Backend(Backend):
         if self.config.stamp_source == "header" and joint is not None and self._pose is not None:
             age = max(age, joint.stamp - self._pose[1])
         return age
+
+    def _hand_targets(self, command: Command) -> FloatArray | None:
+        """(m,) the command's position targets of the hand's command joints, in their order and
+        within their limits; None unless the command targets every one of them."""
+        target = np.full(self.hand.nv, np.nan)
+        for group in command.targets:
+            if group.q is not None:
+                target[group.dofs] = group.q
+        out = target[self.command_dofs]
+        if not np.isfinite(out).all():
+            return None
+        q_index = self._q_index[self.command_dofs]
+        return np.clip(out, self.hand.q_lower[q_index], self.hand.q_upper[q_index])
 
     def _hand_torques(self, command: Command, joint: JointSample | None) -> FloatArray:
         """(n_v,) the command's torques with each target group's PD law on the hand's joints,
@@ -484,6 +521,7 @@ class Ros2Backend(Backend):
                 "arm_messages": 0 if self._arm is None else self._arm.sequence_number,
                 "arm_joints": self.arm_names,
                 "stops": self.stops,
+                "hand_position_messages": self.hand_position_messages,
                 "sync": dict(self.sync),
                 "sync_wait_s": self.sync_wait,
             }
@@ -501,15 +539,18 @@ class Ros2Backend(Backend):
         self._torque.close()
         if self._arm is not None:
             self._arm.close()
+        if self._hand_position is not None:
+            self._hand_position.close()
         self.node.close()
         self.session.close()
 
     def release(self) -> None:
         """The last commands of every exit: the arm's target at its measured position, and the
         hand's torque ramped from the last one sent to zero over ``exit_ramp`` at the control
-        rate, ending on zero (counted as ``exit`` in the guard). Nothing when no command was ever
-        sent."""
-        if self.guard.last is None:
+        rate, ending on zero (counted as ``exit`` in the guard); a hand last sent position
+        targets (``hand_position_command``) gets its measured position instead. Nothing when no
+        command was ever sent."""
+        if self.guard.last is None and not self._hand_in_position:
             return
         duration, period = self.config.safety.exit_ramp, 1.0 / self.config.control_rate
         with self._lock:
@@ -519,6 +560,12 @@ class Ros2Backend(Backend):
                 arm = self.arm_guard.hold(joint.q, time.monotonic())
         if arm is not None:
             self._publish_arm(arm)
+        if self._hand_in_position:
+            if joint is not None and self._hand_position is not None:
+                held = joint.q[self._q_index[self.command_dofs]]
+                self._hand_position.put(encode_array(held))
+                self.hand_position_messages += 1
+            return
         start = time.monotonic()
         while True:
             now = time.monotonic()

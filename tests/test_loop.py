@@ -3,7 +3,6 @@ faults that never escape the loop, the backend's clock, and mixed joint groups."
 
 from __future__ import annotations
 
-import time
 from collections import Counter
 
 import numpy as np
@@ -332,13 +331,21 @@ def test_a_trial_whose_stage_raises_is_an_error_row(allegro, cube, monkeypatch):
     assert row["failure_stage"] == "error" and "boom" in row["error"]
 
 
+class FakeWallClock:
+    """A wall clock the test moves: time passes only when the backend waits or a stage
+    computes, so a run on it is the same every time, whatever the machine's load."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+
 class WallClockBackend(Backend):
-    """A hand that does not move, on the wall clock: time passes while the stage computes."""
+    """A hand that does not move, on a wall clock: time passes while the stage computes."""
 
     clock = "wall"
 
-    def __init__(self, sim):
-        self.sim, self.t0 = sim, time.perf_counter()
+    def __init__(self, sim, clock: FakeWallClock):
+        self.sim, self.clock_ = sim, clock
         self.observation = sim.observe()
 
     def observe(self):
@@ -351,41 +358,44 @@ class WallClockBackend(Backend):
         pass
 
     def step(self, duration):
-        time.sleep(duration)
+        self.clock_.t += duration
 
     @property
     def time(self):
-        return time.perf_counter() - self.t0
+        return self.clock_.t
 
 
 class SlowStage(Stage):
-    """Zero torque; every third cycle computes for three control periods."""
+    """Zero torque; every third cycle computes for three control periods (``slow=False``:
+    none does)."""
 
     name = "slow"
 
-    def __init__(self, dt):
-        self.dt, self.n = dt, 0
+    def __init__(self, dt, clock: FakeWallClock, slow: bool = True):
+        self.dt, self.n, self.clock, self.slow = dt, 0, clock, slow
 
     def step(self, context):
         self.n += 1
-        if self.n % 3 == 0:
-            time.sleep(3 * self.dt)
+        if self.slow and self.n % 3 == 0:
+            self.clock.t += 3 * self.dt
         return StageOutput(Command.torques(np.zeros(context.hand.nv)), "ok")
 
 
 def test_a_wall_clock_overrun_is_measured_not_absorbed(allegro, cube):
     rate = 50.0
-    backend = WallClockBackend(grasp_backend(allegro, cube))
-    stage = SlowStage(1.0 / rate)
+    clock = FakeWallClock()
+    backend = WallClockBackend(grasp_backend(allegro, cube), clock)
+    stage = SlowStage(1.0 / rate, clock)
     seen = Last()
     report = ControlLoop(backend, allegro, cube, stage, rate=rate, observers=[seen]).run(0.6)
-    slow = stage.n // 3
-    assert slow >= 2 and report.overruns >= slow
-    assert report.max_overrun >= 1.5 / rate
-    # Time comes from the clock: fewer cycles than 0.6 s x 50 Hz, because of the slow ones.
-    assert report.cycles < 0.6 * rate
+    # Every third cycle takes 3 periods: it overruns its period by 2 of them, and the next
+    # cycle starts when it ends (the schedule restarts rather than cycles crowding in).
     ts = np.array([c.t for c in seen.cycles])
-    assert np.all(np.diff(ts) > 0.9 / rate)
+    np.testing.assert_allclose(np.diff(ts)[:6], [0.02, 0.02, 0.06, 0.02, 0.02, 0.06])
+    slow = stage.n // 3
+    assert slow >= 2 and report.overruns == slow
+    assert report.max_overrun == pytest.approx(2.0 / rate)
+    assert report.cycles == 18  # 3 cycles per 0.1 s: fewer than 0.6 s x 50 Hz
 
 
 def _thumb_dofs(hand):
@@ -778,25 +788,21 @@ class OvershootingClock(WallClockBackend):
     """A virtual wall clock whose every sleep lasts 0.3 ms longer than asked, as OS sleeps do;
     one sleep (the fifth) lasts 2.5 periods longer."""
 
-    def __init__(self, sim, dt):
-        super().__init__(sim)
-        self._t, self.dt, self.steps = 0.0, dt, 0
+    def __init__(self, sim, dt, clock):
+        super().__init__(sim, clock)
+        self.dt, self.steps = dt, 0
 
     def step(self, duration):
         self.steps += 1
-        self._t += duration + 3e-4 + (2.5 * self.dt if self.steps == 5 else 0.0)
-
-    @property
-    def time(self):
-        return self._t
+        self.clock_.t += duration + 3e-4 + (2.5 * self.dt if self.steps == 5 else 0.0)
 
 
 def test_wall_clock_cycles_keep_their_schedule_despite_sleep_overshoot(allegro, cube):
     dt = 0.01
-    backend = OvershootingClock(grasp_backend(allegro, cube), dt)
+    clock = FakeWallClock()
+    backend = OvershootingClock(grasp_backend(allegro, cube), dt, clock)
     seen = Last()
-    stage = SlowStage(dt)
-    stage.n = -1000  # never slow: only the clock's overshoot
+    stage = SlowStage(dt, clock, slow=False)  # only the clock's overshoot
     report = ControlLoop(backend, allegro, cube, stage, rate=1 / dt, observers=[seen]).run(0.2)
     ts = np.array([c.t for c in seen.cycles])
     # Cycles 1-4 start 0.3 ms after k * dt (no drift); the 2.5-period sleep is one overrun,

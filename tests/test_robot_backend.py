@@ -61,6 +61,17 @@ class ArmHandRobot:
             ),
             Subscriber(self.session, config, "arm_command", arm_type, self._on_arm),
         ]
+        self.positions: list[np.ndarray] = []
+        if config.topics.get("hand_position_command"):
+            self._subs.append(
+                Subscriber(
+                    self.session,
+                    config,
+                    "hand_position_command",
+                    msgs.FLOAT64_ARRAY,
+                    lambda p, a, t: self.positions.append(msgs.decode_array(p)),
+                )
+            )
         self._trajectory = trajectory
         self._running = True
         self._thread = threading.Thread(target=self._publish, daemon=True)
@@ -94,12 +105,15 @@ class ArmHandRobot:
         self.session.close()
 
 
-def _config(endpoint: str, connect: bool, **arm) -> HardwareConfig:
+def _config(endpoint: str, connect: bool, positions: bool = False, **arm) -> HardwareConfig:
     safety = SafetyLimits(torque_rate=1e6, pose_ramp=0.2, exit_ramp=0.2, joint_timeout=0.1)
+    topics = dict(TOPICS)
+    if positions:
+        topics["hand_position_command"] = "/hand_position_controller/commands"
     return HardwareConfig(
         connect=(endpoint,) if connect else (),
         listen=() if connect else (endpoint,),
-        topics=dict(TOPICS),
+        topics=topics,
         command_joints=HAND_ORDER,
         arm=ArmSettings(joints=ARM_ORDER, **arm),
         safety=safety,
@@ -123,12 +137,12 @@ def setup(rig):
 
     made = []
 
-    def make(**arm):
+    def make(positions=False, **arm):
         endpoint = loopback_endpoint()
         q = home_configuration(rig, grasp_hand_of(rig))
         dq = np.where(rig.arm_dofs, 0.0, 0.1 * np.arange(rig.nv))
-        robot = ArmHandRobot(rig, _config(endpoint, False, **arm), q, dq)
-        backend = Ros2Backend(rig, None, _config(endpoint, True, **arm))
+        robot = ArmHandRobot(rig, _config(endpoint, False, positions, **arm), q, dq)
+        backend = Ros2Backend(rig, None, _config(endpoint, True, positions, **arm))
         made.append((robot, backend))
         _until(lambda: backend.observe().stamp_q > 0.0)
         return robot, backend, q, dq
@@ -275,3 +289,35 @@ def test_a_joint_state_without_an_arm_joint_stops_the_hand_and_holds_the_arm(rig
     np.testing.assert_array_equal(robot.arm[-1], last_target[order])
     assert backend.guard.counts["joints_stale"] >= 1
     assert "joint3" in backend.last_rejection
+
+
+def test_a_hand_on_a_position_interface_gets_targets_while_reaching_torques_while_regulating(
+    rig, setup
+):
+    robot, backend, q, _ = setup(positions=True)
+    hand = _hand(rig)
+    order = _model_to_order(rig, HAND_ORDER)
+    q_ref = q.copy()
+    q_ref[hand] += 0.05
+    q_ref[hand[0]] = rig.q_upper[hand[0]] + 0.5  # beyond the limit: clamped
+    reaching = Command(np.zeros(rig.nv), (JointTargets(hand, q_ref[hand], None, 2.0, 0.05),))
+    n_torque = len(robot.torques)
+    for _ in range(3):
+        backend.apply(reaching)
+        time.sleep(0.01)
+    _until(lambda: len(robot.positions) >= 3)
+    expected = np.minimum(q_ref, rig.q_upper)[order]
+    np.testing.assert_allclose(robot.positions[-1], expected)
+    assert len(robot.torques) == n_torque  # no torque while the hand servoes positions
+    regulating = np.zeros(rig.nv)
+    regulating[hand] = 0.1
+    backend.apply(Command.torques(regulating))
+    backend.apply(Command.torques(regulating))
+    _until(lambda: len(robot.torques) >= n_torque + 2)
+    np.testing.assert_array_equal(robot.torques[-1], 0.1)  # from the measured effort (zero)
+    backend.apply(reaching)
+    backend.close()  # the last command of a hand servoing positions: where it is
+    sent = backend.stats()["hand_position_messages"]
+    _until(lambda: len(robot.positions) == sent)
+    np.testing.assert_allclose(robot.positions[-1], q[order])
+    np.testing.assert_allclose(robot.positions[-2], expected)

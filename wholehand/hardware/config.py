@@ -15,6 +15,10 @@ Schema (times in s, rates in Hz, torques in N*m; every key optional, defaults be
     object_pose = "/object_pose"                            # geometry_msgs/msg/PoseStamped, in
     torque_command = "/hand_effort_controller/commands"     # std_msgs/msg/Float64MultiArray, out
     arm_command = ""                # the arm's joint position targets, out ("" = no arm)
+    hand_position_command = ""      # Float64MultiArray of the hand's position targets while
+                                    # reaching, for hand drivers that switch to a position
+                                    # interface on it; torques go on torque_command while
+                                    # regulating ("" = torques throughout: a PD law in torque)
     stop = "/wholehand/stop"        # std_msgs/msg/Bool, in: true stops the robot ("" = none)
 
     [joints]
@@ -101,7 +105,10 @@ ArmInterface = Literal["position", "trajectory"]
 DISTROS = ("humble", "jazzy", "kilted")
 """ROS 2 distributions whose rmw_zenoh key expressions we write."""
 
-TOPICS = ("joint_states", "object_pose", "torque_command", "arm_command", "stop")
+TOPICS = (
+    "joint_states", "object_pose", "torque_command", "arm_command", "hand_position_command",
+    "stop",
+)  # fmt: skip
 STAMP_SOURCES: tuple[StampSource, ...] = ("header", "receipt")
 
 
@@ -169,6 +176,7 @@ class HardwareConfig:
             "object_pose": "/object_pose",
             "torque_command": "/hand_effort_controller/commands",
             "arm_command": "",
+            "hand_position_command": "",
             "stop": "/wholehand/stop",
         }
     )
@@ -189,6 +197,10 @@ class HardwareConfig:
     stamp_source: StampSource = "header"
     safety: SafetyLimits = field(default_factory=SafetyLimits)
     path: str = ""
+
+    def topic(self, key: str) -> str:
+        """The topic of a ``[topics]`` key; "" for an optional one that is off or not given."""
+        return self.topics.get(key, "")
 
     def qos_of(self, topic: str) -> QoS:
         """The QoS of a topic key of ``[topics]`` (reliable, keep last 1 unless set)."""

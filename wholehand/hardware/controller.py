@@ -130,7 +130,7 @@ def pipeline_for_robot(
         ConfigError: the config gives the arm no command topic or no workspace.
     """
     workspace = config.workspace
-    if not config.topics["arm_command"] or workspace is None:
+    if not config.topic("arm_command") or workspace is None:
         raise ConfigError(
             f"{config.path or 'hardware config'}: {hand.name!r} is an arm-hand assembly: set "
             "[topics] arm_command, [arm] joints and [workspace] (docs/hardware.md), or give the "

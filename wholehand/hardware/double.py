@@ -146,6 +146,12 @@ class RemoteTorque(Stage):
             self.received += 1
             self.arrivals.append((meta.sequence_number, arrival))
 
+    @property
+    def latest(self) -> tuple[FloatArray, float] | None:
+        """The newest torque command (model order [N*m]) and when it arrived [s, monotonic]."""
+        with self._lock:
+            return self._latest
+
     def _applied(self, now: float) -> FloatArray:
         """The torque the drives apply at ``now`` (monotonic [s])."""
         latest = self._latest

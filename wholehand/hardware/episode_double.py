@@ -46,7 +46,7 @@ from wholehand.hardware.messages import (
 from wholehand.hardware.rmw_zenoh import Node, Publisher, Subscriber, open_session
 from wholehand.loop.command import Command, JointTargets
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.reach import ArmServo
+from wholehand.loop.reach import FINGER_KD, FINGER_KP, ArmServo
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.loop.trial import tracking_filters
 from wholehand.models.hand import HandModel
@@ -94,9 +94,11 @@ class EpisodeDoubleSpec:
 class RemoteArmHand(Stage):
     """The robot's controllers: the hand's torques (:class:`RemoteTorque`) and the arm's newest
     position target, held (before any: where the arm started), servoed with the arm's gains and
-    its gravity feed-forward.
+    its gravity feed-forward. With a hand position topic, the hand's driver switches to position
+    control (the finger servo's gains) while its newest command is a position one.
 
-    Statuses: those of :class:`RemoteTorque`.
+    Statuses: those of :class:`RemoteTorque`, and ``remote_position`` for a hand under position
+    control.
     """
 
     name = "drives"
@@ -114,6 +116,9 @@ class RemoteArmHand(Stage):
         reader = JointStateReader(hand, config)
         self.arm_names = tuple(reader.msg_name[hand.joint_names[i]] for i in self.arm_dofs)
         self.target = np.asarray(q0, dtype=float)[self.arm_dofs].copy()
+        self.hand_target: tuple[FloatArray, float] | None = None
+        """The newest hand position command (command order) and when it arrived [s]."""
+        self.hand_position_messages = 0
         self.arm_messages = 0
         self.malformed_arm = 0
         self._lock = threading.Lock()
@@ -137,6 +142,20 @@ class RemoteArmHand(Stage):
             self.target = data
             self.arm_messages += 1
 
+    def on_hand_position(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+        """A Float64MultiArray of hand positions in the torque command's joint order."""
+        try:
+            data = decode_array(payload)
+        except MessageError:
+            self.malformed_arm += 1
+            return
+        if data.shape != self.torque.dofs.shape or not np.isfinite(data).all():
+            self.malformed_arm += 1
+            return
+        with self._lock:
+            self.hand_target = (data, received)
+            self.hand_position_messages += 1
+
     def step(self, context: CycleContext) -> StageOutput:
         out = self.torque.step(context)
         assert out.command is not None
@@ -144,10 +163,18 @@ class RemoteArmHand(Stage):
         obs = context.obs
         tau[self.arm.dofs] = self.arm.feedforward(obs.q, obs.wMb)
         with self._lock:
-            target = self.target.copy()
+            target, hand = self.target.copy(), self.hand_target
         kp, kd = np.full(target.size, self.arm.kp), np.full(target.size, self.arm.kd)
-        arm = JointTargets(self.arm_dofs, target, None, kp, kd, name="arm")
-        return StageOutput(Command(tau, (arm,)), out.status)
+        groups = [JointTargets(self.arm_dofs, target, None, kp, kd, name="arm")]
+        latest = self.torque.latest
+        status = out.status
+        if hand is not None and (latest is None or hand[1] > latest[1]):
+            dofs = self.torque.dofs
+            tau[dofs] = 0.0
+            kp_hand, kd_hand = np.full(dofs.size, FINGER_KP), np.full(dofs.size, FINGER_KD)
+            groups.append(JointTargets(dofs, hand[0], None, kp_hand, kd_hand, name="hand"))
+            status = "remote_position"
+        return StageOutput(Command(tau, tuple(groups)), status)
 
 
 HOLD_MEMORY = 0.25
@@ -238,7 +265,7 @@ def run_episode_double(
         ConfigError: no torque command within ``wait_for_controller`` [s]; a hand without an arm
             or a config without an arm topic.
     """
-    if not config.topics["arm_command"]:
+    if not config.topic("arm_command"):
         raise ConfigError(
             f"{config.path or 'hardware config'}: the episode double plays an arm: set [topics] "
             "arm_command and [arm] joints"
@@ -291,6 +318,11 @@ def run_episode_double(
             ),
             Subscriber(session, config, "arm_command", arm_type, drives.on_arm, node),
         ]
+        if config.topic("hand_position_command"):
+            topic = "hand_position_command"
+            subs.append(
+                Subscriber(session, config, topic, FLOAT64_ARRAY, drives.on_hand_position, node)
+            )
         publisher = RobotPublisher(joints, poses, names, config.frame_id, "image")
         pacer = RealTimePacer()
         loop = ControlLoop(
@@ -322,6 +354,7 @@ def run_episode_double(
         "torque_messages": drives.torque.received,
         "malformed_commands": drives.torque.malformed + drives.malformed_arm,
         "arm_messages": drives.arm_messages,
+        "hand_position_messages": drives.hand_position_messages,
         "pose_messages": publisher.pose_messages,
         "max_torque_rate_Nm_s": drives.torque.max_rate,
         "sim_warnings": backend.warnings(),

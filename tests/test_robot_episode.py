@@ -136,3 +136,20 @@ def test_sigterm_mid_reach_ends_on_the_last_commands_and_sigkill_leaves_it_to_th
     robot = json.loads((tmp_path / "sim.json").read_text())
     assert robot["statuses"]["command_timeout"] > 100, robot["statuses"]
     assert robot["malformed_commands"] == 0
+
+
+def test_a_hand_on_a_position_interface_reaches_and_then_regulates_in_torque(tmp_path):
+    from wholehand.hardware.config import hand_hardware_config
+
+    config = tmp_path / "position.toml"
+    text = hand_hardware_config(RIG).read_text()
+    topic = 'hand_position_command = "/hand_position_controller/commands"\n'
+    config.write_text(text.replace("[topics]\n", "[topics]\n" + topic))
+    sim, control, _ = _pair(
+        tmp_path, "--config", str(config), "--duration", "4", control_args=("--config", str(config))
+    )
+    robot, ctl = _finish(sim, control, tmp_path)
+    assert ("reach_grasp", "regulate") in _stages(ctl), ctl["loop"]
+    assert robot["statuses"]["remote_position"] > 300, robot["statuses"]  # reaching: positions
+    assert robot["statuses"]["remote"] > 100, robot["statuses"]  # regulating: torques
+    assert robot["hand_position_messages"] > 100 and robot["malformed_commands"] == 0

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -306,7 +307,8 @@ def run_double(
         kinematics.update(first.q, first.wMb)
         assert first.wMo is not None
         loss.check.held(kinematics, first.wMo)
-        wait_for_command(backend, drives, joints, poses, names, config, wait_for_controller)
+        commanded = lambda: drives.received > 0  # noqa: E731
+        wait_for_command(backend, commanded, joints, poses, names, config, wait_for_controller)
         run_start = time.time_ns()
         report = loop.run(protocol.duration)
         run_end = time.time_ns()
@@ -334,22 +336,23 @@ def run_double(
 
 def wait_for_command(
     backend: Any,
-    drives: RemoteTorque,
+    commanded: Callable[[], bool],
     joints: Publisher,
     poses: Publisher,
     names: list[str],
     config: HardwareConfig,
     timeout: float,
 ) -> None:
-    """Publish the resting state (frozen) at the streams' rates until a first command arrives."""
+    """Publish the resting state (frozen) at the streams' rates until ``commanded()`` says a
+    first command arrived."""
     obs = backend.observe()
     start = time.monotonic()
     next_pose = start
-    while drives.received == 0:
+    while not commanded():
         now = time.monotonic()
         if now - start > timeout:
             raise ConfigError(
-                f"hw-sim: no torque command on {config.topics['torque_command']!r} within "
+                f"hw-sim: no command on {config.topics['torque_command']!r} within "
                 f"{timeout:g} s; start `wholehand control` with the same config and endpoints"
             )
         stamp = time.time()

@@ -142,6 +142,10 @@ class RemoteArmHand(Stage):
             self.target = data
             self.arm_messages += 1
 
+    def commanded(self) -> bool:
+        """A first command (torque or hand position) has arrived."""
+        return self.torque.received > 0 or self.hand_position_messages > 0
+
     def on_hand_position(self, payload: bytes, attachment: bytes | None, received: float) -> None:
         """A Float64MultiArray of hand positions in the torque command's joint order."""
         try:
@@ -334,7 +338,9 @@ def run_episode_double(
             filters=tracking_filters(tracking, obj.com),
             observers=[script, publisher, pacer],
         )
-        wait_for_command(backend, drives.torque, joints, poses, names, config, wait_for_controller)
+        wait_for_command(
+            backend, drives.commanded, joints, poses, names, config, wait_for_controller
+        )
         report = loop.run(spec.episode.duration)
         for sub in subs:
             sub.close()

@@ -38,6 +38,7 @@ def _cmd_control(args: argparse.Namespace) -> int:
         allocate_every=args.allocate_every,
         qp_deadline=args.qp_deadline or None,
         qp_deadline_after_miss=args.qp_deadline_after_miss,
+        reacher=args.reacher,
     )
     result = run_controller(
         load_hand(args.hand),
@@ -132,6 +133,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: never)")
     p.add_argument("--estimator", default="mesh_sdf")
     p.add_argument("--allocator", default="qp")
+    p.add_argument("--reacher", default="mink", help="reacher plug-in (an arm-hand's pipeline)")
     p.add_argument(
         "--estimate-at",
         default="object_stamp",

@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,6 +143,3 @@ def pipeline_stages(
 def always_usable(plan: GraspPlan, wMo: FloatArray) -> bool:
     """Every plan is usable (no table)."""
     return True
-
-
-Usable = Callable[[GraspPlan, FloatArray], bool]

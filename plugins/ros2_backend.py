@@ -92,6 +92,15 @@ TRAJECTORY_LEAD = 2.0
 """A JointTrajectory's point is reached this many control periods after it is sent."""
 
 
+def _position_targets(command: Command, n_v: int) -> FloatArray:
+    """(n_v,) the command's position targets by velocity index [rad]; NaN where none."""
+    target = np.full(n_v, np.nan)
+    for group in command.targets:
+        if group.q is not None:
+            target[group.dofs] = group.q
+    return target
+
+
 class Ros2Backend(Backend):
     """A robot reached through ROS 2 messages over zenoh (wall clock).
 
@@ -393,11 +402,7 @@ class Ros2Backend(Backend):
     def _hand_targets(self, command: Command) -> FloatArray | None:
         """(m,) the command's position targets of the hand's command joints, in their order and
         within their limits; None unless the command targets every one of them."""
-        target = np.full(self.hand.nv, np.nan)
-        for group in command.targets:
-            if group.q is not None:
-                target[group.dofs] = group.q
-        out = target[self.command_dofs]
+        out = _position_targets(command, self.hand.nv)[self.command_dofs]
         if not np.isfinite(out).all():
             return None
         q_index = self._q_index[self.command_dofs]
@@ -436,11 +441,7 @@ class Ros2Backend(Backend):
             if guard.last is None or (self.stop_requested and guard.counts["hold"] == 0):
                 return guard.hold(joint.q, now)
             return guard.last
-        target = np.full(self.hand.nv, np.nan)
-        for group in command.targets:
-            if group.q is not None:
-                target[group.dofs] = group.q
-        arm = target[guard.dofs]
+        arm = _position_targets(command, self.hand.nv)[guard.dofs]
         if not np.isfinite(arm).all():
             return None
         return guard.filter(arm, joint.q, now)[0]

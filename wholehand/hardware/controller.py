@@ -115,6 +115,28 @@ def controller_allocator(spec: ControllerSpec, hand: HandModel) -> Allocator:
     return cast(Allocator, load_allocator(spec.allocator, hand, params))
 
 
+def _regulation(
+    hand: HandModel,
+    obj: ObjectModel,
+    spec: ControllerSpec,
+    estimator: ContactEstimator,
+    allocator: Allocator,
+    weight: FloatArray | None = None,
+    gravity_compensation: bool = False,
+) -> ForceRegulation:
+    """Force regulation with the spec's estimation stamp and allocation schedule."""
+    return ForceRegulation(
+        hand,
+        obj,
+        estimator,
+        allocator,
+        cast(EstimateAt, spec.estimate_at),
+        allocate_every=cast(AllocateEvery, spec.allocate_every),
+        weight=weight,
+        gravity_compensation=gravity_compensation,
+    )
+
+
 def pipeline_for_robot(
     hand: HandModel,
     obj: ObjectModel,
@@ -147,15 +169,8 @@ def pipeline_for_robot(
     planner = ReachPlanner(grasp_plans(grasp_hand, obj), always_usable if table is None else usable)
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table)
     weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if spec.balance_weight else None
-    regulation = ForceRegulation(
-        hand,
-        obj,
-        estimator,
-        allocator,
-        cast(EstimateAt, spec.estimate_at),
-        allocate_every=cast(AllocateEvery, spec.allocate_every),
-        weight=weight,
-        gravity_compensation=spec.gravity_compensation,
+    regulation = _regulation(
+        hand, obj, spec, estimator, allocator, weight, spec.gravity_compensation
     )
     arm_home = None
     if config.arm.home is not None:  # [arm] home is in the arm controller's order
@@ -234,14 +249,7 @@ def run_controller(
         stages = pipeline_for_robot(hand, obj, config, spec, estimator, allocator)
         first_stage: str | None = PREGRASP
     else:
-        stages = ForceRegulation(
-            hand,
-            obj,
-            estimator,
-            allocator,
-            cast(EstimateAt, spec.estimate_at),
-            allocate_every=cast(AllocateEvery, spec.allocate_every),
-        )
+        stages = _regulation(hand, obj, spec, estimator, allocator)
         first_stage = None
     stopped = threading.Event()
     previous = {}

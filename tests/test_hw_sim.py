@@ -3,43 +3,21 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
 
 import pytest
+from processes import wait_for_line, wholehand
 
 from wholehand.hardware.rmw_zenoh import loopback_endpoint
 
 
-def _wholehand(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "wholehand.cli.main", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=os.environ.copy(),
-    )
-
-
 def _controller(endpoint: str, duration: float, *extra: str) -> subprocess.Popen[str]:
-    return _wholehand(
+    return wholehand(
         "control", "--connect", endpoint, "--listen", "--duration", str(duration), *extra
     )
-
-
-def _wait_for_line(proc: subprocess.Popen[str], text: str, timeout: float = 120.0) -> None:
-    deadline = time.monotonic() + timeout
-    assert proc.stderr is not None
-    while time.monotonic() < deadline:
-        line = proc.stderr.readline()
-        if text in line:
-            return
-        if not line and proc.poll() is not None:
-            break
-    pytest.fail(f"no {text!r} from the controller")
 
 
 @pytest.fixture
@@ -48,7 +26,7 @@ def endpoint():
 
 
 def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(endpoint, tmp_path):
-    sim = _wholehand(
+    sim = wholehand(
         "hw-sim",
         "--quick",
         "--latency",
@@ -81,7 +59,7 @@ def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(end
 
 
 def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, tmp_path):
-    sim = _wholehand(
+    sim = wholehand(
         "hw-sim",
         "--quick",
         "--settle",
@@ -93,7 +71,7 @@ def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, 
         str(tmp_path / "sim.json"),
     )
     first = _controller(endpoint, 30.0)
-    _wait_for_line(first, "streams up")
+    wait_for_line(first, "streams up")
     time.sleep(1.0)
     first.send_signal(signal.SIGKILL)
     first.wait()
@@ -112,7 +90,7 @@ def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, 
 def test_a_pose_dropout_ramps_the_torque_down_and_regulation_resumes(endpoint, tmp_path):
     # One second without poses from 0.3 s: 0.2 s later the torque is held and ramped to zero
     # over 0.5 s; when poses return, regulation resumes.
-    sim = _wholehand(
+    sim = wholehand(
         "hw-sim",
         "--quick",
         "--dropout",
@@ -160,8 +138,8 @@ def test_controller_and_double_as_clients_of_a_router_hold_the_grasp(endpoint, t
         config.write_text(text.replace('mode = "peer"', 'mode = "client"'))
         assert 'mode = "client"' in config.read_text()
         common = ("--config", str(config), "--connect", endpoint, "--listen")
-        sim = _wholehand("hw-sim", "--quick", *common, "--json", str(tmp_path / "sim.json"))
-        control = _wholehand("control", "--duration", "4", *common)
+        sim = wholehand("hw-sim", "--quick", *common, "--json", str(tmp_path / "sim.json"))
+        control = wholehand("control", "--duration", "4", *common)
         _, err = sim.communicate(timeout=180)
         assert sim.returncode == 0, err[-3000:]
         control.communicate(timeout=60)

@@ -153,6 +153,21 @@ def setup(rig):
         robot.close()
 
 
+def _holding_and_moving(rig, q, torque: float) -> Command:
+    """Every hand joint at ``torque`` [N*m], the arm's targets 0.3 rad from where it is."""
+    arm = np.flatnonzero(rig.arm_dofs)
+    tau = np.zeros(rig.nv)
+    tau[_hand(rig)] = torque
+    return Command(tau, (JointTargets(arm, q[arm] + 0.3, None, 300.0, 20.0, name="arm"),))
+
+
+def _send(backend, command: Command, n: int) -> None:
+    """Apply ``command`` ``n`` times, 10 ms apart."""
+    for _ in range(n):
+        backend.apply(command)
+        time.sleep(0.01)
+
+
 def _hand(rig):
     return np.flatnonzero(rig.actuated_dofs & ~rig.arm_dofs)
 
@@ -215,19 +230,15 @@ def test_arm_targets_go_out_in_the_controllers_order_within_the_velocity_limit(
 
 def test_a_stop_freezes_the_arm_and_ramps_the_hand_to_zero_until_released(rig, setup):
     robot, backend, q, _ = setup()
-    hand, arm = _hand(rig), np.arange(7)
-    tau = np.zeros(rig.nv)
-    tau[hand] = 0.1
-    moving = JointTargets(arm, q[arm] + 0.3, None, 300.0, 20.0, name="arm")
-    for _ in range(3):
-        backend.apply(Command(tau, (moving,)))
-        time.sleep(0.01)
+    command = _holding_and_moving(rig, q, 0.1)
+    _send(backend, command, 3)
+    arm = np.flatnonzero(rig.arm_dofs)
     robot.stop.put(msgs.encode_bool(True))
     _until(lambda: backend.stop_requested)
     n_torque, n_arm = len(robot.torques), len(robot.arm)
     t0 = time.monotonic()
     while time.monotonic() - t0 < 0.3:  # past the 0.2 s ramp
-        backend.apply(Command(tau, (moving,)))
+        backend.apply(command)
         time.sleep(0.01)
     _until(lambda: len(robot.arm) > n_arm + 20)
     frozen = np.array(robot.arm[n_arm:])
@@ -237,21 +248,17 @@ def test_a_stop_freezes_the_arm_and_ramps_the_hand_to_zero_until_released(rig, s
     assert (np.diff(ramp) <= 1e-12).all() and ramp[0] > 0.0 and ramp[-1] == 0.0
     robot.stop.put(msgs.encode_bool(False))
     _until(lambda: not backend.stop_requested)
-    backend.apply(Command(tau, (moving,)))
-    backend.apply(Command(tau, (moving,)))
+    backend.apply(command)
+    backend.apply(command)
     assert backend.stats()["stops"] == 1
     assert backend.guard.counts["stop"] > 0 and backend.arm_guard.counts["hold"] == 1
 
 
 def test_every_exit_holds_the_arm_and_ramps_the_hand_torques_to_zero(rig, setup):
     robot, backend, q, _ = setup()
-    hand, arm = _hand(rig), np.arange(7)
-    tau = np.zeros(rig.nv)
-    tau[hand] = 0.15
-    moving = JointTargets(arm, q[arm] + 0.3, None, 300.0, 20.0, name="arm")
-    for _ in range(10):
-        backend.apply(Command(tau, (moving,)))
-        time.sleep(0.01)
+    command = _holding_and_moving(rig, q, 0.15)
+    _send(backend, command, 10)
+    arm = np.flatnonzero(rig.arm_dofs)
     _until(lambda: len(robot.arm) >= 10)
     n_torque, n_arm = len(robot.torques), len(robot.arm)
     started = time.monotonic()
@@ -270,19 +277,14 @@ def test_every_exit_holds_the_arm_and_ramps_the_hand_torques_to_zero(rig, setup)
 
 def test_a_joint_state_without_an_arm_joint_stops_the_hand_and_holds_the_arm(rig, setup):
     robot, backend, q, _ = setup()
-    hand, arm = _hand(rig), np.arange(7)
-    tau = np.zeros(rig.nv)
-    tau[hand] = 0.1
-    moving = JointTargets(arm, q[arm] + 0.3, None, 300.0, 20.0, name="arm")
-    for _ in range(5):
-        backend.apply(Command(tau, (moving,)))
-        time.sleep(0.01)
+    command = _holding_and_moving(rig, q, 0.1)
+    _send(backend, command, 5)
     last_target = backend.arm_guard.last.copy()
     robot.leave_out = "joint3"
     _until(lambda: backend.rejected["missing_joint"] > 0)
     time.sleep(0.15)  # past joint_timeout
     n_torque, n_arm = len(robot.torques), len(robot.arm)
-    backend.apply(Command(tau, (moving,)))
+    backend.apply(command)
     _until(lambda: len(robot.torques) > n_torque and len(robot.arm) > n_arm)
     assert not robot.torques[-1].any()
     order = _model_to_order(rig, ARM_ORDER)

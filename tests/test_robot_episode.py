@@ -6,53 +6,28 @@ the pose lost while reaching, the controller stopped by SIGTERM and killed by SI
 from __future__ import annotations
 
 import json
-import os
 import signal
-import subprocess
-import sys
 import time
 
-import pytest
+from processes import wait_for_line, wholehand
 
 from wholehand.hardware.rmw_zenoh import loopback_endpoint
 
 RIG = "flexiv_rizon4_hx5_d20_right"
 
 
-def _wholehand(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "wholehand.cli.main", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=os.environ.copy(),
-    )
-
-
 def _pair(tmp_path, *sim_args: str, control_args: tuple[str, ...] = ()):
     """Start the double (listening) and the controller (connecting) on a free port."""
     endpoint = loopback_endpoint()
-    sim = _wholehand(
+    sim = wholehand(
         "hw-sim", "--hand", RIG, "--listen", endpoint, "--connect",
         "--json", str(tmp_path / "sim.json"), *sim_args,
     )  # fmt: skip
-    control = _wholehand(
+    control = wholehand(
         "control", "--hand", RIG, "--connect", endpoint, "--listen",
         "--json", str(tmp_path / "control.json"), *control_args,
     )  # fmt: skip
     return sim, control, endpoint
-
-
-def _wait_for_line(proc: subprocess.Popen[str], text: str, timeout: float = 120.0) -> None:
-    deadline = time.monotonic() + timeout
-    assert proc.stderr is not None
-    while time.monotonic() < deadline:
-        line = proc.stderr.readline()
-        if text in line:
-            return
-        if not line and proc.poll() is not None:
-            break
-    pytest.fail(f"no {text!r} from the process")
 
 
 def _finish(sim, control, tmp_path, stop_control: bool = True):
@@ -124,7 +99,7 @@ def test_sigterm_mid_reach_ends_on_the_last_commands_and_sigkill_leaves_it_to_th
     tmp_path,
 ):
     sim, control, endpoint = _pair(tmp_path, "--duration", "15")
-    _wait_for_line(control, "streams up")
+    wait_for_line(control, "streams up")
     time.sleep(0.5)  # mid-reach: the grasp comes after about a second
     control.send_signal(signal.SIGTERM)
     _, err = control.communicate(timeout=30)
@@ -134,8 +109,8 @@ def test_sigterm_mid_reach_ends_on_the_last_commands_and_sigkill_leaves_it_to_th
     assert "regulate" not in [target for _, target in _stages(ctl)]
     assert ctl["backend"]["guard"]["exit"] > 0 and ctl["backend"]["arm_guard"]["hold"] >= 1
     # A second controller, killed: nothing is sent after it, the hand's drives time out.
-    control = _wholehand("control", "--hand", RIG, "--connect", endpoint, "--listen")
-    _wait_for_line(control, "streams up")
+    control = wholehand("control", "--hand", RIG, "--connect", endpoint, "--listen")
+    wait_for_line(control, "streams up")
     time.sleep(0.5)
     control.send_signal(signal.SIGKILL)
     control.wait()

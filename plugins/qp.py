@@ -31,6 +31,7 @@ from wholehand.allocation.base import (
     AllocationStatus,
     Allocator,
     checked_jacobians,
+    is_balanced,
 )
 from wholehand.allocation.kernel_loading import load_kernels
 from wholehand.allocation.kernels import finite_inputs
@@ -114,7 +115,11 @@ class QPAllocator(Allocator):
         solver_settings: Solver settings on top of the adapter's tight defaults.
         warm_start: Start each solve from the previous cycle's matched solution.
         screening: Solve with a working subset of torque/consistency rows (exact).
-        feas_tol: Largest violation of an accepted solution [N or N*m].
+        feas_tol: Largest relative constraint violation of an accepted solution [-]: a
+            torque's excess over its joint's limit as a fraction of the limit, a force
+            constraint's as a fraction of the allocation's force scale (see
+            :attr:`~wholehand.allocation.solve.AllocationSolution.relative_violation`); beyond
+            it the allocation is ``INACCURATE``.
         screen_tol: Violation above which a left-out row joins the working set.
         match_radius: Contacts on one link closer than this across cycles are the same [m].
         deadline: Time budget of one allocation, from its start [s]. The solving stops at
@@ -265,11 +270,12 @@ class QPAllocator(Allocator):
 
         Returns:
             The allocation. ``EMPTY`` / ``NO_ACTUATED_CONTACT``: zero forces and torque (zero
-            is a feasible command); ``INFEASIBLE`` / ``SOLVER_FAILED`` (also for NaN/inf inputs,
-            a non-finite solution or one violating a constraint by more than ``feas_tol``) /
-            ``DEADLINE``: zero forces and no torque (``tau=None``: keep the last feasible one);
-            ``OK``: the new forces and torque. ``solve_time`` is the wall time of building and
-            solving the QP (all screening rounds) [s].
+            is a feasible command); ``INFEASIBLE`` / ``SOLVER_FAILED`` (also for NaN/inf inputs
+            and a non-finite solution) / ``INACCURATE`` (a solution violating a constraint by
+            more than ``feas_tol``, relative) / ``DEADLINE``: zero forces and no torque
+            (``tau=None``: keep the last feasible one); ``OK`` (the forces balance the object)
+            / ``UNBALANCED`` (they do not): the new forces and torque. ``solve_time`` is the
+            wall time of building and solving the QP (all screening rounds) [s].
 
         Raises:
             ConfigError: Shapes of ``J_world`` / ``p_com_world`` do not match the contacts, or
@@ -317,23 +323,27 @@ class QPAllocator(Allocator):
             return self._result(
                 AllocationStatus.DEADLINE, n, n_v, solve_time=dt, solver_time=sol.solver_time
             )
-        if sol.x is None or sol.violation > self.feas_tol:
+        if sol.x is None or sol.relative_violation > self.feas_tol:
             self._warm.clear()
-            status = {"infeasible": AllocationStatus.INFEASIBLE}.get(
-                sol.status, AllocationStatus.SOLVER_FAILED
-            )
+            status = AllocationStatus.SOLVER_FAILED
+            if sol.x is not None:
+                status = AllocationStatus.INACCURATE
+            elif sol.status == "infeasible":
+                status = AllocationStatus.INFEASIBLE
             return self._result(status, n, n_v, solve_time=dt, solver_time=sol.solver_time)
         lam = sol.x[: qp.n_lambda]
         tau = qp.tau(lam)
         self._remember(qp, contacts, sol, sol.x)
+        f_world = qp.f_world(lam)
+        wrench = qp.G_lam @ lam + qp.w_ext
         return self._result(
-            AllocationStatus.OK,
+            AllocationStatus.OK if is_balanced(wrench, f_world) else AllocationStatus.UNBALANCED,
             n,
             n_v,
             tau=tau,
             f_local=qp.f_local(lam),
-            f_world=qp.f_world(lam),
-            wrench=qp.G_lam @ lam + qp.w_ext,
+            f_world=f_world,
+            wrench=wrench,
             solve_time=dt,
             solver_time=sol.solver_time,
         )

@@ -154,7 +154,7 @@ def test_impedance_at_initial_configuration_is_feedforward(allegro):
         kin.update(state.q, state.wMb)
         base = cls(**params)
         initial = base.initialise(contacts, kin, p_com)
-        assert initial.status is AllocationStatus.OK
+        assert initial.fresh
         J = base.J_gt
         expected = np.einsum("nak,na->k", J, initial.f_world)
         expected[~allegro.actuated_dofs] = 0.0

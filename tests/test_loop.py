@@ -3,6 +3,7 @@ faults that never escape the loop, the backend's clock, and mixed joint groups."
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 
 import numpy as np
@@ -43,6 +44,15 @@ class ZeroTorqueAllocator(Allocator):
         n, n_v = len(contacts), J_world.shape[2]
         return Allocation(
             np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n_v), np.zeros(6), AllocationStatus.HOLD
+        )
+
+
+class ClaimsBalance(ZeroTorqueAllocator):
+    """Says ``ok`` with no force at all."""
+
+    def allocate(self, contacts, J_world, p_com_world, kinematics=None):
+        return dataclasses.replace(
+            super().allocate(contacts, J_world, p_com_world), status=AllocationStatus.OK
         )
 
 
@@ -696,7 +706,7 @@ def test_every_command_is_clamped_and_a_malformed_one_is_a_stage_error(allegro, 
         np.testing.assert_array_equal(seen.cycles[i].command.tau, seen.cycles[3].command.tau)
 
 
-def test_an_ok_allocation_that_does_not_balance_is_reported(allegro, cube):
+def test_an_allocation_that_does_not_balance_has_its_own_status(allegro, cube):
     from wholehand.allocation.base import is_balanced
 
     f = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
@@ -704,14 +714,22 @@ def test_an_ok_allocation_that_does_not_balance_is_reported(allegro, cube):
     assert not is_balanced([2e-3, 0, 0, 0, 0, 0], f) and not is_balanced([0, 0, 0, 0, 2e-4, 0], f)
     held = run_trial(TrialSpec(object=OBJECT, theta_deg=0.0, protocol_params=TINY), allegro)
     assert outcome_of(held).unbalanced_cycles == 0
-    # A squeeze the joints cannot make: the QP's best is feasible (ok) but leaves a residual.
+    # A squeeze the joints cannot make: the QP's best is within the limits but leaves a residual.
     spec = TrialSpec(
         object=OBJECT, theta_deg=0.0, protocol_params=TINY, allocator_params={"f_n_min": 1e6}
     )
     record = run_trial(spec, allegro, stop_on_loss=False)
     outcome, a = outcome_of(record), record.arrays()
-    ok = a["status"] == "ok"
-    assert ok.any() and outcome.unbalanced_cycles == ok.sum()
+    unbalanced = a["status"] == "unbalanced"
+    assert unbalanced.any() and not (a["status"] == "ok").any()
+    assert outcome.unbalanced_cycles == unbalanced.sum()
+    residual = np.linalg.norm(a["residual_wrench"][unbalanced, :3], axis=1)
+    assert residual.min() > 1.0  # newtons: far from balance, and said so
+    # Another allocator's "ok" is still checked: zero forces hold nothing.
+    spec = TrialSpec(object=OBJECT, theta_deg=0.0, protocol_params=TINY, allocator=ClaimsBalance)
+    limp = run_trial(spec, allegro, stop_on_loss=False)
+    claimed = int((limp.arrays()["status"] == "ok").sum())
+    assert claimed and outcome_of(limp).unbalanced_cycles == claimed
     assert np.all(np.abs(a["tau"]) <= allegro.tau_max)  # and never beyond the limits
 
 

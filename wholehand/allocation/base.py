@@ -26,7 +26,17 @@ class AllocationStatus(str, enum.Enum):
     """Outcome of one allocation."""
 
     OK = "ok"
-    """The QP was solved; the torque is new."""
+    """The QP was solved and its forces balance the object (:attr:`Allocation.balanced`); the
+    torque is new."""
+    UNBALANCED = "unbalanced"
+    """The QP was solved within its limits but its forces do not balance the object: the
+    residual wrench is out of tolerance (the limits, the friction cones or the minimum squeeze
+    leave no balancing forces), or there is no contact force at all. The torque is new and is
+    applied: it is the least residual the hand can exert within its limits."""
+    INACCURATE = "inaccurate"
+    """The solver's answer violates a constraint (a torque limit, a friction cone, the minimum
+    squeeze, actuation consistency) by more than the allocator's relative tolerance: no torque
+    (the loop keeps the last feasible one)."""
     EMPTY = "empty"
     """No contacts: zero torque."""
     NO_ACTUATED_CONTACT = "no_actuated_contact"
@@ -42,6 +52,12 @@ class AllocationStatus(str, enum.Enum):
     feasible one)."""
 
 
+FRESH_STATUSES: frozenset[AllocationStatus] = frozenset(
+    {AllocationStatus.OK, AllocationStatus.UNBALANCED}
+)
+"""Statuses of allocations that produced a fresh torque within the limits."""
+
+
 @dataclass(frozen=True)
 class Allocation:
     """Result of one force allocation."""
@@ -52,8 +68,8 @@ class Allocation:
     """(N, 3) the same forces, applied by the hand on the object, in the world frame [N]."""
     tau: FloatArray | None
     """(n_v,) joint torques commanded to the hand's joints [N*m]; None when the allocation
-    produced none (``INFEASIBLE``, ``SOLVER_FAILED``): the caller keeps its last feasible
-    torque."""
+    produced none (``INFEASIBLE``, ``SOLVER_FAILED``, ``INACCURATE``, ``DEADLINE``): the caller
+    keeps its last feasible torque."""
     residual_wrench: FloatArray
     """(6,) net contact wrench on the object [force N, torque N*m] about its centre of mass,
     world axes."""
@@ -70,16 +86,23 @@ class Allocation:
 
     @property
     def ok(self) -> bool:
-        """True when this cycle produced a fresh, feasible torque."""
+        """True when this cycle produced a fresh, feasible torque whose forces balance the
+        object (status ``OK``)."""
         return self.status is AllocationStatus.OK
+
+    @property
+    def fresh(self) -> bool:
+        """True when this cycle produced a fresh torque within the limits, balancing or not
+        (status ``OK`` or ``UNBALANCED``)."""
+        return self.status in FRESH_STATUSES
 
     @property
     def balanced(self) -> bool:
         """True when the allocated forces balance the object: some contact force is non-zero,
         and the residual force and torque are within
         :data:`~wholehand.defaults.BALANCE_TOL_FORCE` and
-        :data:`~wholehand.defaults.BALANCE_TOL_TORQUE`. An ``ok`` allocation need not balance
-        (the QP minimises the residual under the torque limits and the minimum squeeze)."""
+        :data:`~wholehand.defaults.BALANCE_TOL_TORQUE`. The QP allocator gives a solved
+        allocation that does not balance the status ``UNBALANCED``."""
         return is_balanced(self.residual_wrench, self.f_world)
 
 

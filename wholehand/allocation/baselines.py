@@ -85,14 +85,15 @@ class FixedAllocationBaseline(Allocator):
             p_com_world: (3,) object centre of mass in the world [m].
 
         Returns:
-            The initial allocation. When it is not ``OK`` (no contact, infeasible QP) the
-            baseline applies zero forces: it has nothing else to hold.
+            The initial allocation. When it gave no fresh torque (no contact, infeasible QP;
+            see :attr:`~wholehand.allocation.base.Allocation.fresh`) the baseline applies zero
+            forces: it has nothing else to hold.
         """
         hand = kinematics.hand
         J = kinematics.actuation_jacobians(hand.link_joint[contacts_gt.link], contacts_gt.p_world)
         self.allocator.reset()
         allocation = self.allocator.allocate(contacts_gt, J, np.asarray(p_com_world, dtype=float))
-        if not allocation.ok:
+        if not allocation.fresh:
             n = len(contacts_gt)
             allocation = Allocation(
                 f_local=np.zeros((n, 3)),

@@ -225,7 +225,7 @@ def _time_mode(
         sol = alloc.last_solution
         if sol is not None:
             rounds.append(sol.rounds)
-            if out.ok:
+            if out.fresh:
                 violation = max(violation, sol.violation)
         residual.append(float(np.linalg.norm(out.residual_wrench)))
     stats: dict[str, Any] = dict(percentiles_us(samples))

@@ -362,8 +362,9 @@ def print_summary(summary: dict[str, Any]) -> None:
     )
     if summary["unbalanced_cycles"]:
         print(
-            f"unbalanced: {summary['unbalanced_cycles']} cycles with status ok whose forces do "
-            "not balance the object (residual above the tolerance of wholehand/defaults.py)"
+            f"unbalanced: {summary['unbalanced_cycles']} cycles whose allocated forces do not "
+            "balance the object (residual above the tolerance of wholehand/defaults.py; their "
+            "torques, within the limits, were applied)"
         )
     if summary["clamped_cycles"]:
         print(f"clamped: {summary['clamped_cycles']} commands exceeded a torque limit")

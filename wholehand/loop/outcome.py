@@ -34,8 +34,9 @@ class RunOutcome:
     """Why the run says nothing about the controller ("" if it does): the simulation diverged,
     or a stage raised (see ``meta["loop"]["errors"]``)."""
     unbalanced_cycles: int
-    """Cycles with a fresh allocation (status ``ok``) whose forces do not balance the object
-    (:attr:`~wholehand.allocation.base.Allocation.balanced`)."""
+    """Cycles with a fresh allocation whose forces do not balance the object: status
+    ``unbalanced``, and ``ok`` cycles of other allocators (or older records) whose forces are
+    not :attr:`~wholehand.allocation.base.Allocation.balanced`."""
 
 
 def outcome_of(record: RunRecord) -> RunOutcome:
@@ -52,9 +53,11 @@ def outcome_of(record: RunRecord) -> RunOutcome:
     elif not held:
         failure = "incomplete"
     moved = float(1e3 * np.linalg.norm(a["p_object"][-1] - a["p_object"][0])) if n else np.nan
-    fresh = np.flatnonzero(a["status"] == AllocationStatus.OK.value) if n else np.zeros(0, int)
+    ok = np.flatnonzero(a["status"] == AllocationStatus.OK.value) if n else np.zeros(0, int)
     forces = record.rows.get("contact_f", [])
-    unbalanced = sum(not is_balanced(a["residual_wrench"][i], forces[i]) for i in fresh)
+    unbalanced = sum(not is_balanced(a["residual_wrench"][i], forces[i]) for i in ok)
+    if n:
+        unbalanced += int(np.count_nonzero(a["status"] == AllocationStatus.UNBALANCED.value))
     return RunOutcome(held, len(phases), reached, failure, n, moved, _error(record), unbalanced)
 
 

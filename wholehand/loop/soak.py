@@ -7,7 +7,8 @@ gravity off). What must hold, and what the report counts:
 
 - no exception leaves the control loop (``exceptions``);
 - no applied torque exceeds a joint's limit (``torque_limit_violations``);
-- every fault is followed by a fresh feasible torque (status ``ok``) within a few cycles
+- every fault is followed by a fresh feasible torque (status ``ok`` or ``unbalanced``) within
+  a few cycles
   (``recovered`` of ``injected``, and the most cycles it took);
 - the grasp is still held at the end;
 - memory stays flat (resident set size after the first tenth of the run and at its end).
@@ -27,7 +28,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
+from wholehand.allocation.base import FRESH_STATUSES, Allocation, AllocationStatus, Allocator
 from wholehand.backends.base import Backend
 from wholehand.contacts.base import ContactEstimator, ContactSet
 from wholehand.errors import ConfigError
@@ -93,6 +94,9 @@ ALLOCATOR_FAULTS = (
 limit, or reports a failed solve."""
 
 FAULTS: tuple[str, ...] = (*OBSERVATION_FAULTS, *ESTIMATOR_FAULTS, *ALLOCATOR_FAULTS)
+
+FRESH = frozenset(s.value for s in FRESH_STATUSES)
+"""Cycle statuses of a fresh feasible torque: a fault counts as recovered at the first."""
 """Every fault kind, in the order they are injected."""
 
 
@@ -230,7 +234,7 @@ class SoakMonitor(Observer):
             self._since_fault = 0
         elif self._since_fault is not None:
             self._since_fault += 1
-            if cycle.output.status == AllocationStatus.OK.value:
+            if cycle.output.status in FRESH:
                 self.recovered += 1
                 self.worst_recovery = max(self.worst_recovery, self._since_fault)
                 self._since_fault = None

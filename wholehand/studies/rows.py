@@ -53,6 +53,9 @@ def record_row(record: RunRecord) -> dict[str, Any]:
         "ok_fraction": round(float(np.mean(status == AllocationStatus.OK.value)), 6)
         if n
         else float("nan"),
+        "unbalanced_fraction": round(float(np.mean(status == AllocationStatus.UNBALANCED.value)), 6)
+        if n
+        else float("nan"),
         "hold_fraction": round(float(np.mean(status == AllocationStatus.HOLD.value)), 6)
         if n
         else float("nan"),

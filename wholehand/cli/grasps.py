@@ -13,6 +13,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = gsub.add_parser("generate", help="generate grasps in MuJoCo (seeded)")
     p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
     p.add_argument(
+        "--method",
+        choices=("preshape", "optimize"),
+        default="preshape",
+        help="preshape: close the style's pre-shape from random palm poses (default); "
+        "optimize: optimise contact points, force closure and penetration from random starts "
+        "(wholehand/grasps/synthesis.py); both validate each candidate in MuJoCo",
+    )
+    p.add_argument(
         "--type",
         default="power",
         help="grasp style of the hand's hand.toml: power ([grasping]) or e.g. precision "
@@ -46,6 +54,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _cmd_generate(args: argparse.Namespace) -> int:
     from wholehand.grasps.generate import generate_grasps
     from wholehand.grasps.store import grasp_file, grasps_dir, hand_grasps_dir, save_grasps
+    from wholehand.grasps.synthesis import synthesize_grasps
     from wholehand.models.convex import ship_decompositions
     from wholehand.models.hand import load_hand
     from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects, load_object
@@ -59,7 +68,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     without: list[str] = []
     for name in names:
         obj = load_object(name)
-        grasps, info = generate_grasps(
+        make = synthesize_grasps if args.method == "optimize" else generate_grasps
+        grasps, info = make(
             hand,
             obj,
             args.count,
@@ -87,8 +97,15 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             # A shipped grasp was made on this decomposition: ship it, so that MuJoCo
             # reproduces the grasp without running CoACD again (cached, so no extra cost here).
             ship_decompositions([obj.name])
+        short = ""
+        if len(grasps) < args.count:
+            short = (
+                f" (fewer than --count {args.count}: the limit of --max-candidates "
+                f"{args.max_candidates} was reached)"
+            )
         print(
-            f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates -> {path}"
+            f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates"
+            f"{short} -> {path}"
         )
     if len(names) > 1:
         print(f"{len(names) - len(without)} of {len(names)} objects yield {args.type} grasps")

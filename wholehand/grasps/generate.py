@@ -87,6 +87,11 @@ TABLE_CLEAR = GENERATOR_TABLE.top + HAND_MARGIN
 """Lowest height a table-top candidate's hand may reach [m]."""
 
 
+Closing = tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]
+"""How a hand closes (:class:`ClosingStage`): the pose the other joints hold (n_q,) [rad], the
+closing torques (n_v,) [N*m] and which joints close (n_v,) bool."""
+
+
 class ClosingStage(Stage):
     """The generator's closing phase: constant torques on the closing joints, a PD law holding
     the other joints at the pre-shape; the PD law runs at the control rate (it is part of the
@@ -265,10 +270,12 @@ class GraspGenerator:
             wMo, (m * omega**2, i * omega**2), (2 * m * omega, 2 * i * omega)
         )
 
-    def _run(self, duration: float, until: Callable[[], bool] | None = None) -> bool:
+    def _run(
+        self, duration: float, closing: Closing, until: Callable[[], bool] | None = None
+    ) -> bool:
         """Run the closing stage for ``duration`` [s] or until ``until`` holds (checked every
         5 cycles and once when the time is up); True when it held (or there is no ``until``)."""
-        stage = ClosingStage(self.q_pre, self.tau_close, self.closing, until=until)
+        stage = ClosingStage(*closing, until=until)
         ControlLoop(self.backend, self.hand, self.obj, stage, rate=CONTROL_RATE).run(duration)
         if until is None:
             return True
@@ -295,17 +302,31 @@ class GraspGenerator:
             b.reset(self.q_pre, wMo)
         if np.any(b.ground_truth_contacts().distance < -0.001):
             return self._reject("the pre-shape penetrates the object")
+        return self.close_and_settle(wMo, (self.q_pre, self.tau_close, self.closing), face, index)
+
+    def close_and_settle(
+        self,
+        wMo: FloatArray,
+        closing: Closing,
+        face: RestingFace | None = None,
+        index: int = -1,
+    ) -> Grasp | None:
+        """Steps 3-4 of the module docstring from the backend's current state (the object at
+        ``wMo`` (4, 4), world): close with ``closing`` while the object is held, release,
+        settle and check; the grasp, or None when it is rejected (the reason is counted in
+        :attr:`rejections`). ``index`` is stored as the grasp's ``candidate``."""
+        b = self.backend
         self._hold(wMo)
-        if not self._run(CLOSE_TIMEOUT, lambda: self._grasped(self._fingers_touching())):
+        if not self._run(CLOSE_TIMEOUT, closing, lambda: self._grasped(self._fingers_touching())):
             return self._reject(
                 f"the required fingers did not all touch within {CLOSE_TIMEOUT:g} s of closing"
             )
-        self._run(CLOSE_EXTRA)
+        self._run(CLOSE_EXTRA, closing)
         before = b.observe().wMo
         b.set_object_spring(None)
         if self.on_table:
             b.set_table_contact(False)
-        self._run(SETTLE)
+        self._run(SETTLE, closing)
         state = b.observe()
         self.kin.update(state.q, state.wMb)
         moved = float(np.linalg.norm(state.wMo[:3, 3] - before[:3, 3]))

@@ -161,6 +161,24 @@ class HandKinematics:
             FloatArray, _point_jacobians(self.data.J, self.wMb, p_world, joint, self._support)
         )
 
+    def angular_jacobians(self, joint: IntArray) -> FloatArray:
+        """Angular-velocity Jacobians of the frames of given joints (and of any point or
+        direction rigidly attached to them).
+
+        Args:
+            joint: (N,) joint index.
+
+        Returns:
+            (N, 3, n_v): d(angular velocity, world axes) / d(joint velocity); a direction ``m``
+            attached to joint ``joint[i]`` turns as ``dm/dq_k = J[i, :, k] x m``.
+        """
+        if not self._jacobians_fresh:
+            pin.computeJointJacobians(self.model, self.data, self.q)
+            self._jacobians_fresh = True
+        joint = np.asarray(joint, dtype=np.intp)
+        base = self.data.J[3:6][None, :, :] * self._support[joint][:, None, :]  # (N, 3, n_v)
+        return cast(FloatArray, np.einsum("ab,nbk->nak", self.wMb[:3, :3], base))
+
     def actuation_jacobians(self, joint: IntArray, p_world: FloatArray) -> FloatArray:
         """Point Jacobians in the coordinates allocators work in (see
         :attr:`~wholehand.models.hand.HandModel.n_actuation`).

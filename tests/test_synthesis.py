@@ -1,0 +1,182 @@
+"""Grasp synthesis by optimisation: the energy's gradient, the annealing, the validated grasps."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from wholehand.cli.main import main
+from wholehand.grasps.store import load_grasps
+from wholehand.grasps.synthesis import (
+    GraspSynthesizer,
+    SynthesisParams,
+    SynthesisState,
+    closing_torques,
+)
+from wholehand.models.kinematics import HandKinematics
+from wholehand.models.objects import ObjectModel
+
+
+@pytest.fixture(scope="module")
+def ball() -> ObjectModel:
+    return ObjectModel.sphere(0.035, mass=0.1, sdf_spacing=0.002)
+
+
+def _near_surface_states(hand, obj) -> list[SynthesisState]:
+    """States whose contacts lie within 2 cm of the surface, inside the SDF's grid (outside it
+    the SDF is a bound, not a distance): ends of short optimisations."""
+    syn = GraspSynthesizer(
+        hand, obj, hand.config.grasp_styles["power"], params=SynthesisParams(iterations=150)
+    )
+    states = []
+    for r in syn.optimise(3, seed=0):
+        state = SynthesisState(r.oMb, r.q[syn.act], r.contacts)
+        syn.evaluate(state, gradient=False)
+        assert state.energy is not None and state.energy.distance < 0.02 * len(r.contacts)
+        states.append(state)
+    return states
+
+
+def _numeric_gradient(syn: GraspSynthesizer, state: SynthesisState, h: tuple) -> dict:
+    """Central differences with steps ``h`` = (translation [m], rotation [rad], joints
+    [rad])."""
+    h_t, h_w, h_a = h
+
+    def energy(oMb: np.ndarray, a: np.ndarray) -> float:
+        return syn.evaluate(SynthesisState(oMb, a, state.contacts), gradient=False).total
+
+    out: dict[str, list[float]] = {"t": [], "w": [], "a": []}
+    for i in range(3):
+        plus, minus = state.oMb.copy(), state.oMb.copy()
+        plus[i, 3] += h_t
+        minus[i, 3] -= h_t
+        out["t"].append((energy(plus, state.a) - energy(minus, state.a)) / (2 * h_t))
+        plus, minus = state.oMb.copy(), state.oMb.copy()
+        plus[:3, :3] = Rotation.from_rotvec(h_w * np.eye(3)[i]).as_matrix() @ plus[:3, :3]
+        minus[:3, :3] = Rotation.from_rotvec(-h_w * np.eye(3)[i]).as_matrix() @ minus[:3, :3]
+        out["w"].append((energy(plus, state.a) - energy(minus, state.a)) / (2 * h_w))
+    for k in range(state.a.size):
+        plus, minus = state.a.copy(), state.a.copy()
+        plus[k] += h_a
+        minus[k] -= h_a
+        out["a"].append((energy(state.oMb, plus) - energy(state.oMb, minus)) / (2 * h_a))
+    return {k: np.array(v) for k, v in out.items()}
+
+
+class ExactSphere:
+    """The signed distance of a sphere, analytic: a field without interpolation cells."""
+
+    spacing = 0.002
+
+    def __init__(self, radius: float) -> None:
+        self.radius = radius
+
+    def query(self, p: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(p, axis=1) - self.radius
+
+    def query_with_gradient(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        norm = np.linalg.norm(p, axis=1)
+        return norm - self.radius, p / norm[:, None]
+
+
+DISTANCES = {"w_dis": 1.0, "w_fc": 0.0, "w_align": 0.0, "w_pen": 1.0, "w_table": 1.0}
+NORMALS = {"w_dis": 0.0, "w_fc": 1.0, "w_align": 1.0, "w_pen": 0.0, "w_table": 0.0}
+
+
+@pytest.mark.parametrize(
+    ("weights", "exact", "tol"),
+    [(DISTANCES, True, 1e-4), (NORMALS, True, 5e-3), (DISTANCES, False, 0.05)],
+    ids=["distances", "normals", "distances-on-the-grid"],
+)
+def test_the_energy_gradient_matches_finite_differences(allegro, ball, weights, exact, tol):
+    """On an exact sphere the gradient is the energy's up to the object normal's derivatives,
+    which the synthesiser takes by central differences over half a grid cell. On the SDF grid
+    the distance terms use its unit gradient, where the interpolant's own slope is a few per
+    cent off one. (The grid's normals are piecewise, so differences are no reference there.)"""
+    syn = GraspSynthesizer(
+        allegro,
+        ball,
+        allegro.config.grasp_styles["power"],
+        table_up=[0.0, 0.0, 1.0],
+        params=SynthesisParams(**weights),
+    )
+    if exact:
+        syn.sdf = ExactSphere(0.035)  # type: ignore[assignment]
+    for seed, state in enumerate(_near_surface_states(allegro, ball)):
+        syn.evaluate(state)
+        numeric = _numeric_gradient(syn, state, (1e-6, 1e-6, 1e-6))
+        for key in ("t", "w", "a"):
+            analytic = state.grad[key]
+            scale = max(np.abs(numeric[key]).max(), 1e-9)
+            assert np.abs(analytic - numeric[key]).max() <= tol * scale, (seed, key)
+
+
+def test_annealing_brings_the_contacts_to_the_surface_out_of_the_object(allegro, ball):
+    syn = GraspSynthesizer(allegro, ball, allegro.config.grasp_styles["power"])
+    rng = np.random.default_rng(0)
+    starts = [syn.evaluate(syn.start(rng), gradient=False) for _ in range(6)]
+    results = syn.optimise(6, seed=0)
+    assert sorted(r.start for r in results) == list(range(6))
+    assert np.mean([r.energy.total for r in results]) < np.mean([e.total for e in starts])
+    best = results[0]
+    assert best.energy.distance < 0.01 * len(best.contacts)  # [m], summed over the contacts
+    assert best.energy.max_depth < 0.002
+    assert np.all(best.q >= allegro.q_lower) and np.all(best.q <= allegro.q_upper)
+    # The normals are the sphere's: radial at the contact points.
+    kin = HandKinematics(allegro)
+    kin.update(best.q, best.oMb)
+    s = allegro.samples
+    p = kin.transform_points(s.p_joint[best.contacts], s.joint[best.contacts])
+    radial = p / np.linalg.norm(p, axis=1, keepdims=True)
+    assert np.all(np.einsum("ij,ij->i", radial, best.normals) > 0.95)
+
+
+def test_closing_torques_press_every_contact_into_the_object(allegro, ball):
+    syn = GraspSynthesizer(
+        allegro, ball, allegro.config.grasp_styles["power"], params=SynthesisParams(iterations=50)
+    )
+    result = syn.optimise(1, seed=1)[0]
+    kin = HandKinematics(allegro)
+    kin.update(result.q, np.eye(4))
+    tau, closing = closing_torques(allegro, kin, result, np.eye(4), peak=0.1)
+    assert np.abs(tau).max() == pytest.approx(0.1) and closing.any()
+    assert not tau[~closing].any() or np.abs(tau[~closing]).max() <= 0.002
+    # A small joint motion along the torque moves the contacts into the object on the whole:
+    # the work of the inward unit forces is positive (tau = sum J^T (-n), scaled).
+    s = allegro.samples
+    p = kin.transform_points(s.p_joint[result.contacts], s.joint[result.contacts])
+    J = kin.point_jacobians(s.joint[result.contacts], p)
+    work = float(np.einsum("na,nak,k->", -result.normals, J, tau))
+    assert work > 0.0
+
+
+def test_generate_with_the_optimiser_writes_validated_grasps(tmp_path, allegro, capsys):
+    code = main(
+        [
+            "grasps",
+            "generate",
+            "--method",
+            "optimize",
+            "--object",
+            "077_rubiks_cube",
+            "--count",
+            "1",
+            "--max-candidates",
+            "16",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    path = tmp_path / "077_rubiks_cube.json"
+    assert path.exists(), out
+    data = json.loads(path.read_text())
+    assert "--method optimize" in data["generator"]["command"]
+    (grasp,) = load_grasps(path)
+    q = grasp.q_array(allegro)
+    assert "thumb" in grasp.extra["fingers"] and len(grasp.extra["fingers"]) >= 3
+    assert np.all(q >= allegro.q_lower - 0.05) and np.all(q <= allegro.q_upper + 0.05)

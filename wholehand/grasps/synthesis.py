@@ -1,0 +1,524 @@
+"""Grasp synthesis by optimisation: many random starts, one energy, annealed gradient steps.
+
+The energy follows the optimisation-based synthesisers (DexGraspNet, Dexonomy, BODex): a few
+contact points chosen on the hand's surface samples are pulled onto the object's surface in an
+arrangement that can balance a wrench, while the rest of the hand stays out of the object (and,
+on a table, above it). Everything is in the object's frame, the object's centre of mass at
+``obj.com``; the variables of one start are the hand base pose ``oMb`` and the joint angles
+(the actuators' of a coupled hand). For contact points ``c_i`` with signed distance ``d_i`` and
+outward object normal ``g_i`` (the SDF's unit gradient), hand outward normals ``m_i`` and every
+hand sample ``x``:
+
+    E = w_dis   sum_i |d_i|                                    contacts on the surface [m]
+      + w_fc    (|sum_i g_i|^2 + |sum_i (c_i - com) x g_i / L|^2)   unit normal forces balance
+      + w_align sum_i (1 + m_i . g_i)                          pads face the object
+      + w_pen   sum_x max(0, -d(x))                            hand samples not inside [m]
+      + w_table sum_x max(0, margin - h(x))                    hand samples above the table [m]
+
+``L`` is the object's radius (half its bounding-box diagonal), so that the torque term is
+unitless like the force term. Joint limits are kept by clipping. Each start takes RMSprop-scaled
+gradient steps (Pinocchio point and angular Jacobians, the SDF's gradient) and re-draws each
+contact point with a small probability; a step is kept by the Metropolis rule at a temperature
+that decays geometrically, as in DexGraspNet's annealing.
+
+The contact points: one per finger of the style (the style's ``fingers``, or every finger of
+``[fingers]`` and one on the palm for a power grasp), drawn from the surface samples of the
+finger's links past the first. The start: the hand's palm frame (:mod:`wholehand.models.palm`)
+faces the object from a random direction, at a gap of 1-3 cm from its support along that
+direction, turned at random about it; the joints at the style's pre-shape if it has one, else
+mid-range, jittered.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation
+
+from wholehand.errors import ConfigError
+from wholehand.grasps.store import Grasp
+from wholehand.grasps.styles import style_arrays
+from wholehand.models.hand import HandModel
+from wholehand.models.hand_config import GraspStyle
+from wholehand.models.kinematics import HandKinematics
+from wholehand.models.objects import ObjectModel
+from wholehand.models.palm import PalmFrame, palm_frame
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+
+
+@dataclass(frozen=True)
+class SynthesisParams:
+    """Weights and schedule of the synthesis (defaults after DexGraspNet's, scaled to the
+    project's samples)."""
+
+    w_dis: float = 100.0
+    """Weight of the contacts' distance to the surface [1/m]."""
+    w_fc: float = 1.0
+    """Weight of the force-closure term [-]."""
+    w_align: float = 0.5
+    """Weight of the pads' alignment with the object normal [-]."""
+    w_pen: float = 300.0
+    """Weight of the hand samples' depth inside the object [1/m]."""
+    w_table: float = 300.0
+    """Weight of the hand samples' depth below the table's margin [1/m]."""
+    iterations: int = 600
+    """Steps per start."""
+    step_translation: float = 0.002
+    """Largest base translation of one step [m], decayed with the temperature."""
+    step_rotation: float = 0.02
+    """Largest base rotation of one step [rad]."""
+    step_joint: float = 0.02
+    """Largest joint step [rad]."""
+    switch_probability: float = 0.02
+    """Chance per step that a contact point is re-drawn."""
+    temperature: float = 1.0
+    """Starting temperature of the Metropolis rule [energy units]."""
+    cooling: float = 0.95
+    """Temperature (and step) factor every ``cooling_every`` steps."""
+    cooling_every: int = 30
+    gap: tuple[float, float] = (0.01, 0.03)
+    """Gap between the palm and the object's support at the start [m]."""
+    joint_jitter: float = 0.15
+    """Standard deviation of the start's joint angles around the pre-shape [rad]."""
+    table_margin: float = 0.005
+    """Least height of a hand sample above the table top [m]."""
+
+
+@dataclass(frozen=True)
+class Energy:
+    """The energy of one state and its parts."""
+
+    total: float
+    distance: float
+    """Sum of the contacts' |signed distance| [m]."""
+    force_closure: float
+    alignment: float
+    penetration: float
+    """Sum of the hand samples' depths inside the object [m]."""
+    table: float
+    """Sum of the hand samples' depths below the table margin [m]."""
+    max_depth: float
+    """Deepest hand sample inside the object [m]."""
+
+
+@dataclass
+class SynthesisState:
+    """One start's variables."""
+
+    oMb: FloatArray
+    """(4, 4) hand base pose in the object frame."""
+    a: FloatArray
+    """(n_a,) the optimised joint angles (every joint; the actuators of a coupled hand) [rad]."""
+    contacts: IntArray
+    """(C,) indices into the hand's surface samples."""
+    energy: Energy | None = None
+    grad: dict[str, FloatArray] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SynthesisResult:
+    """A synthesised grasp before validation."""
+
+    oMb: FloatArray
+    """(4, 4) hand base pose in the object frame."""
+    q: FloatArray
+    """(n_q,) joint angles [rad]."""
+    contacts: IntArray
+    """(C,) surface-sample indices of the contact points."""
+    normals: FloatArray
+    """(C, 3) outward object normals at the contact points, object frame."""
+    energy: Energy
+    start: int
+    """Index of the start it came from."""
+
+
+class GraspSynthesizer:
+    """Optimises grasps of one object for one hand and grasp style (module docstring).
+
+    Args:
+        hand: The hand.
+        obj: The object (its SDF is used).
+        style: The grasp style: its fingers carry the contacts; its pre-shape, if any, is the
+            start's joint angles; its closing torques, if any, orient the palm frame.
+        table_up: On a table: (3,) the table's up direction in the object frame (the resting
+            face's ``up``); the table top is the plane through the object's lowest point along
+            it. None: no table.
+        params: Weights and schedule.
+    """
+
+    def __init__(
+        self,
+        hand: HandModel,
+        obj: ObjectModel,
+        style: GraspStyle,
+        table_up: npt.ArrayLike | None = None,
+        params: SynthesisParams | None = None,
+    ) -> None:
+        self.hand, self.obj, self.style = hand, obj, style
+        self.params = params or SynthesisParams()
+        self.kin = HandKinematics(hand)
+        self.samples = hand.samples
+        self.sdf = obj.sdf
+        verts = np.asarray(obj.mesh.vertices, dtype=float)
+        self.com = np.asarray(obj.com, dtype=float)
+        self.radius = 0.5 * float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
+        self.verts = verts
+        self.table_up: FloatArray | None = None
+        self.table_height = 0.0
+        if table_up is not None:
+            up = np.asarray(table_up, dtype=float)
+            self.table_up = up / np.linalg.norm(up)
+            self.table_height = float((verts @ self.table_up).min())
+        q_pre, tau_close, _ = style_arrays(hand, style)
+        self.q_start = q_pre if style.preshape else hand.neutral()
+        self.palm: PalmFrame = palm_frame(hand, self.q_start, tau_close)
+        self.act = hand.actuated_dofs.copy() if hand.coupled else np.ones(hand.nq, dtype=bool)
+        self.a_lower = hand.q_lower[self.act]
+        self.a_upper = hand.q_upper[self.act]
+        self.candidates = self._contact_candidates()
+
+    # --------------------------------------------------------------------------------------------
+    def _contact_candidates(self) -> list[IntArray]:
+        """Per contact, the surface samples it may sit on (module docstring)."""
+        hand, cfg = self.hand, self.hand.config
+        fingers = list(self.style.fingers) or list(cfg.fingers)
+        out: list[IntArray] = []
+        for finger in fingers:
+            links = [hand.link_index(name) for name in cfg.fingers[finger][1:]]
+            idx = np.flatnonzero(np.isin(self.samples.link, links))
+            if idx.size == 0:
+                raise ConfigError(
+                    f"{cfg.path}: finger {finger!r} has no surface samples past its first link "
+                    f"{cfg.fingers[finger][0]!r}; the synthesiser needs them for its contacts"
+                )
+            out.append(idx)
+        if not self.style.fingers:  # a power grasp: the palm touches too
+            palm = hand.link_index(cfg.palm_link)
+            normals = self.samples.n_joint @ self.palm.bRp[:, 0]
+            on_face = np.flatnonzero((self.samples.link == palm) & (normals > 0.7))
+            if on_face.size:
+                out.append(on_face)
+        return out
+
+    def q_of(self, a: FloatArray) -> FloatArray:
+        """(n_q,) joint angles from the optimised ones [rad]."""
+        q = self.q_start.copy()
+        q[self.act] = a
+        return self.hand.couple(q) if self.hand.coupled else q
+
+    def start(self, rng: np.random.Generator) -> SynthesisState:
+        """A seeded start (module docstring)."""
+        p = self.params
+        u = rng.normal(size=3)
+        if self.table_up is not None:  # from above: within 60 deg of the table's up
+            while float(u @ self.table_up) < 0.5 * np.linalg.norm(u):
+                u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        support = float((self.verts @ u).max() - self.com @ u)
+        target = self.com + u * (support + rng.uniform(*p.gap))
+        # Palm normal (palm x) toward the object: -u, turned at random about it.
+        x_p = self.palm.bRp[:, 0]
+        R0 = Rotation.align_vectors([-u], [x_p])[0].as_matrix()
+        spin = Rotation.from_rotvec(rng.uniform(0.0, 2.0 * np.pi) * u).as_matrix()
+        R = spin @ R0
+        palm_point = self.palm.bRp @ np.array(
+            [self.palm.face, self.palm.centre[1], 0.5 * (self.palm.centre[2] + self.palm.top)]
+        )
+        oMb = np.eye(4)
+        oMb[:3, :3] = R
+        oMb[:3, 3] = target - R @ palm_point
+        a = self.q_start[self.act] + rng.normal(scale=p.joint_jitter, size=int(self.act.sum()))
+        a = np.clip(a, self.a_lower, self.a_upper)
+        contacts = np.array([rng.choice(c) for c in self.candidates], dtype=np.intp)
+        return SynthesisState(oMb, a, contacts)
+
+    # --------------------------------------------------------------------------------------------
+    def evaluate(self, state: SynthesisState, gradient: bool = True) -> Energy:
+        """The energy of ``state`` (stored in it), with its gradient in ``state.grad``
+        (``t`` (3,) [1/m], ``w`` (3,) about the base origin [1/rad], ``a`` (n_a,) [1/rad])."""
+        p, kin, s = self.params, self.kin, self.samples
+        kin.update(self.q_of(state.a), state.oMb)
+        X = kin.transform_points(s.p_joint, s.joint)  # (P, 3) object frame
+        d = self.sdf.query(X)
+        c = state.contacts
+        xc = X[c]
+        mc = kin.from_joint_frames(s.p_joint[c], s.n_joint[c], s.joint[c])[1]
+        dc, gc = self.sdf.query_with_gradient(xc)
+        L = self.radius
+        F = gc.sum(axis=0)
+        r = xc - self.com
+        T = np.cross(r, gc).sum(axis=0) / L
+        e_dis = float(np.abs(dc).sum())
+        e_fc = float(F @ F + T @ T)
+        e_align = float((1.0 + np.einsum("ij,ij->i", mc, gc)).sum())
+        depth = np.maximum(-d, 0.0)
+        inside = np.flatnonzero(depth > 0.0)
+        e_pen = float(depth.sum())
+        below = np.zeros(0, dtype=np.intp)
+        e_table = 0.0
+        if self.table_up is not None:
+            h = X @ self.table_up - self.table_height
+            short = np.maximum(p.table_margin - h, 0.0)
+            below = np.flatnonzero(short > 0.0)
+            e_table = float(short.sum())
+        total = (
+            p.w_dis * e_dis
+            + p.w_fc * e_fc
+            + p.w_align * e_align
+            + p.w_pen * e_pen
+            + p.w_table * e_table
+        )
+        max_depth = float(depth.max()) if depth.size else 0.0
+        energy = Energy(total, e_dis, e_fc, e_align, e_pen, e_table, max_depth)
+        state.energy = energy
+        if not gradient:
+            return energy
+        # dE/dx per point, then through the point Jacobians to the variables.
+        H = self._normal_jacobians(xc)  # (C, 3, 3): d g_i / d c_i
+        g_fc = 2.0 * (np.einsum("nab,a->nb", H, F) + np.cross(gc, T) / L)
+        g_fc += 2.0 / L * np.einsum("nab,na->nb", H, np.cross(T, r))
+        g_align = np.einsum("nab,na->nb", H, mc)
+        gx = [p.w_dis * np.sign(dc)[:, None] * gc + p.w_fc * g_fc + p.w_align * g_align]
+        points, joints = [xc], [s.joint[c]]
+        if inside.size:
+            gin = self.sdf.query_with_gradient(X[inside])[1]
+            gx.append(-p.w_pen * gin)
+            points.append(X[inside])
+            joints.append(s.joint[inside])
+        if below.size:
+            assert self.table_up is not None
+            gx.append(np.broadcast_to(-p.w_table * self.table_up, (below.size, 3)))
+            points.append(X[below])
+            joints.append(s.joint[below])
+        G = np.concatenate(gx)
+        P = np.ascontiguousarray(np.concatenate(points))
+        J = np.concatenate(joints)
+        jac = kin.actuation_jacobians(J, P) if self.hand.coupled else kin.point_jacobians(J, P)
+        t = state.oMb[:3, 3]
+        grad_t = G.sum(axis=0)
+        grad_w = np.cross(P - t, G).sum(axis=0)
+        grad_a = np.einsum("nak,na->k", jac, G)
+        # The pads' normals: dm = omega x m.
+        gm = p.w_align * gc
+        mxg = np.cross(mc, gm)
+        grad_w += mxg.sum(axis=0)
+        Jw = kin.angular_jacobians(s.joint[c])
+        if self.hand.coupled:
+            Jw = Jw @ self.hand.coupling
+        grad_a += np.einsum("nak,na->k", Jw, mxg)
+        if not self.hand.coupled:
+            grad_a = grad_a[self.act]
+        state.grad = {"t": grad_t, "w": grad_w, "a": grad_a}
+        return energy
+
+    def _normal_jacobians(self, x: FloatArray) -> FloatArray:
+        """(N, 3, 3) derivatives of the object normal (the SDF's unit gradient) at points ``x``
+        (N, 3) by position [1/m], by central differences over half a grid spacing."""
+        h = 0.5 * self.sdf.spacing
+        offsets = np.concatenate((np.eye(3), -np.eye(3))) * h  # (6, 3)
+        probes = (x[:, None, :] + offsets[None]).reshape(-1, 3)
+        g = self.sdf.query_with_gradient(probes)[1].reshape(-1, 6, 3)
+        return np.transpose((g[:, :3] - g[:, 3:]) / (2.0 * h), (0, 2, 1))  # [n, a, b] = dg_a/dx_b
+
+    # --------------------------------------------------------------------------------------------
+    def optimise(self, starts: int, seed: int = 0, progress: bool = False) -> list[SynthesisResult]:
+        """Run ``starts`` seeded starts; their end states, lowest energy first."""
+        from tqdm import tqdm
+
+        p = self.params
+        rng = np.random.default_rng(seed)
+        states = [self.start(rng) for _ in range(starts)]
+        for st in states:
+            self.evaluate(st)
+        ms = [{k: np.zeros_like(v) for k, v in st.grad.items()} for st in states]
+        bar = tqdm(range(p.iterations), desc=f"synthesis {self.obj.name}", disable=not progress)
+        for it in bar:
+            scale = p.cooling ** (it // p.cooling_every)
+            temperature = p.temperature * scale
+            for k, st in enumerate(states):
+                proposal = self._step(st, ms[k], scale, rng)
+                assert st.energy is not None
+                e_old = st.energy.total
+                e_new = self.evaluate(proposal).total
+                if e_new <= e_old or rng.random() < np.exp((e_old - e_new) / temperature):
+                    states[k] = proposal
+        bar.close()
+        out = []
+        for k, st in enumerate(states):
+            energy = self.evaluate(st, gradient=False)
+            xc = self.kin.transform_points(
+                self.samples.p_joint[st.contacts], self.samples.joint[st.contacts]
+            )
+            normals = self.sdf.query_with_gradient(xc)[1]
+            out.append(
+                SynthesisResult(
+                    st.oMb.copy(), self.q_of(st.a), st.contacts.copy(), normals, energy, k
+                )
+            )
+        out.sort(key=lambda r: r.energy.total)
+        return out
+
+    def _step(
+        self,
+        st: SynthesisState,
+        ms: dict[str, FloatArray],
+        scale: float,
+        rng: np.random.Generator,
+    ) -> SynthesisState:
+        """A proposal: an RMSprop-scaled gradient step from ``st`` and re-drawn contacts."""
+        p = self.params
+        steps = {
+            "t": p.step_translation * scale,
+            "w": p.step_rotation * scale,
+            "a": p.step_joint * scale,
+        }
+        move = {}
+        for key, g in st.grad.items():
+            ms[key] *= 0.9
+            ms[key] += 0.1 * g * g
+            move[key] = -steps[key] * g / (np.sqrt(ms[key]) + 1e-12)
+        oMb = st.oMb.copy()
+        oMb[:3, 3] += move["t"]
+        turn = Rotation.from_rotvec(move["w"]).as_matrix()
+        oMb[:3, :3] = turn @ oMb[:3, :3]
+        # The rotation turns about the base origin, so the translation is unchanged by it.
+        a = np.clip(st.a + move["a"], self.a_lower, self.a_upper)
+        contacts = st.contacts.copy()
+        for i, cands in enumerate(self.candidates):
+            if rng.random() < p.switch_probability:
+                contacts[i] = rng.choice(cands)
+        return SynthesisState(oMb, a, contacts)
+
+
+# ------------------------------------------------------------------------------------------------
+# Validation in MuJoCo and the grasp files
+# ------------------------------------------------------------------------------------------------
+
+BATCH = 16
+"""Starts optimised together before their results are validated."""
+MAX_DEPTH = 0.002
+"""Deepest hand sample inside the object a result may have to be validated [m]."""
+MAX_CONTACT_GAP = 0.01
+"""Largest distance of a result's contact point from the surface to be validated [m]."""
+DEFAULT_CLOSE_TORQUE = 0.1
+"""Largest closing torque of a validation when the style names none [N*m]."""
+
+
+def closing_torques(
+    hand: HandModel, kin: HandKinematics, result: SynthesisResult, wMo: FloatArray, peak: float
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Joint torques (n_v,) [N*m] that press every contact point of ``result`` into the object
+    along its normal with equal forces, scaled so that the largest is ``peak``, and the joints
+    they move (n_v,) bool. ``kin`` must be at the grasp (``q``, the base in the world)."""
+    s = hand.samples
+    c = result.contacts
+    p = kin.transform_points(s.p_joint[c], s.joint[c])
+    inward = -(result.normals @ wMo[:3, :3].T)
+    J = kin.actuation_jacobians(s.joint[c], p)
+    tau = hand.joint_torques(np.einsum("nak,na->k", J, inward))
+    largest = float(np.abs(tau).max())
+    if largest == 0.0:
+        return np.zeros(hand.nv), np.zeros(hand.nv, dtype=bool)
+    tau *= peak / largest
+    return tau, np.abs(tau) > 0.02 * peak
+
+
+def synthesize_grasps(
+    hand: HandModel,
+    obj: ObjectModel,
+    count: int = 10,
+    seed: int = 0,
+    max_candidates: int = 400,
+    progress: bool = False,
+    style: str = "power",
+    on_table: bool = False,
+    params: SynthesisParams | None = None,
+) -> tuple[list[Grasp], dict[str, object]]:
+    """Up to ``count`` grasps: batches of :data:`BATCH` starts optimised
+    (:class:`GraspSynthesizer`), each result close enough to the surface validated in MuJoCo as
+    the generator validates its candidates (:meth:`GraspGenerator.close_and_settle`, closing
+    torques from :func:`closing_torques`), until ``count`` grasps or ``max_candidates`` starts.
+    Returns the grasps and a description for the file's ``generator`` field."""
+    from tqdm import tqdm
+
+    from wholehand.grasps.generate import GENERATOR_TABLE, TABLE_CLEAR, GraspGenerator
+    from wholehand.models.poses import inverse
+    from wholehand.models.resting import resting_pose
+    from wholehand.reaching.pregrasp import lowest_point
+
+    started = time.perf_counter()
+    generator = GraspGenerator(hand, obj, style=style, on_table=on_table)
+    chosen = generator.style
+    peak = max((abs(v) for v in chosen.close_torque.values()), default=DEFAULT_CLOSE_TORQUE)
+    rng = np.random.default_rng(seed)
+    grasps: list[Grasp] = []
+    tried = 0
+    bar = tqdm(total=count, desc=f"grasps {obj.name}", disable=not progress)
+    b, kin = generator.backend, HandKinematics(hand)
+    while len(grasps) < count and tried < max_candidates:
+        face = None
+        if on_table:
+            weights = np.array([f.probability for f in generator.faces])
+            face = generator.faces[int(rng.choice(len(weights), p=weights / weights.sum()))]
+        synthesizer = GraspSynthesizer(
+            hand, obj, chosen, table_up=None if face is None else face.up, params=params
+        )
+        n = min(BATCH, max_candidates - tried)
+        results = synthesizer.optimise(n, seed=int(rng.integers(2**31)))
+        for result in results:
+            tried += 1
+            e = result.energy
+            if e.max_depth > MAX_DEPTH:
+                generator.rejections["the optimised hand penetrates the object"] += 1
+                continue
+            if e.distance > MAX_CONTACT_GAP * len(result.contacts):
+                generator.rejections["the optimised contacts are off the surface"] += 1
+                continue
+            if face is None:
+                wMb = hand.wMb
+                wMo = wMb @ inverse(result.oMb)
+                b.reset(result.q, wMo)
+            else:
+                wMo = resting_pose(obj, face.up, 0.0, (0.0, 0.0), GENERATOR_TABLE.top)
+                wMb = wMo @ result.oMb
+                if lowest_point(hand, result.q, wMb, kin) < TABLE_CLEAR:
+                    generator.rejections["the optimised hand reaches into the table"] += 1
+                    continue
+                b.reset(result.q, wMo, wMb)
+                b.set_table_contact(True)
+            kin.update(result.q, wMb)
+            tau, closing = closing_torques(hand, kin, result, wMo, peak)
+            grasp = generator.close_and_settle(wMo, (result.q, tau, closing), face, tried - 1)
+            if grasp is None:
+                continue
+            grasp.extra["energy"] = round(e.total, 6)
+            grasps.append(
+                Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
+            )
+            bar.update(1)
+            if len(grasps) == count:
+                break
+    bar.close()
+    command = (
+        f"wholehand grasps generate --method optimize --hand {hand.name} --object {obj.name} "
+        f"--count {count} --seed {seed}"
+    )
+    if max_candidates != 400:
+        command += f" --max-candidates {max_candidates}"
+    if style != "power":
+        command += f" --type {style}"
+    info: dict[str, object] = {
+        "command": command + (" --on-table" if on_table else ""),
+        "seed": seed,
+        "method": "optimised contacts, force closure and penetration from random starts, "
+        "validated by closing, release and settle in MuJoCo (wholehand/grasps/synthesis.py)",
+        "candidates_tried": tried,
+        "rejected": dict(generator.rejections.most_common()),
+        "wall_time_s": round(time.perf_counter() - started, 1),
+    }
+    return grasps, info

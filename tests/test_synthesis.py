@@ -9,13 +9,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from wholehand.cli.main import main
+from wholehand.grasps.optimized import closing_torques
 from wholehand.grasps.store import load_grasps
-from wholehand.grasps.synthesis import (
-    GraspSynthesizer,
-    SynthesisParams,
-    SynthesisState,
-    closing_torques,
-)
+from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisParams, SynthesisState
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 

@@ -53,8 +53,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_generate(args: argparse.Namespace) -> int:
     from wholehand.grasps.generate import generate_grasps
+    from wholehand.grasps.optimized import synthesize_grasps
     from wholehand.grasps.store import grasp_file, grasps_dir, hand_grasps_dir, save_grasps
-    from wholehand.grasps.synthesis import synthesize_grasps
     from wholehand.models.convex import ship_decompositions
     from wholehand.models.hand import load_hand
     from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects, load_object

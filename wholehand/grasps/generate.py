@@ -394,6 +394,27 @@ class GraspGenerator:
         return grasps
 
 
+def generate_command(
+    method: str,
+    hand: HandModel,
+    obj: ObjectModel,
+    count: int,
+    seed: int,
+    max_candidates: int,
+    style: str,
+    on_table: bool,
+) -> str:
+    """The ``wholehand grasps generate`` command line that makes these grasps again
+    (``method`` "" for the default)."""
+    command = "wholehand grasps generate" + (f" --method {method}" if method else "")
+    command += f" --hand {hand.name} --object {obj.name} --count {count} --seed {seed}"
+    if max_candidates != MAX_CANDIDATES:
+        command += f" --max-candidates {max_candidates}"
+    if style != "power":
+        command += f" --type {style}"
+    return command + (" --on-table" if on_table else "")
+
+
 def generate_grasps(
     hand: HandModel,
     obj: ObjectModel,
@@ -408,17 +429,9 @@ def generate_grasps(
     started = time.perf_counter()
     generator = GraspGenerator(hand, obj, style=style, on_table=on_table)
     grasps = generator.generate(count, seed, max_candidates, progress)
-    command = (
-        f"wholehand grasps generate --hand {hand.name} --object {obj.name} "
-        f"--count {count} --seed {seed}"
-    )
-    if max_candidates != MAX_CANDIDATES:
-        command += f" --max-candidates {max_candidates}"
-    if style != "power":
-        command += f" --type {style}"
     where = "resting on a table, hand from above, " if on_table else ""
     info = {
-        "command": command + (" --on-table" if on_table else ""),
+        "command": generate_command("", hand, obj, count, seed, max_candidates, style, on_table),
         "seed": seed,
         "method": f"{style} pre-shape, {where}closing torques with the object held, settle "
         "released (wholehand/grasps/generate.py)",

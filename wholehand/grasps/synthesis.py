@@ -31,7 +31,6 @@ mid-range, jittered.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,7 +38,6 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from wholehand.errors import ConfigError
-from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import style_arrays
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
@@ -393,132 +391,3 @@ class GraspSynthesizer:
             if rng.random() < p.switch_probability:
                 contacts[i] = rng.choice(cands)
         return SynthesisState(oMb, a, contacts)
-
-
-# ------------------------------------------------------------------------------------------------
-# Validation in MuJoCo and the grasp files
-# ------------------------------------------------------------------------------------------------
-
-BATCH = 16
-"""Starts optimised together before their results are validated."""
-MAX_DEPTH = 0.002
-"""Deepest hand sample inside the object a result may have to be validated [m]."""
-MAX_CONTACT_GAP = 0.01
-"""Largest distance of a result's contact point from the surface to be validated [m]."""
-DEFAULT_CLOSE_TORQUE = 0.1
-"""Largest closing torque of a validation when the style names none [N*m]."""
-
-
-def closing_torques(
-    hand: HandModel, kin: HandKinematics, result: SynthesisResult, wMo: FloatArray, peak: float
-) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """Joint torques (n_v,) [N*m] that press every contact point of ``result`` into the object
-    along its normal with equal forces, scaled so that the largest is ``peak``, and the joints
-    they move (n_v,) bool. ``kin`` must be at the grasp (``q``, the base in the world)."""
-    s = hand.samples
-    c = result.contacts
-    p = kin.transform_points(s.p_joint[c], s.joint[c])
-    inward = -(result.normals @ wMo[:3, :3].T)
-    J = kin.actuation_jacobians(s.joint[c], p)
-    tau = hand.joint_torques(np.einsum("nak,na->k", J, inward))
-    largest = float(np.abs(tau).max())
-    if largest == 0.0:
-        return np.zeros(hand.nv), np.zeros(hand.nv, dtype=bool)
-    tau *= peak / largest
-    return tau, np.abs(tau) > 0.02 * peak
-
-
-def synthesize_grasps(
-    hand: HandModel,
-    obj: ObjectModel,
-    count: int = 10,
-    seed: int = 0,
-    max_candidates: int = 400,
-    progress: bool = False,
-    style: str = "power",
-    on_table: bool = False,
-    params: SynthesisParams | None = None,
-) -> tuple[list[Grasp], dict[str, object]]:
-    """Up to ``count`` grasps: batches of :data:`BATCH` starts optimised
-    (:class:`GraspSynthesizer`), each result close enough to the surface validated in MuJoCo as
-    the generator validates its candidates (:meth:`GraspGenerator.close_and_settle`, closing
-    torques from :func:`closing_torques`), until ``count`` grasps or ``max_candidates`` starts.
-    Returns the grasps and a description for the file's ``generator`` field."""
-    from tqdm import tqdm
-
-    from wholehand.grasps.generate import GENERATOR_TABLE, TABLE_CLEAR, GraspGenerator
-    from wholehand.models.poses import inverse
-    from wholehand.models.resting import resting_pose
-    from wholehand.reaching.pregrasp import lowest_point
-
-    started = time.perf_counter()
-    generator = GraspGenerator(hand, obj, style=style, on_table=on_table)
-    chosen = generator.style
-    peak = max((abs(v) for v in chosen.close_torque.values()), default=DEFAULT_CLOSE_TORQUE)
-    rng = np.random.default_rng(seed)
-    grasps: list[Grasp] = []
-    tried = 0
-    bar = tqdm(total=count, desc=f"grasps {obj.name}", disable=not progress)
-    b, kin = generator.backend, HandKinematics(hand)
-    while len(grasps) < count and tried < max_candidates:
-        face = None
-        if on_table:
-            weights = np.array([f.probability for f in generator.faces])
-            face = generator.faces[int(rng.choice(len(weights), p=weights / weights.sum()))]
-        synthesizer = GraspSynthesizer(
-            hand, obj, chosen, table_up=None if face is None else face.up, params=params
-        )
-        n = min(BATCH, max_candidates - tried)
-        results = synthesizer.optimise(n, seed=int(rng.integers(2**31)))
-        for result in results:
-            tried += 1
-            e = result.energy
-            if e.max_depth > MAX_DEPTH:
-                generator.rejections["the optimised hand penetrates the object"] += 1
-                continue
-            if e.distance > MAX_CONTACT_GAP * len(result.contacts):
-                generator.rejections["the optimised contacts are off the surface"] += 1
-                continue
-            if face is None:
-                wMb = hand.wMb
-                wMo = wMb @ inverse(result.oMb)
-                b.reset(result.q, wMo)
-            else:
-                wMo = resting_pose(obj, face.up, 0.0, (0.0, 0.0), GENERATOR_TABLE.top)
-                wMb = wMo @ result.oMb
-                if lowest_point(hand, result.q, wMb, kin) < TABLE_CLEAR:
-                    generator.rejections["the optimised hand reaches into the table"] += 1
-                    continue
-                b.reset(result.q, wMo, wMb)
-                b.set_table_contact(True)
-            kin.update(result.q, wMb)
-            tau, closing = closing_torques(hand, kin, result, wMo, peak)
-            grasp = generator.close_and_settle(wMo, (result.q, tau, closing), face, tried - 1)
-            if grasp is None:
-                continue
-            grasp.extra["energy"] = round(e.total, 6)
-            grasps.append(
-                Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
-            )
-            bar.update(1)
-            if len(grasps) == count:
-                break
-    bar.close()
-    command = (
-        f"wholehand grasps generate --method optimize --hand {hand.name} --object {obj.name} "
-        f"--count {count} --seed {seed}"
-    )
-    if max_candidates != 400:
-        command += f" --max-candidates {max_candidates}"
-    if style != "power":
-        command += f" --type {style}"
-    info: dict[str, object] = {
-        "command": command + (" --on-table" if on_table else ""),
-        "seed": seed,
-        "method": "optimised contacts, force closure and penetration from random starts, "
-        "validated by closing, release and settle in MuJoCo (wholehand/grasps/synthesis.py)",
-        "candidates_tried": tried,
-        "rejected": dict(generator.rejections.most_common()),
-        "wall_time_s": round(time.perf_counter() - started, 1),
-    }
-    return grasps, info

@@ -1,0 +1,147 @@
+"""Grasps from the optimiser (:mod:`wholehand.grasps.synthesis`), validated in MuJoCo.
+
+Each result whose contacts lie near the surface and whose hand barely enters the object is
+validated as the pre-shape generator validates its candidates
+(:meth:`~wholehand.grasps.generate.GraspGenerator.close_and_settle`): the object held, the hand
+closed, the object released, the grasp settled and checked. The closing torques press every
+contact point into the object along its normal (:func:`closing_torques`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.grasps.generate import (
+    GENERATOR_TABLE,
+    MAX_CANDIDATES,
+    TABLE_CLEAR,
+    GraspGenerator,
+    generate_command,
+)
+from wholehand.grasps.store import Grasp
+from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisParams, SynthesisResult
+from wholehand.models.hand import HandModel
+from wholehand.models.kinematics import HandKinematics
+from wholehand.models.objects import ObjectModel
+from wholehand.models.poses import inverse
+from wholehand.models.resting import resting_pose
+from wholehand.reaching.pregrasp import lowest_point
+
+FloatArray = npt.NDArray[np.float64]
+
+
+BATCH = 16
+"""Starts optimised together before their results are validated."""
+MAX_DEPTH = 0.002
+"""Deepest hand sample inside the object a result may have to be validated [m]."""
+MAX_CONTACT_GAP = 0.01
+"""Largest distance of a result's contact point from the surface to be validated [m]."""
+DEFAULT_CLOSE_TORQUE = 0.1
+"""Largest closing torque of a validation when the style names none [N*m]."""
+
+
+def closing_torques(
+    hand: HandModel, kin: HandKinematics, result: SynthesisResult, wMo: FloatArray, peak: float
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Joint torques (n_v,) [N*m] that press every contact point of ``result`` into the object
+    along its normal with equal forces, scaled so that the largest is ``peak``, and the joints
+    they move (n_v,) bool. ``kin`` must be at the grasp (``q``, the base in the world)."""
+    s = hand.samples
+    c = result.contacts
+    p = kin.transform_points(s.p_joint[c], s.joint[c])
+    inward = -(result.normals @ wMo[:3, :3].T)
+    J = kin.actuation_jacobians(s.joint[c], p)
+    tau = hand.joint_torques(np.einsum("nak,na->k", J, inward))
+    largest = float(np.abs(tau).max())
+    if largest == 0.0:
+        return np.zeros(hand.nv), np.zeros(hand.nv, dtype=bool)
+    tau *= peak / largest
+    return tau, np.abs(tau) > 0.02 * peak
+
+
+def synthesize_grasps(
+    hand: HandModel,
+    obj: ObjectModel,
+    count: int = 10,
+    seed: int = 0,
+    max_candidates: int = MAX_CANDIDATES,
+    progress: bool = False,
+    style: str = "power",
+    on_table: bool = False,
+    params: SynthesisParams | None = None,
+) -> tuple[list[Grasp], dict[str, object]]:
+    """Up to ``count`` grasps: batches of :data:`BATCH` starts optimised
+    (:class:`GraspSynthesizer`), each result close enough to the surface validated in MuJoCo as
+    the generator validates its candidates (:meth:`GraspGenerator.close_and_settle`, closing
+    torques from :func:`closing_torques`), until ``count`` grasps or ``max_candidates`` starts.
+    Returns the grasps and a description for the file's ``generator`` field."""
+    from tqdm import tqdm
+
+    started = time.perf_counter()
+    generator = GraspGenerator(hand, obj, style=style, on_table=on_table)
+    chosen = generator.style
+    peak = max((abs(v) for v in chosen.close_torque.values()), default=DEFAULT_CLOSE_TORQUE)
+    rng = np.random.default_rng(seed)
+    grasps: list[Grasp] = []
+    tried = 0
+    bar = tqdm(total=count, desc=f"grasps {obj.name}", disable=not progress)
+    b, kin = generator.backend, HandKinematics(hand)
+    while len(grasps) < count and tried < max_candidates:
+        face = None
+        if on_table:
+            weights = np.array([f.probability for f in generator.faces])
+            face = generator.faces[int(rng.choice(len(weights), p=weights / weights.sum()))]
+        synthesizer = GraspSynthesizer(
+            hand, obj, chosen, table_up=None if face is None else face.up, params=params
+        )
+        n = min(BATCH, max_candidates - tried)
+        results = synthesizer.optimise(n, seed=int(rng.integers(2**31)))
+        for result in results:
+            tried += 1
+            e = result.energy
+            if e.max_depth > MAX_DEPTH:
+                generator.rejections["the optimised hand penetrates the object"] += 1
+                continue
+            if e.distance > MAX_CONTACT_GAP * len(result.contacts):
+                generator.rejections["the optimised contacts are off the surface"] += 1
+                continue
+            if face is None:
+                wMb = hand.wMb
+                wMo = wMb @ inverse(result.oMb)
+                b.reset(result.q, wMo)
+            else:
+                wMo = resting_pose(obj, face.up, 0.0, (0.0, 0.0), GENERATOR_TABLE.top)
+                wMb = wMo @ result.oMb
+                if lowest_point(hand, result.q, wMb, kin) < TABLE_CLEAR:
+                    generator.rejections["the optimised hand reaches into the table"] += 1
+                    continue
+                b.reset(result.q, wMo, wMb)
+                b.set_table_contact(True)
+            kin.update(result.q, wMb)
+            tau, closing = closing_torques(hand, kin, result, wMo, peak)
+            grasp = generator.close_and_settle(wMo, (result.q, tau, closing), face, tried - 1)
+            if grasp is None:
+                continue
+            grasp.extra["energy"] = round(e.total, 6)
+            grasps.append(
+                Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
+            )
+            bar.update(1)
+            if len(grasps) == count:
+                break
+    bar.close()
+    info: dict[str, object] = {
+        "command": generate_command(
+            "optimize", hand, obj, count, seed, max_candidates, style, on_table
+        ),
+        "seed": seed,
+        "method": "optimised contacts, force closure and penetration from random starts, "
+        "validated by closing, release and settle in MuJoCo (wholehand/grasps/synthesis.py)",
+        "candidates_tried": tried,
+        "rejected": dict(generator.rejections.most_common()),
+        "wall_time_s": round(time.perf_counter() - started, 1),
+    }
+    return grasps, info

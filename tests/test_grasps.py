@@ -213,6 +213,17 @@ def test_every_rejected_candidate_has_a_reason(allegro):
     assert all(isinstance(reason, str) and reason for reason in info["rejected"])
 
 
+def test_a_penetrating_pre_shape_names_its_deepest_link_and_depth(allegro):
+    """A 12 cm cube placed a centimetre or two from the palm meets the open fingers."""
+    grasps, info = generate_grasps(allegro, load_object("box:0.12x0.12x0.12"), 1, max_candidates=6)
+    named = {r: n for r, n in info["rejected"].items() if r.startswith("the pre-shape penetrates")}
+    assert named, info["rejected"]
+    depths = info["preshape_depth_mm"]
+    for reason in named:
+        link = reason.removesuffix(")").split("deepest: ")[1]
+        assert link in allegro.link_names and depths[link] > 1.0  # [mm]
+
+
 def test_a_power_grasp_without_a_thumb_is_refused_with_the_fix(tmp_path):
     from toy_hand import write_toy_hand
 

@@ -80,19 +80,20 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             on_table=args.on_table,
         )
         rejected = cast(dict[str, int], info["rejected"])
+        depths = cast(dict[str, float], info.get("preshape_depth_mm", {}))
         if not grasps:
             without.append(obj.name)
             print(
                 f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
                 "nothing written (raise --max-candidates or adjust the style in hand.toml). "
-                f"Rejected because:\n{_reasons(rejected)}"
+                f"Rejected because:\n{_reasons(rejected, depths)}"
             )
             continue
         default = grasp_file(args.hand, obj.name, args.type, args.on_table)
         path = Path(args.out) / default.name if args.out else default
         path = save_grasps(path, hand.name, obj.name, grasps, info)
         if args.verbose and rejected:
-            print(f"{obj.name}: candidates rejected because:\n{_reasons(rejected)}")
+            print(f"{obj.name}: candidates rejected because:\n{_reasons(rejected, depths)}")
         if not args.out and shipped_hand and obj.name in ycb:
             # A shipped grasp was made on this decomposition: ship it, so that MuJoCo
             # reproduces the grasp without running CoACD again (cached, so no extra cost here).
@@ -114,8 +115,12 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _reasons(rejected: dict[str, int]) -> str:
-    return "\n".join(f"  {n:4d}  {reason}" for reason, n in rejected.items())
+def _reasons(rejected: dict[str, int], depths: dict[str, float] | None = None) -> str:
+    lines = [f"  {n:4d}  {reason}" for reason, n in rejected.items()]
+    if depths:
+        deepest = ", ".join(f"{link} {mm:g} mm" for link, mm in depths.items())
+        lines.append(f"  the pre-shape's deepest penetration per link: {deepest}")
+    return "\n".join(lines)
 
 
 def _cmd_list(args: argparse.Namespace) -> int:

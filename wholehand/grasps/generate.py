@@ -75,6 +75,8 @@ MAX_SETTLE_MOTION = 0.01
 HOLD_FREQUENCY = 20.0
 """Natural frequency of the critically damped spring that holds the object in place during
 closing [Hz]; its gains scale with the object's mass and inertia."""
+PRESHAPE_DEPTH = 0.001
+"""Deepest a pre-shape may reach into the object before the candidate is rejected [m]."""
 MAX_CANDIDATES = 400
 """Candidates tried per object before the generator gives up on finding ``count`` grasps."""
 PD_GAINS = (2.0, 0.05)
@@ -185,6 +187,9 @@ class GraspGenerator:
         )
         self.candidates_tried = 0
         """Candidates tried by the last :meth:`generate`."""
+        self.deepest: dict[str, float] = {}
+        """Per link, the deepest penetration of a pre-shape rejected for it [m] (last
+        :meth:`generate`)."""
         self.rejections: Counter[str] = Counter()
         """Why candidates of the last :meth:`generate` were rejected: reason -> count."""
 
@@ -256,7 +261,9 @@ class GraspGenerator:
         contacts = self.backend.ground_truth_contacts()
         return {self.hand.link_finger[i] for i in contacts.link}
 
-    def _grasped(self, touching: set[str]) -> bool:
+    def grasped(self, touching: set[str]) -> bool:
+        """Whether fingers ``touching`` ("" for other links) make the style's grasp: the
+        thumb and two others, or exactly the style's fingers."""
         if self.style.fingers:
             return touching == set(self.style.fingers)
         fingers = touching - {""}
@@ -300,8 +307,13 @@ class GraspGenerator:
         else:
             wMo = self.candidate_pose(rng)
             b.reset(self.q_pre, wMo)
-        if np.any(b.ground_truth_contacts().distance < -0.001):
-            return self._reject("the pre-shape penetrates the object")
+        contacts = b.ground_truth_contacts()
+        if np.any(contacts.distance < -PRESHAPE_DEPTH):
+            deepest = int(np.argmin(contacts.distance))
+            link = self.hand.link_names[int(contacts.link[deepest])]
+            depth = -float(contacts.distance[deepest])
+            self.deepest[link] = max(self.deepest.get(link, 0.0), depth)
+            return self._reject(f"the pre-shape penetrates the object (deepest: {link})")
         return self.close_and_settle(wMo, (self.q_pre, self.tau_close, self.closing), face, index)
 
     def close_and_settle(
@@ -317,7 +329,7 @@ class GraspGenerator:
         :attr:`rejections`). ``index`` is stored as the grasp's ``candidate``."""
         b = self.backend
         self._hold(wMo)
-        if not self._run(CLOSE_TIMEOUT, closing, lambda: self._grasped(self._fingers_touching())):
+        if not self._run(CLOSE_TIMEOUT, closing, lambda: self.grasped(self._fingers_touching())):
             return self._reject(
                 f"the required fingers did not all touch within {CLOSE_TIMEOUT:g} s of closing"
             )
@@ -336,7 +348,7 @@ class GraspGenerator:
             return self._reject(
                 f"the object moved more than {1e3 * MAX_SETTLE_MOTION:g} mm when released"
             )
-        if not self._grasped(touching):
+        if not self.grasped(touching):
             return self._reject("a required finger let go after release (or another link touched)")
         if not self.loss.held(self.kin, state.wMo):
             return self._reject("the grasp-loss criterion fails after release")
@@ -380,6 +392,7 @@ class GraspGenerator:
         bar = tqdm(total=count, desc=f"grasps {self.obj.name}", disable=not progress)
         self.candidates_tried = 0
         self.rejections.clear()
+        self.deepest.clear()
         for index in range(max_candidates):
             self.candidates_tried = index + 1
             grasp = self.try_candidate(index, seed)
@@ -437,6 +450,9 @@ def generate_grasps(
         "released (wholehand/grasps/generate.py)",
         "candidates_tried": generator.candidates_tried,
         "rejected": dict(generator.rejections.most_common()),
+        "preshape_depth_mm": {
+            link: round(1e3 * depth, 2) for link, depth in sorted(generator.deepest.items())
+        },
         "wall_time_s": round(time.perf_counter() - started, 1),
     }
     return grasps, info

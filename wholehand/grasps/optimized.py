@@ -38,7 +38,8 @@ BATCH = 16
 MAX_DEPTH = 0.002
 """Deepest hand sample inside the object a result may have to be validated [m]."""
 MAX_CONTACT_GAP = 0.01
-"""Largest distance of a result's contact point from the surface to be validated [m]."""
+"""Largest distance from the surface of the contact points of the fingers a grasp needs (the
+thumb and two others, or the style's fingers) for a result to be validated [m]."""
 DEFAULT_CLOSE_TORQUE = 0.1
 """Largest closing torque of a validation when the style names none [N*m]."""
 
@@ -105,8 +106,8 @@ def synthesize_grasps(
             if e.max_depth > MAX_DEPTH:
                 generator.rejections["the optimised hand penetrates the object"] += 1
                 continue
-            if e.distance > MAX_CONTACT_GAP * len(result.contacts):
-                generator.rejections["the optimised contacts are off the surface"] += 1
+            if not generator.grasped(synthesizer.touching(result, MAX_CONTACT_GAP)):
+                generator.rejections["the required fingers' contacts are off the surface"] += 1
                 continue
             if face is None:
                 wMb = hand.wMb

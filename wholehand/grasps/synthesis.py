@@ -22,11 +22,13 @@ contact point with a small probability; a step is kept by the Metropolis rule at
 that decays geometrically, as in DexGraspNet's annealing.
 
 The contact points: one per finger of the style (the style's ``fingers``, or every finger of
-``[fingers]`` and one on the palm for a power grasp), drawn from the surface samples of the
-finger's links past the first. The start: the hand's palm frame (:mod:`wholehand.models.palm`)
-faces the object from a random direction, at a gap of 1-3 cm from its support along that
-direction, turned at random about it; the joints at the style's pre-shape if it has one, else
-mid-range, jittered.
+``[fingers]`` for a power grasp, and then one on the palm face too unless ``palm_contact`` is
+off), drawn from the pads of the finger's links past the first (the samples whose outward
+normal leads their motion when the finger closes by the style's closing-torque signs).
+
+The start: the hand's palm frame (:mod:`wholehand.models.palm`) faces the object from a random
+direction, at a gap of 1-3 cm from its support along that direction, turned at random about it;
+the joints at the style's pre-shape if it has one, else mid-range, jittered.
 """
 
 from __future__ import annotations
@@ -49,6 +51,10 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 
 
+MIN_PAD_SAMPLES = 5
+"""A finger with fewer pad samples than this takes its contacts anywhere on its links."""
+
+
 @dataclass(frozen=True)
 class SynthesisParams:
     """Weights and schedule of the synthesis (defaults after DexGraspNet's, scaled to the
@@ -64,7 +70,7 @@ class SynthesisParams:
     """Weight of the hand samples' depth inside the object [1/m]."""
     w_table: float = 300.0
     """Weight of the hand samples' depth below the table's margin [1/m]."""
-    iterations: int = 600
+    iterations: int = 1500
     """Steps per start."""
     step_translation: float = 0.002
     """Largest base translation of one step [m], decayed with the temperature."""
@@ -85,6 +91,8 @@ class SynthesisParams:
     """Standard deviation of the start's joint angles around the pre-shape [rad]."""
     table_margin: float = 0.005
     """Least height of a hand sample above the table top [m]."""
+    palm_contact: bool = True
+    """A power grasp has a contact point on the palm face too."""
 
 
 @dataclass(frozen=True)
@@ -130,6 +138,8 @@ class SynthesisResult:
     """(C,) surface-sample indices of the contact points."""
     normals: FloatArray
     """(C, 3) outward object normals at the contact points, object frame."""
+    gaps: FloatArray
+    """(C,) signed distances of the contact points to the surface [m]."""
     energy: Energy
     start: int
     """Index of the start it came from."""
@@ -178,30 +188,47 @@ class GraspSynthesizer:
         self.act = hand.actuated_dofs.copy() if hand.coupled else np.ones(hand.nq, dtype=bool)
         self.a_lower = hand.q_lower[self.act]
         self.a_upper = hand.q_upper[self.act]
-        self.candidates = self._contact_candidates()
+        self.candidates = self._contact_candidates(tau_close)
 
     # --------------------------------------------------------------------------------------------
-    def _contact_candidates(self) -> list[IntArray]:
-        """Per contact, the surface samples it may sit on (module docstring)."""
-        hand, cfg = self.hand, self.hand.config
+    def _contact_candidates(self, tau_close: FloatArray) -> list[IntArray]:
+        """Per contact, the surface samples it may sit on: the pads of a finger's links past
+        its first (the samples whose outward normal leads their motion when the finger
+        closes, at the start posture), or every sample of those links where none does; the
+        palm face (normal within 45 deg of the palm normal) for a power grasp."""
+        hand, cfg, s = self.hand, self.hand.config, self.samples
+        kin = self.kin
+        kin.update(self.q_start, np.eye(4))
+        p, n = kin.from_joint_frames(s.p_joint, s.n_joint, s.joint)  # base frame
+        v = np.einsum("nak,k->na", kin.point_jacobians(s.joint, p), np.sign(tau_close))
+        speed = np.linalg.norm(v, axis=1)
+        pad = np.einsum("ij,ij->i", n, v) > 0.5 * speed
         fingers = list(self.style.fingers) or list(cfg.fingers)
+        self.contact_fingers = [*fingers]
+        """The finger of each contact ("" for the palm's)."""
         out: list[IntArray] = []
         for finger in fingers:
             links = [hand.link_index(name) for name in cfg.fingers[finger][1:]]
-            idx = np.flatnonzero(np.isin(self.samples.link, links))
-            if idx.size == 0:
+            on_links = np.isin(s.link, links)
+            if not on_links.any():
                 raise ConfigError(
                     f"{cfg.path}: finger {finger!r} has no surface samples past its first link "
                     f"{cfg.fingers[finger][0]!r}; the synthesiser needs them for its contacts"
                 )
-            out.append(idx)
-        if not self.style.fingers:  # a power grasp: the palm touches too
+            pads = np.flatnonzero(on_links & pad)
+            out.append(pads if pads.size >= MIN_PAD_SAMPLES else np.flatnonzero(on_links))
+        if self.params.palm_contact and not self.style.fingers:  # a power grasp
             palm = hand.link_index(cfg.palm_link)
-            normals = self.samples.n_joint @ self.palm.bRp[:, 0]
-            on_face = np.flatnonzero((self.samples.link == palm) & (normals > 0.7))
+            on_face = np.flatnonzero((s.link == palm) & (n @ self.palm.bRp[:, 0] > 0.7))
             if on_face.size:
                 out.append(on_face)
+                self.contact_fingers.append("")
         return out
+
+    def touching(self, result: SynthesisResult, gap: float) -> set[str]:
+        """Fingers whose contact of ``result`` lies within ``gap`` [m] of the surface ("" for
+        the palm's)."""
+        return {f for f, d in zip(self.contact_fingers, result.gaps, strict=True) if abs(d) <= gap}
 
     def q_of(self, a: FloatArray) -> FloatArray:
         """(n_q,) joint angles from the optimised ones [rad]."""
@@ -352,11 +379,10 @@ class GraspSynthesizer:
             xc = self.kin.transform_points(
                 self.samples.p_joint[st.contacts], self.samples.joint[st.contacts]
             )
-            normals = self.sdf.query_with_gradient(xc)[1]
+            gaps, normals = self.sdf.query_with_gradient(xc)
+            q = self.q_of(st.a)
             out.append(
-                SynthesisResult(
-                    st.oMb.copy(), self.q_of(st.a), st.contacts.copy(), normals, energy, k
-                )
+                SynthesisResult(st.oMb.copy(), q, st.contacts.copy(), normals, gaps, energy, k)
             )
         out.sort(key=lambda r: r.energy.total)
         return out

@@ -30,6 +30,11 @@ def test_findings_name_the_problem_and_the_fix(tmp_path, capsys):
     assert report["summary"]["buried_samples"] > 10
     follows = {j["name"]: j["follows"] for j in report["joints"]}
     assert follows["f1_j2"] == "f1_j1" and follows["f1_j1"] is None
+    coupling = {j["name"]: (j["multiplier"], j["offset"]) for j in report["joints"]}
+    assert coupling["f1_j2"] == pytest.approx((0.8, 0.1)) and coupling["f1_j1"] == (None, None)
+    # Real-looking efforts (1 N*m) that the default torque limit (0.2 N*m) replaces: said.
+    unused = [f for f in report["findings"] if "that wholehand does not use" in f["what"]]
+    assert len(unused) == 1 and "5 joints" in unused[0]["what"] and "f1_j1 (1)" in unused[0]["what"]
     # No torque_limit in hand.toml and placeholder efforts in the URDF.
     urdf = folder / "toy.urdf"
     urdf.write_text(urdf.read_text().replace('effort="1"', 'effort="1000"'))
@@ -45,6 +50,27 @@ def test_findings_name_the_problem_and_the_fix(tmp_path, capsys):
     assert "ERROR: joint 'f1_j1' has inverted limits: lower 1.6 > upper -0.2" in out
     assert "fix: swap lower and upper in the URDF" in out
     assert "NOT usable" in out
+
+
+def test_a_coupling_past_the_followers_limits_and_a_clamped_close_torque_are_flagged(
+    tmp_path, capsys
+):
+    """q2 = 2 q1 + 0.1 over q1 in [-0.2, 1.6] spans [-0.3, 3.3], past q2's [-0.2, 1.6]; a
+    closing torque of 0.1 N*m against a 0.05 N*m limit is clamped."""
+    folder = write_toy_hand(
+        tmp_path / "toy", tables="[joints]\ntorque_limit = { default = 0.05 }\n", mimic=True
+    )
+    urdf = folder / "toy.urdf"
+    urdf.write_text(urdf.read_text().replace('multiplier="0.8"', 'multiplier="2.0"'))
+    assert main(["hand", "check", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "f1_j2  " in out and "follows f1_j1 x 2 + 0.1" in out
+    assert (
+        "WARNING: joint 'f1_j2' follows 'f1_j1' as 2 x f1_j1 + 0.1, which spans [-0.300, 3.300]"
+        in out
+    )
+    assert "[grasping] close_torque of 'f1_j1' is 0.1 N*m, above its torque limit 0.05" in out
+    assert "that wholehand does not use" not in out  # hand.toml sets the limits
 
 
 def test_a_broken_hand_toml_is_a_finding_not_a_traceback(tmp_path, capsys):

@@ -120,3 +120,22 @@ def test_outer_surface_only_drops_exactly_the_samples_inside_the_palm(tmp_path):
         assert np.sum(outer.samples.link == outer.link_index(link)) == np.sum(
             both.samples.link == both.link_index(link)
         )
+
+
+def test_a_root_link_named_world_keeps_its_placement_in_mujoco(tmp_path):
+    """MuJoCo's URDF importer takes a link named ``world`` for its world body; the hand's root
+    turn (90 deg here) must survive: every link body where Pinocchio puts it."""
+    folder = write_toy_hand(tmp_path / "toy", palm_xyz=(0.0, 0.0, 0.05), palm_rpy=(1.5708, 0, 0))
+    urdf = folder / "toy.urdf"
+    urdf.write_text(urdf.read_text().replace('"root"', '"world"'))
+    hand = load_hand(folder)
+    backend = MujocoBackend(hand, ObjectModel.sphere(0.03, mass=0.1))
+    q = hand.neutral()
+    backend.set_kinematic_hand(q)
+    kin_data = hand.model.createData()
+    pin.framesForwardKinematics(hand.model, kin_data, q)
+    for i, frame in enumerate(hand.link_frame):
+        wMl = hand.wMb @ kin_data.oMf[int(frame)].homogeneous
+        body = backend.scene.link_body[i]
+        np.testing.assert_allclose(backend.data.xpos[body], wMl[:3, 3], atol=1e-9)
+        np.testing.assert_allclose(backend.data.xmat[body].reshape(3, 3), wMl[:3, :3], atol=1e-9)

@@ -384,6 +384,16 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         self.data.qvel[s.qvel_index] = 0.0
         mujoco.mj_forward(self.model, self.data)
 
+    def link_poses(self, q: FloatArray) -> FloatArray:
+        """(L, 4, 4) world poses of the bodies of ``hand.link_names`` with the joints at ``q``
+        (:meth:`set_kinematic_hand`), to compare the simulated hand with the kinematic model."""
+        self.set_kinematic_hand(q)
+        bodies = self.scene.link_body
+        out = np.tile(np.eye(4), (bodies.size, 1, 1))
+        out[:, :3, :3] = self.data.xmat[bodies].reshape(-1, 3, 3)
+        out[:, :3, 3] = self.data.xpos[bodies]
+        return out
+
     def set_base_pose(self, wMb: FloatArray) -> None:
         """Move a mocap hand base (``base="mocap"``) to ``wMb`` (4, 4), or the target a
         floating base is welded to (``base="floating"``); it takes effect at the next step."""

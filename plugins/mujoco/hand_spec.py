@@ -32,6 +32,7 @@ def _urdf_for_mujoco(hand: HandModel) -> str:
     for link in root.iter("link"):
         for visual in list(link.findall("visual")):
             link.remove(visual)
+    _rename_world_root(root)
     for mesh in root.iter("mesh"):
         uri = mesh.get("filename", "")
         path = resolve_mesh_uri(uri, cfg.model_path, cfg.package_dirs)
@@ -52,6 +53,31 @@ def _urdf_for_mujoco(hand: HandModel) -> str:
         strippath="false",
     )
     return ET.tostring(root, encoding="unicode")
+
+
+WORLD_ROOT = "wholehand_world_root"
+"""MuJoCo's name for a URDF root link named ``world`` (:func:`_rename_world_root`)."""
+
+
+def mujoco_link_name(link: str) -> str:
+    """The MuJoCo body name of a URDF link."""
+    return WORLD_ROOT if link == "world" else link
+
+
+def _rename_world_root(root: ET.Element) -> None:
+    """MuJoCo's URDF importer takes a link named ``world`` for its world body and hangs the
+    links below it from the world directly, so the root's placement of its children (a 90 deg
+    turn, say) would be lost when the scene mounts the hand; Pinocchio keeps that link as the
+    hand's base. Renamed, it stays the hand's root body."""
+    children = {child.get("link") for child in root.iter("child")}
+    if any(link.get("name") == "world" for link in root.iter("link")) and "world" not in children:
+        for link in root.iter("link"):
+            if link.get("name") == "world":
+                link.set("name", WORLD_ROOT)
+        for joint in root.iter("joint"):
+            parent = joint.find("parent")
+            if parent is not None and parent.get("link") == "world":
+                parent.set("link", WORLD_ROOT)
 
 
 def _mjcf_hand_spec(hand: HandModel) -> mujoco.MjSpec:

@@ -46,6 +46,7 @@ from wholehand.models.poses import check_pose
 from .hand_spec import (
     add_declared_couplings,
     load_hand_spec,
+    mujoco_link_name,
     weld_locked_joints,
 )
 from .object_spec import add_object
@@ -219,7 +220,8 @@ def _index_maps(model: mujoco.MjModel, hand: HandModel) -> dict[str, Any]:
         if aid >= 0:
             ctrl_index[pj.idx_v] = aid
     link_body = np.array(
-        [_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in hand.link_names], dtype=np.intp
+        [_name2id(model, mujoco.mjtObj.mjOBJ_BODY, mujoco_link_name(n)) for n in hand.link_names],
+        dtype=np.intp,
     )
     missing = [n for n, b in zip(hand.link_names, link_body, strict=True) if b < 0]
     if missing:

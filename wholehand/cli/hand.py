@@ -42,7 +42,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
         print(f"\n  {'joint':<24} {'lower':>8} {'upper':>8}  {'torque limit':>12}  actuation")
         for j in report.joints:
             if j["follows"]:
-                how = f"follows {j['follows']}"
+                how = f"follows {j['follows']} x {j['multiplier']:g} + {j['offset']:g}"
             else:
                 how = "motor" if j["actuated"] else "arm (position)" if j["arm"] else "passive"
             print(

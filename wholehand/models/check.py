@@ -20,9 +20,14 @@ import numpy.typing as npt
 from wholehand.errors import WholehandError
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
+from wholehand.models.kinematics import HandKinematics
 
 FloatArray = npt.NDArray[np.float64]
 
+POSE_MISMATCH_M = 1e-6
+"""Largest distance between a link's simulated and modelled pose accepted by the check [m]."""
+POSE_MISMATCH_DEG = 1e-4
+"""Largest angle between a link's simulated and modelled orientation [deg]."""
 PLACEHOLDER_EFFORT = 50.0
 """A URDF effort limit above this [N*m or N] on a hand joint is taken for a placeholder."""
 FAR_FROM_LINK = 0.3
@@ -76,7 +81,8 @@ def _raw_joint_findings(cfg: HandConfig, report: HandReport) -> None:
     if cfg.model_format != "urdf":
         return
     root = ET.parse(cfg.model_path).getroot()
-    placeholders = []
+    placeholders: list[str] = []
+    efforts: list[str] = []
     for joint in root.iter("joint"):
         name, kind = joint.get("name", ""), joint.get("type", "")
         if kind not in ("revolute", "prismatic"):
@@ -100,6 +106,18 @@ def _raw_joint_findings(cfg: HandConfig, report: HandReport) -> None:
         effort = float(limit.get("effort", "0"))
         if effort > PLACEHOLDER_EFFORT and name not in cfg.locked_joints:
             placeholders.append(f"{name} ({effort:g})")
+        elif 0.0 < effort != cfg.torque_limit_default and name not in cfg.locked_joints:
+            efforts.append(f"{name} ({effort:g})")
+    if efforts and not cfg.torque_limit_set:
+        report.add(
+            "warning",
+            f"{len(efforts)} joints have URDF effort limits [N*m] that wholehand does not use: "
+            f"{', '.join(efforts[:4])}{' ...' if len(efforts) > 4 else ''}; hand.toml sets no "
+            f"[joints] torque_limit, so every motor gets the default "
+            f"{cfg.torque_limit_default:g} N*m",
+            "set [joints] torque_limit in hand.toml to the motors' limits (the URDF's efforts "
+            "if they are the real ones)",
+        )
     if placeholders and not cfg.torque_limit_set:
         report.add(
             "warning",
@@ -108,6 +126,42 @@ def _raw_joint_findings(cfg: HandConfig, report: HandReport) -> None:
             f"ignores them and uses [joints] torque_limit (default {cfg.torque_limit_default:g})",
             "set [joints] torque_limit in hand.toml to the motors' real limits [N*m]",
         )
+
+
+def _coupling_findings(hand: HandModel, report: HandReport) -> None:
+    """A follower that its coupling drives past its own limits within its leader's range."""
+    model = hand.model
+    for follower, mimic in hand.mimics.items():
+        f = model.joints[model.getJointId(follower)].idx_q
+        lead = model.joints[model.getJointId(mimic.leader)].idx_q
+        ends = mimic.multiplier * np.array([hand.q_lower[lead], hand.q_upper[lead]])
+        ends += mimic.offset
+        lo, hi = float(ends.min()), float(ends.max())
+        if lo < hand.q_lower[f] - 1e-9 or hi > hand.q_upper[f] + 1e-9:
+            report.add(
+                "warning",
+                f"joint {follower!r} follows {mimic.leader!r} as {mimic.multiplier:g} x "
+                f"{mimic.leader} + {mimic.offset:g}, which spans [{lo:.3f}, {hi:.3f}] rad over "
+                f"the leader's range, past its own limits [{hand.q_lower[f]:.3f}, "
+                f"{hand.q_upper[f]:.3f}]",
+                "check the multiplier and offset of the coupling, or the limits of both joints",
+            )
+
+
+def _close_torque_findings(hand: HandModel, report: HandReport) -> None:
+    """Closing torques of a grasp style above their joint's torque limit (they get clamped)."""
+    model = hand.model
+    for style in hand.config.grasp_styles.values():
+        table = "[grasping]" if style.name == "power" else f"[grasping.{style.name}]"
+        for name, torque in style.close_torque.items():
+            limit = float(hand.tau_max[model.joints[model.getJointId(name)].idx_v])
+            if abs(torque) > limit:
+                report.add(
+                    "warning",
+                    f"{table} close_torque of {name!r} is {abs(torque):g} N*m, above its torque "
+                    f"limit {limit:g} N*m: the generator's closing is clamped to the limit",
+                    f"lower it in {table}, or raise [joints] torque_limit for {name!r}",
+                )
 
 
 def _geometry_findings(hand: HandModel, report: HandReport) -> None:
@@ -204,8 +258,12 @@ def check_hand(name_or_path: str | Path) -> HandReport:
                 "arm": bool(hand.arm_dofs[v]),
                 "torque_limit": float(hand.tau_max[v]),
                 "follows": None if mimic is None else mimic.leader,
+                "multiplier": None if mimic is None else mimic.multiplier,
+                "offset": None if mimic is None else mimic.offset,
             }
         )
+    _coupling_findings(hand, report)
+    _close_torque_findings(hand, report)
     report.summary = hand.summary()
     unlimited = [
         j["name"]
@@ -232,7 +290,49 @@ def check_hand(name_or_path: str | Path) -> HandReport:
         )
     _geometry_findings(hand, report)
     _buried_findings(hand, report)
+    _simulation_findings(hand, report)
     return report
+
+
+def _simulation_findings(hand: HandModel, report: HandReport) -> None:
+    """The simulated hand (MuJoCo's scene) against the kinematic model (Pinocchio): every link
+    where the model puts it, at the mid-range configuration and a quarter of the way in from
+    either end of every joint's range."""
+    from wholehand import registry
+    from wholehand.models.objects import ObjectModel
+
+    backend: Any
+    try:
+        backend = registry.load(
+            "backends", "mujoco", hand=hand, obj=ObjectModel.sphere(0.02, mass=0.05)
+        )
+    except WholehandError as err:
+        report.add("error", f"the MuJoCo scene does not build: {err}", "fix what the message names")
+        return
+    kin = HandKinematics(hand)
+    finite = np.isfinite(hand.q_lower) & np.isfinite(hand.q_upper)
+    lower = np.where(finite, hand.q_lower, 0.0)
+    upper = np.where(finite, hand.q_upper, 0.0)
+    for share in (0.5, 0.25, 0.75):
+        q = hand.couple(np.where(finite, lower + share * (upper - lower), hand.neutral()))
+        simulated = backend.link_poses(q)
+        kin.update(q, hand.wMb)
+        for i, link in enumerate(hand.link_names):
+            model = kin.frame_pose(link)
+            offset = float(np.linalg.norm(simulated[i, :3, 3] - model[:3, 3]))
+            cos = (np.trace(simulated[i, :3, :3].T @ model[:3, :3]) - 1.0) / 2.0
+            angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+            if offset > POSE_MISMATCH_M or angle > POSE_MISMATCH_DEG:
+                report.add(
+                    "error",
+                    f"MuJoCo puts link {link!r} {1e3 * offset:.1f} mm and {angle:.1f} deg away "
+                    f"from where the kinematic model (Pinocchio) puts it, with the joints "
+                    f"{share:.0%} of the way through their ranges: the simulation would not be "
+                    "the hand the controller models",
+                    "check the URDF's root link (a root named 'world' is handled; other names "
+                    "MuJoCo reserves are not), its fixed joints and their origins",
+                )
+                return
 
 
 def plot_samples(hand: HandModel, path: str | Path) -> Path:

@@ -47,6 +47,39 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "user's hand.toml, the shipped grasps for a shipped hand)",
     )
     p.set_defaults(func=_cmd_generate)
+    p = gsub.add_parser(
+        "import",
+        help="convert grasp files of DexGraspNet, Dexonomy or BODex to this hand's format",
+    )
+    p.add_argument("files", nargs="+", help="the .npy files (pickled: open only files you trust)")
+    p.add_argument("--format", required=True, choices=("dexgraspnet", "dexonomy", "bodex"))
+    p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
+    p.add_argument("--object", required=True, help="the object the grasps are of")
+    p.add_argument(
+        "--joint-names",
+        default=None,
+        help="the file's joint order, comma-separated, for files that do not name their joints",
+    )
+    p.add_argument(
+        "--joint-map",
+        default=None,
+        help="the file's joint names onto the hand's where they differ: their=ours,...",
+    )
+    p.add_argument(
+        "--root-offset",
+        default=None,
+        help="the hand's base frame in the file's hand root: 'x y z qw qx qy qz' [m] "
+        "(default: the same frame)",
+    )
+    p.add_argument(
+        "--object-scale",
+        type=float,
+        default=1.0,
+        help="keep the grasps made on the object mesh at this scale (default 1)",
+    )
+    p.add_argument("--type", default="power", help="grasp style to store them as")
+    p.add_argument("--out", default=None, help="folder for <object>.json (default: the hand's)")
+    p.set_defaults(func=_cmd_import)
     p = gsub.add_parser("list", help="list the shipped grasp files")
     p.set_defaults(func=_cmd_list)
 
@@ -112,6 +145,56 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         print(f"{len(names) - len(without)} of {len(names)} objects yield {args.type} grasps")
         if without:
             print(f"none for: {', '.join(without)}")
+    return 0
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    from wholehand.errors import ConfigError
+    from wholehand.grasps.importers import import_grasps, pose_matrix
+    from wholehand.grasps.store import grasp_file, object_key, save_grasps
+    from wholehand.models.hand import load_hand
+
+    hand = load_hand(args.hand)
+    joint_map = {}
+    for pair in filter(None, (args.joint_map or "").split(",")):
+        theirs, sep, ours = pair.partition("=")
+        if not sep or not theirs.strip() or not ours.strip():
+            raise ConfigError(f"--joint-map: {pair!r} is not their=ours")
+        joint_map[theirs.strip()] = ours.strip()
+    offset = None
+    if args.root_offset:
+        try:
+            values = [float(v) for v in args.root_offset.split()]
+        except ValueError:
+            values = []
+        if len(values) != 7:
+            raise ConfigError(
+                f"--root-offset: {args.root_offset!r} is not seven numbers 'x y z qw qx qy qz'"
+            )
+        offset = pose_matrix(values)
+    names = [n.strip() for n in (args.joint_names or "").split(",") if n.strip()] or None
+    grasps, record = import_grasps(
+        hand,
+        args.files,
+        args.format,
+        joint_names=names,
+        joint_map=joint_map,
+        root_offset=offset,
+        object_scale=args.object_scale,
+        grasp_type=args.type,
+    )
+    skipped = cast(dict[str, int], record["skipped"])
+    if not grasps:
+        print(f"no grasp of the {record['read']} read was usable; skipped:\n{_reasons(skipped)}")
+        return 1
+    default = grasp_file(args.hand, args.object, args.type)
+    path = Path(args.out) / default.name if args.out else default
+    path = save_grasps(path, hand.name, object_key(args.object), grasps, record)
+    print(f"{len(grasps)} of {record['read']} grasps -> {path}")
+    if skipped:
+        print(f"skipped:\n{_reasons(skipped)}")
+    if record["ignored_joints"]:
+        print(f"joints of the files that {hand.name} does not have: {record['ignored_joints']}")
     return 0
 
 

@@ -1,0 +1,322 @@
+"""Grasps of published synthesisers converted to the project's grasp files.
+
+Three formats, as their public repositories write them (all NumPy ``.npy`` files of pickled
+Python objects, read with ``allow_pickle=True``: open only files you trust):
+
+- ``dexgraspnet`` (DexGraspNet, ``grasp_generation/scripts/generate_grasps.py``): one file per
+  object, a list of dicts ``{"scale": s, "qpos": {...}, ...}``; ``qpos`` names every joint and
+  holds the hand root's translation ``WRJTx/y/z`` [m] and rotation ``WRJRx/y/z`` (static-axis
+  x-y-z Euler angles [rad]) in the frame of the object mesh scaled by ``s``.
+- ``dexonomy`` (Dexonomy and DexGraspBench): one dict per grasp (or the same keys with a
+  leading batch axis), ``grasp_qpos`` / ``pregrasp_qpos`` / ``squeeze_qpos`` each ``[x, y, z,
+  qw, qx, qy, qz, joints...]``: the free hand root in the world, then the joints in the order of
+  the hand's MJCF (or of ``joint_names`` when the dict has it); ``obj_pose`` ``[x, y, z, qw, qx,
+  qy, qz]`` the object in the world and ``obj_scale`` its mesh's scale.
+- ``bodex`` (BODex): one dict per object with ``robot_pose`` of shape (1, B, stages, 7 + n):
+  per grasp the pre-grasp (stage 0) and the grasp (stage 1) as ``[x, y, z, qw, qx, qy, qz,
+  joints...]`` in the world, joints in the order of the hand's cuRobo configuration;
+  ``obj_pose`` (1, 7) and ``obj_scale`` (1,).
+
+A grasp becomes the hand base pose in the object frame, ``oMb = oMr rMb`` (``r`` the file's
+hand root, ``rMb`` where this project's base frame sits in it: identity unless the two
+descriptions of the hand place their roots differently), and its joint angles by this hand's
+joint names (the file's names, renamed by a joint map where they differ). A file's object must
+be this object at the scale the file names (``object_scale``); grasps made at other scales are
+skipped with the reason, as are grasps with a joint more than
+:data:`~wholehand.grasps.store.LIMIT_SLACK` outside its limits.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation
+
+from wholehand.errors import ConfigError
+from wholehand.grasps.store import LIMIT_SLACK, Grasp
+from wholehand.models.hand import HandModel
+from wholehand.models.poses import inverse
+
+FloatArray = npt.NDArray[np.float64]
+
+FORMATS = ("dexgraspnet", "dexonomy", "bodex")
+"""The formats :func:`import_grasps` reads."""
+SCALE_TOL = 1e-6
+"""Relative difference of a grasp's object scale from the expected one still accepted [-]."""
+DEXGRASPNET_ROOT = ("WRJTx", "WRJTy", "WRJTz", "WRJRx", "WRJRy", "WRJRz")
+"""DexGraspNet's names of the hand root's translation and rotation in ``qpos``."""
+
+
+@dataclass(frozen=True)
+class ForeignGrasp:
+    """One grasp as a file states it, before it is mapped onto a hand."""
+
+    oMr: FloatArray
+    """(4, 4) the file's hand root in the object frame [m]."""
+    q: dict[str, float]
+    """Joint angles [rad] by the file's joint names."""
+    scale: float
+    """Scale of the object mesh the grasp was made on [-]."""
+    pre_oMr: FloatArray | None = None
+    """(4, 4) the pre-grasp's hand root in the object frame, where the file has one."""
+    pre_q: dict[str, float] | None = None
+    """The pre-grasp's joint angles, where the file has them."""
+    where: str = ""
+    """File and entry, for messages."""
+
+
+def pose_matrix(xyz_wxyz: npt.ArrayLike) -> FloatArray:
+    """(4, 4) from ``[x, y, z, qw, qx, qy, qz]`` (MuJoCo's free-joint order)."""
+    v = np.asarray(xyz_wxyz, dtype=float)
+    M = np.eye(4)
+    M[:3, :3] = Rotation.from_quat([v[4], v[5], v[6], v[3]]).as_matrix()
+    M[:3, 3] = v[:3]
+    return M
+
+
+def _load(path: Path) -> Any:
+    try:
+        return np.load(path, allow_pickle=True)
+    except (OSError, ValueError, EOFError) as err:
+        raise ConfigError(f"{path}: not a NumPy .npy file this reader can open ({err})") from err
+
+
+def _item(data: Any, path: Path, what: str) -> dict[str, Any]:
+    """The dict a ``np.save``-d dict became (a 0-d object array)."""
+    if isinstance(data, np.ndarray) and data.dtype == object and data.shape == ():
+        data = data.item()
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected {what} (a dict saved with np.save), got {type(data)}")
+    return data
+
+
+def _names(
+    joint_names: Sequence[str] | None, stored: Any, n: int, path: Path, fmt: str
+) -> list[str]:
+    """The file's joint order: its own ``joint_names``, else the caller's."""
+    names = [str(n) for n in stored] if stored is not None else list(joint_names or [])
+    if not names:
+        raise ConfigError(
+            f"{path}: a {fmt} file lists its joints in the order of the hand's "
+            f"{'MJCF' if fmt == 'dexonomy' else 'cuRobo configuration'} without naming them; "
+            "give that order with --joint-names a,b,c (Python: joint_names=[...])"
+        )
+    if len(names) != n:
+        raise ConfigError(
+            f"{path}: the file has {n} joint values per grasp, the joint names are {len(names)} "
+            f"({names}); give the file's joint order"
+        )
+    return names
+
+
+def read_dexgraspnet(path: Path) -> list[ForeignGrasp]:
+    """The grasps of a DexGraspNet file (module docstring)."""
+    data = _load(path)
+    entries = list(data) if isinstance(data, np.ndarray) and data.dtype == object else None
+    if entries is None or not all(isinstance(e, dict) and "qpos" in e for e in entries):
+        raise ConfigError(
+            f"{path}: not a DexGraspNet grasp file: expected a list of dicts with 'qpos' and "
+            "'scale' (grasp_generation/scripts/generate_grasps.py)"
+        )
+    out = []
+    for i, entry in enumerate(entries):
+        qpos = {str(k): float(v) for k, v in dict(entry["qpos"]).items()}
+        missing = [k for k in DEXGRASPNET_ROOT if k not in qpos]
+        if missing:
+            raise ConfigError(f"{path}: grasp {i} has no hand root {missing} in its qpos")
+        oMr = np.eye(4)
+        oMr[:3, 3] = [qpos.pop(k) for k in DEXGRASPNET_ROOT[:3]]
+        angles = [qpos.pop(k) for k in DEXGRASPNET_ROOT[3:]]
+        oMr[:3, :3] = Rotation.from_euler("xyz", angles).as_matrix()  # static axes, sxyz
+        out.append(ForeignGrasp(oMr, qpos, float(entry.get("scale", 1.0)), where=f"{path}[{i}]"))
+    return out
+
+
+def _world_to_object(qpos: FloatArray, wMo: FloatArray) -> FloatArray:
+    return inverse(wMo) @ pose_matrix(qpos[:7])
+
+
+def read_dexonomy(path: Path, joint_names: Sequence[str] | None = None) -> list[ForeignGrasp]:
+    """The grasps of a Dexonomy / DexGraspBench file (module docstring)."""
+    data = _item(_load(path), path, "a Dexonomy grasp dict")
+    if "grasp_qpos" not in data or "obj_pose" not in data:
+        raise ConfigError(
+            f"{path}: not a Dexonomy grasp file: expected the keys 'grasp_qpos' and 'obj_pose' "
+            f"(got {sorted(data)})"
+        )
+    grasp = np.atleast_2d(np.asarray(data["grasp_qpos"], dtype=float))
+    pre = data.get("pregrasp_qpos")
+    pre = None if pre is None else np.atleast_2d(np.asarray(pre, dtype=float))
+    obj_pose = np.atleast_2d(np.asarray(data["obj_pose"], dtype=float))
+    scales = np.atleast_1d(np.asarray(data.get("obj_scale", 1.0), dtype=float))
+    names = _names(joint_names, data.get("joint_names"), grasp.shape[1] - 7, path, "dexonomy")
+    out = []
+    for i, row in enumerate(grasp):
+        wMo = pose_matrix(obj_pose[min(i, len(obj_pose) - 1)])
+        pre_oMr = pre_q = None
+        if pre is not None:
+            pre_oMr = _world_to_object(pre[i], wMo)
+            pre_q = dict(zip(names, pre[i, 7:].tolist(), strict=True))
+        out.append(
+            ForeignGrasp(
+                _world_to_object(row, wMo),
+                dict(zip(names, row[7:].tolist(), strict=True)),
+                float(scales[min(i, len(scales) - 1)]),
+                pre_oMr,
+                pre_q,
+                f"{path}[{i}]",
+            )
+        )
+    return out
+
+
+def read_bodex(path: Path, joint_names: Sequence[str] | None = None) -> list[ForeignGrasp]:
+    """The grasps of a BODex file (module docstring)."""
+    data = _item(_load(path), path, "a BODex grasp dict")
+    if "robot_pose" not in data or "obj_pose" not in data:
+        raise ConfigError(
+            f"{path}: not a BODex grasp file: expected the keys 'robot_pose' and 'obj_pose' (got "
+            f"{sorted(data)}); files that name a scene config instead ('scene_path') are not read"
+        )
+    poses = np.asarray(data["robot_pose"], dtype=float)
+    if poses.ndim == 4:
+        poses = poses[0]
+    if poses.ndim != 3 or poses.shape[1] < 2 or poses.shape[2] <= 7:
+        raise ConfigError(
+            f"{path}: robot_pose has shape {np.shape(data['robot_pose'])}, expected (1, B, "
+            "stages >= 2, 7 + joints)"
+        )
+    wMo = pose_matrix(np.asarray(data["obj_pose"], dtype=float).reshape(-1, 7)[0])
+    scale = float(np.asarray(data.get("obj_scale", 1.0), dtype=float).ravel()[0])
+    names = _names(joint_names, data.get("joint_names"), poses.shape[2] - 7, path, "bodex")
+    out = []
+    for i, stages in enumerate(poses):
+        out.append(
+            ForeignGrasp(
+                _world_to_object(stages[1], wMo),
+                dict(zip(names, stages[1, 7:].tolist(), strict=True)),
+                scale,
+                _world_to_object(stages[0], wMo),
+                dict(zip(names, stages[0, 7:].tolist(), strict=True)),
+                f"{path}[{i}]",
+            )
+        )
+    return out
+
+
+def read_grasps(
+    path: str | Path, fmt: str, joint_names: Sequence[str] | None = None
+) -> list[ForeignGrasp]:
+    """The grasps of one file of format ``fmt`` (:data:`FORMATS`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"no grasp file {path}; check the path")
+    if fmt == "dexgraspnet":
+        return read_dexgraspnet(path)
+    if fmt == "dexonomy":
+        return read_dexonomy(path, joint_names)
+    if fmt == "bodex":
+        return read_bodex(path, joint_names)
+    raise ConfigError(f"unknown grasp format {fmt!r}; known: {', '.join(FORMATS)}")
+
+
+def _mapped(
+    q: Mapping[str, float], hand: HandModel, joint_map: Mapping[str, str], where: str
+) -> tuple[dict[str, float], list[str]]:
+    """This hand's angles from a file's, and the file's joints this hand has not."""
+    renamed = {joint_map.get(name, name): value for name, value in q.items()}
+    missing = [name for name in hand.joint_names if name not in renamed]
+    if missing:
+        raise ConfigError(
+            f"{where}: no angle for joints {missing} of {hand.name!r}; the file names "
+            f"{sorted(q)}. Map the file's names onto the hand's with --joint-map "
+            "their=ours,... (Python: joint_map={...})"
+        )
+    extra = sorted(name for name in renamed if name not in hand.joint_names)
+    return {name: renamed[name] for name in hand.joint_names}, extra
+
+
+def _outside_limits(hand: HandModel, q: Mapping[str, float]) -> str:
+    for name in hand.joint_names:
+        i = hand.model.joints[hand.model.getJointId(name)].idx_q
+        lower, upper = hand.q_lower[i], hand.q_upper[i]
+        if not lower - LIMIT_SLACK <= q[name] <= upper + LIMIT_SLACK:
+            return f"joint {name!r} outside its limits [{lower:.4g}, {upper:.4g}] rad"
+    return ""
+
+
+def import_grasps(
+    hand: HandModel,
+    paths: Sequence[str | Path],
+    fmt: str,
+    *,
+    joint_names: Sequence[str] | None = None,
+    joint_map: Mapping[str, str] | None = None,
+    root_offset: FloatArray | None = None,
+    object_scale: float = 1.0,
+    grasp_type: str = "power",
+) -> tuple[list[Grasp], dict[str, Any]]:
+    """Grasps of ``paths`` (files of format ``fmt``) for ``hand``, and a record of the import
+    for the grasp file's ``generator`` field (what was skipped and why).
+
+    Args:
+        hand: The hand; every one of its joints must get an angle.
+        paths: The files.
+        fmt: One of :data:`FORMATS`.
+        joint_names: The file's joint order, for formats that do not name their joints.
+        joint_map: The file's joint name -> this hand's, where they differ.
+        root_offset: (4, 4) ``rMb``, this hand's base frame in the file's hand root; None:
+            identity.
+        object_scale: The scale of the object mesh the grasps must have been made on.
+        grasp_type: The grasp style the grasps are stored as.
+
+    Raises:
+        ConfigError: A file cannot be read, a joint of the hand gets no angle, or no grasp of
+            the files was made at ``object_scale`` (naming the scales found).
+    """
+    rMb = np.eye(4) if root_offset is None else np.asarray(root_offset, dtype=float)
+    joint_map = dict(joint_map or {})
+    skipped: Counter[str] = Counter()
+    ignored: set[str] = set()
+    scales: set[float] = set()
+    grasps: list[Grasp] = []
+    read = 0
+    for path in paths:
+        for foreign in read_grasps(path, fmt, joint_names):
+            read += 1
+            scales.add(round(foreign.scale, 9))
+            if abs(foreign.scale - object_scale) > SCALE_TOL * max(abs(object_scale), 1.0):
+                skipped[f"made on the object at scale {foreign.scale:g}"] += 1
+                continue
+            q, extra = _mapped(foreign.q, hand, joint_map, foreign.where)
+            ignored.update(extra)
+            outside = _outside_limits(hand, q)
+            if outside:
+                skipped[outside] += 1
+                continue
+            info: dict[str, Any] = {"source": foreign.where}
+            if foreign.pre_oMr is not None and foreign.pre_q is not None:
+                info["pregrasp_oMb"] = np.round(foreign.pre_oMr @ rMb, 9).tolist()
+                info["pregrasp_q"] = _mapped(foreign.pre_q, hand, joint_map, foreign.where)[0]
+            grasps.append(Grasp(len(grasps), foreign.oMr @ rMb, q, grasp_type, extra=info))
+    if read and not grasps and skipped and all(r.startswith("made on") for r in skipped):
+        raise ConfigError(
+            f"none of the {read} grasps was made on the object at scale {object_scale:g}: the "
+            f"files hold scales {sorted(scales)}. Give the object at one of them (a mesh "
+            "scaled by it) and --object-scale <that scale>"
+        )
+    record = {
+        "method": f"imported from {fmt} files",
+        "files": [str(p) for p in paths],
+        "read": read,
+        "skipped": dict(skipped.most_common()),
+        "ignored_joints": sorted(ignored),
+        "object_scale": object_scale,
+    }
+    return grasps, record

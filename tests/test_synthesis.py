@@ -9,11 +9,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from wholehand.cli.main import main
-from wholehand.grasps.optimized import closing_torques
-from wholehand.grasps.store import load_grasps
+from wholehand.grasps.optimized import OPEN_ANGLE, closing_torques
+from wholehand.grasps.store import Grasp, load_grasps
 from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisParams, SynthesisState
 from wholehand.models.kinematics import HandKinematics
+from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
+from wholehand.reaching.pregrasp import OPEN_DISTANCE, plan_pregrasp
 
 
 @pytest.fixture(scope="module")
@@ -176,3 +178,12 @@ def test_generate_with_the_optimiser_writes_validated_grasps(tmp_path, allegro, 
     q = grasp.q_array(allegro)
     assert "thumb" in grasp.extra["fingers"] and len(grasp.extra["fingers"]) >= 3
     assert np.all(q >= allegro.q_lower - 0.05) and np.all(q <= allegro.q_upper + 0.05)
+    # The grasp keeps its own open hand, and the reacher's pre-grasp opens toward it, not
+    # toward the q_open it is given.
+    own = Grasp(0, grasp.oMb, grasp.extra["pregrasp_q"]).q_array(allegro)
+    assert np.all(own >= allegro.q_lower) and np.all(own <= allegro.q_upper)
+    assert 0.0 < np.abs(own - q).max() <= OPEN_ANGLE + 1e-9
+    plan = plan_pregrasp(allegro, load_object("077_rubiks_cube"), grasp, allegro.q_upper)
+    assert plan is not None
+    share = min(1.0, plan.retreat / OPEN_DISTANCE)
+    np.testing.assert_allclose(plan.q_pre, q + share * (own - q), atol=1e-12)

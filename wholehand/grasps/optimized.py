@@ -40,6 +40,8 @@ MAX_DEPTH = 0.002
 MAX_CONTACT_GAP = 0.01
 """Largest distance from the surface of the contact points of the fingers a grasp needs (the
 thumb and two others, or the style's fingers) for a result to be validated [m]."""
+OPEN_ANGLE = 0.4
+"""How far the pre-grasp opens the joint the closing torques turn most [rad]."""
 DEFAULT_CLOSE_TORQUE = 0.1
 """Largest closing torque of a validation when the style names none [N*m]."""
 
@@ -61,6 +63,25 @@ def closing_torques(
         return np.zeros(hand.nv), np.zeros(hand.nv, dtype=bool)
     tau *= peak / largest
     return tau, np.abs(tau) > 0.02 * peak
+
+
+def open_hand(hand: HandModel, q: dict[str, float], tau_close: FloatArray) -> dict[str, float]:
+    """The grasp's hand opened against its closing torques (n_v,) [N*m]: each joint turned
+    back by :data:`OPEN_ANGLE` times its share of the largest torque, within its limits
+    (followers of a coupling follow); the pre-grasp the reacher opens toward
+    (:func:`~wholehand.reaching.pregrasp.plan_pregrasp`)."""
+    model = hand.model
+    idx = [model.joints[model.getJointId(name)] for name in hand.joint_names]
+    angles = np.zeros(hand.nq)
+    for name, joint in zip(hand.joint_names, idx, strict=True):
+        angles[joint.idx_q] = q[name] - OPEN_ANGLE * tau_close[joint.idx_v] / (
+            float(np.abs(tau_close).max()) or 1.0
+        )
+    angles = hand.couple(np.clip(angles, hand.q_lower, hand.q_upper))
+    return {
+        name: round(float(angles[joint.idx_q]), 9)
+        for name, joint in zip(hand.joint_names, idx, strict=True)
+    }
 
 
 def synthesize_grasps(
@@ -127,6 +148,7 @@ def synthesize_grasps(
             if grasp is None:
                 continue
             grasp.extra["energy"] = round(e.total, 6)
+            grasp.extra["pregrasp_q"] = open_hand(hand, grasp.q, tau)
             grasps.append(
                 Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
             )

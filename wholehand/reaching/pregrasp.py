@@ -80,8 +80,12 @@ def plan_pregrasp(
     clearance: float = defaults.PREGRASP_CLEARANCE,
 ) -> GraspPlan | None:
     """The pre-grasp of ``grasp`` (see the module docstring); None if none within
-    ``MAX_RETREAT``."""
+    ``MAX_RETREAT``. A grasp that stores its own open hand (``pregrasp_q``, joint angles by
+    name: the optimiser's and imported grasps) opens toward that instead of ``q_open``."""
     q_grasp = grasp.q_array(hand)
+    own = grasp.extra.get("pregrasp_q")
+    if own is not None:
+        q_open = Grasp(grasp.id, grasp.oMb, dict(own), source=grasp.source).q_array(hand)
     kin = HandKinematics(hand)
     kin.update(q_grasp, grasp.oMb)
     palm = hand.link_index(hand.palm_link)

@@ -132,18 +132,18 @@ def test_annealing_brings_the_contacts_to_the_surface_out_of_the_object(allegro,
     assert np.all(np.einsum("ij,ij->i", radial, best.normals) > 0.95)
 
 
-def test_closing_torques_press_every_contact_into_the_object(allegro, ball):
+def test_closing_torques_squeeze_the_contacts_into_the_object(allegro, ball):
     syn = GraspSynthesizer(
         allegro, ball, allegro.config.grasp_styles["power"], params=SynthesisParams(iterations=50)
     )
     result = syn.optimise(1, seed=1)[0]
     kin = HandKinematics(allegro)
     kin.update(result.q, np.eye(4))
-    tau, closing = closing_torques(allegro, kin, result, np.eye(4), peak=0.1)
+    tau, closing = closing_torques(allegro, kin, result, np.eye(4), ball.com, peak=0.1)
     assert np.abs(tau).max() == pytest.approx(0.1) and closing.any()
     assert not tau[~closing].any() or np.abs(tau[~closing]).max() <= 0.002
     # A small joint motion along the torque moves the contacts into the object on the whole:
-    # the work of the inward unit forces is positive (tau = sum J^T (-n), scaled).
+    # the work of the inward unit forces is positive (the squeeze's forces push, never pull).
     s = allegro.samples
     p = kin.transform_points(s.p_joint[result.contacts], s.joint[result.contacts])
     J = kin.point_jacobians(s.joint[result.contacts], p)

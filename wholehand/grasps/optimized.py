@@ -40,6 +40,8 @@ MAX_DEPTH = 0.002
 MAX_CONTACT_GAP = 0.01
 """Largest distance from the surface of the contact points of the fingers a grasp needs (the
 thumb and two others, or the style's fingers) for a result to be validated [m]."""
+CLOSE_SQUEEZE = 5.0
+"""Least sum of normal forces of the validation's squeeze before it is scaled [N]."""
 OPEN_ANGLE = 0.4
 """How far the pre-grasp opens the joint the closing torques turn most [rad]."""
 DEFAULT_CLOSE_TORQUE = 0.1
@@ -47,21 +49,46 @@ DEFAULT_CLOSE_TORQUE = 0.1
 
 
 def closing_torques(
-    hand: HandModel, kin: HandKinematics, result: SynthesisResult, wMo: FloatArray, peak: float
+    hand: HandModel,
+    kin: HandKinematics,
+    result: SynthesisResult,
+    wMo: FloatArray,
+    com_world: FloatArray,
+    peak: float,
 ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """Joint torques (n_v,) [N*m] that press every contact point of ``result`` into the object
-    along its normal with equal forces, scaled so that the largest is ``peak``, and the joints
-    they move (n_v,) bool. ``kin`` must be at the grasp (``q``, the base in the world)."""
+    """Joint torques (n_v,) [N*m] that squeeze the object at the contact points of ``result``
+    with forces that balance it as well as the friction cones allow (the paper's allocation QP
+    at those contacts, :data:`CLOSE_SQUEEZE` of squeeze), scaled so that the largest is
+    ``peak``, and the joints they move (n_v,) bool; where the QP gives no torque, equal normal
+    forces. ``kin`` must be at the grasp (``q``, the base in the world); ``com_world`` (3,) is
+    the object's centre of mass [m]."""
+    from wholehand import registry
+    from wholehand.allocation.base import hand_keywords
+    from wholehand.contacts.base import ContactSet
+
     s = hand.samples
     c = result.contacts
     p = kin.transform_points(s.p_joint[c], s.joint[c])
-    inward = -(result.normals @ wMo[:3, :3].T)
+    outward = result.normals @ wMo[:3, :3].T
     J = kin.actuation_jacobians(s.joint[c], p)
-    tau = hand.joint_torques(np.einsum("nak,na->k", J, inward))
+    contacts = ContactSet(
+        p_world=p,
+        n_world=outward,
+        link=s.link[c],
+        distance=np.zeros(len(c)),
+        link_actuated=hand.link_actuated,
+        link_fingertip=hand.link_fingertip,
+    )
+    allocator = registry.load("allocators", "qp", f_n_min=CLOSE_SQUEEZE, **hand_keywords(hand))
+    allocation = allocator.allocate(contacts, J, com_world)
+    if allocation.fresh and allocation.tau is not None and np.abs(allocation.tau).max() > 0.0:
+        tau = hand.joint_torques(allocation.tau)
+    else:
+        tau = hand.joint_torques(np.einsum("nak,na->k", J, -outward))
     largest = float(np.abs(tau).max())
     if largest == 0.0:
         return np.zeros(hand.nv), np.zeros(hand.nv, dtype=bool)
-    tau *= peak / largest
+    tau = tau * (peak / largest)
     return tau, np.abs(tau) > 0.02 * peak
 
 
@@ -143,7 +170,8 @@ def synthesize_grasps(
                 b.reset(result.q, wMo, wMb)
                 b.set_table_contact(True)
             kin.update(result.q, wMb)
-            tau, closing = closing_torques(hand, kin, result, wMo, peak)
+            com = wMo[:3, :3] @ obj.com + wMo[:3, 3]
+            tau, closing = closing_torques(hand, kin, result, wMo, com, peak)
             grasp = generator.close_and_settle(wMo, (result.q, tau, closing), face, tried - 1)
             if grasp is None:
                 continue

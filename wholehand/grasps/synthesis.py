@@ -39,6 +39,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
+from wholehand.backends.table import HAND_MARGIN
 from wholehand.errors import ConfigError
 from wholehand.grasps.styles import style_arrays
 from wholehand.models.hand import HandModel
@@ -89,8 +90,9 @@ class SynthesisParams:
     """Gap between the palm and the object's support at the start [m]."""
     joint_jitter: float = 0.15
     """Standard deviation of the start's joint angles around the pre-shape [rad]."""
-    table_margin: float = 0.005
-    """Least height of a hand sample above the table top [m]."""
+    table_margin: float = HAND_MARGIN + 0.002
+    """Least height of a hand sample above the table top [m]: a little above the margin the
+    validation and the reacher keep (:data:`~wholehand.backends.table.HAND_MARGIN`)."""
     palm_contact: bool = True
     """A power grasp has a contact point on the palm face too."""
 

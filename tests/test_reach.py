@@ -331,6 +331,31 @@ def test_reach_study_rows_and_summary(tmp_path) -> None:
     assert (tmp_path / "reach.png").stat().st_size > 0
 
 
+def test_reach_table_study_runs_from_the_table_on_the_objects_with_table_top_grasps(
+    tmp_path,
+) -> None:
+    from toy_hand import write_toy_hand
+
+    from wholehand.errors import ConfigError
+    from wholehand.grasps.store import grasp_file
+    from wholehand.models.object_catalogue import PAPER_OBJECTS
+    from wholehand.studies import get_study, run_study
+
+    study = get_study("reach-table")
+    jobs = study.jobs("quick", 0, "allegro_right")
+    with_grasps = [
+        o for o in PAPER_OBJECTS if grasp_file("allegro_right", o, on_table=True).is_file()
+    ]
+    assert with_grasps and sorted({j.spec.object for j in jobs}) == sorted(with_grasps)
+    assert {j.labels["start"] for j in jobs} == {"table"}
+    with pytest.raises(ConfigError, match="no table-top grasps.*--on-table --method optimize"):
+        study.jobs("quick", 0, str(write_toy_hand(tmp_path / "toy")))
+    result = run_study(study, "tiny", tmp_path / "out", executor="serial", progress=False)
+    (row,) = result.rows
+    assert row["start"] == "table" and row["object"] == "077_rubiks_cube" and not row["error"]
+    assert row["acquired"]  # the cube is picked off the table with a synthesised grasp
+
+
 # --- three facts about mink's collision limit, and what the reacher does about each -------------
 def test_mesh_distance_is_to_the_hull_so_the_object_collides_as_its_parts(allegro) -> None:
     # A probe at the centre of a cup's cavity is inside the cup's convex hull (MuJoCo's distance

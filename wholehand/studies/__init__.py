@@ -14,7 +14,7 @@ from wholehand.studies.gravity import GravityStudy
 from wholehand.studies.k_sweep import KSweepStudy
 from wholehand.studies.perturbation import PerturbationStudy
 from wholehand.studies.pose_error import PoseErrorStudy
-from wholehand.studies.reach import ReachStudy
+from wholehand.studies.reach import ReachStudy, ReachTableStudy
 from wholehand.studies.runner import StudyResult, run_study
 from wholehand.studies.study_files import TIMING_COLUMNS
 from wholehand.studies.tracking import TrackingStudy
@@ -28,6 +28,7 @@ STUDIES: dict[str, type[Study]] = {
         ConsistencyStudy,
         ContactsStudy,
         ReachStudy,
+        ReachTableStudy,
         GravityStudy,
         TrackingStudy,
         DexGraspBenchStudy,

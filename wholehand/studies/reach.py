@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from wholehand.errors import ConfigError
 from wholehand.loop.outcome import sim_warnings_error
 from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
@@ -71,6 +72,7 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
             allocator=str(s.allocator),
             balance_weight=method.balance_weight,
             self_collision=method.self_collision,
+            start=str(job.labels.get("start", "held")),
         )
     )
     warnings = summary["mujoco_warnings"]
@@ -128,15 +130,24 @@ class ReachStudy(Study):
         "acquisition, time to grasp, losses per perturbation, regrasps (Sec. III-D, Table I)"
     )
 
+    start = "held"
+    """Where each episode's object starts (``EpisodeSpec.start``)."""
+
+    def objects(self, cfg: ReachConfig, hand: str) -> tuple[str, ...]:
+        """The objects of a study of this size for ``hand``."""
+        return cfg.objects
+
     def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
         jobs: list[TrialJob] = []
-        for oi, obj in enumerate(cfg.objects):
+        for oi, obj in enumerate(self.objects(cfg, hand)):
             for episode in range(cfg.episodes):
                 episode_seed = derive_seed(seed, oi, episode)
                 for method in cfg.methods:
                     spec = TrialSpec(hand=hand, object=obj, seed=episode_seed, gravity=True)
-                    labels = {"method": method, "episode": episode}
+                    labels: dict[str, Any] = {"method": method, "episode": episode}
+                    if self.start != "held":
+                        labels["start"] = self.start
                     jobs.append(TrialJob(len(jobs), spec, labels, "episode"))
         return jobs
 
@@ -175,3 +186,27 @@ class ReachStudy(Study):
             ax.set_xticks(xs, [x["method"] for x in g])
         fig.tight_layout()
         fig.savefig(path, dpi=120)
+
+
+class ReachTableStudy(ReachStudy):
+    """The reach study with the object resting on the table (``wholehand reach --start
+    table``), on those of the study's objects the hand has table-top grasps of."""
+
+    name = "reach-table"
+    description = (
+        "the reach study from the table (wholehand reach --start table): the paper's objects "
+        "that have table-top grasps (wholehand grasps generate --on-table)"
+    )
+    start = "table"
+
+    def objects(self, cfg: ReachConfig, hand: str) -> tuple[str, ...]:
+        from wholehand.grasps.store import grasp_file
+
+        found = tuple(o for o in cfg.objects if grasp_file(hand, o, on_table=True).is_file())
+        if not found:
+            raise ConfigError(
+                f"hand {hand!r} has no table-top grasps of {list(cfg.objects)}; make some with "
+                f"`wholehand grasps generate --hand {hand} --on-table --method optimize "
+                "--object NAME`"
+            )
+        return found

@@ -27,7 +27,7 @@ from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import inverse
-from wholehand.models.resting import resting_pose
+from wholehand.models.resting import RestingFace, resting_pose
 from wholehand.reaching.pregrasp import lowest_point
 
 FloatArray = npt.NDArray[np.float64]
@@ -111,6 +111,47 @@ def open_hand(hand: HandModel, q: dict[str, float], tau_close: FloatArray) -> di
     }
 
 
+def _validate(
+    generator: GraspGenerator,
+    synthesizer: GraspSynthesizer,
+    result: SynthesisResult,
+    face: RestingFace | None,
+    kin: HandKinematics,
+    peak: float,
+    index: int,
+) -> Grasp | None:
+    """One optimised result checked and, if it passes, closed, released and settled in
+    MuJoCo (on ``face`` of the table, if given); the grasp or None (the reason counted in
+    ``generator.rejections``)."""
+    hand, obj, b = generator.hand, generator.obj, generator.backend
+    if result.energy.max_depth > MAX_DEPTH:
+        generator.rejections["the optimised hand penetrates the object"] += 1
+        return None
+    if not generator.grasped(synthesizer.touching(result, MAX_CONTACT_GAP)):
+        generator.rejections["the required fingers' contacts are off the surface"] += 1
+        return None
+    if face is None:
+        wMb = hand.wMb
+        wMo = wMb @ inverse(result.oMb)
+        b.reset(result.q, wMo)
+    else:
+        wMo = resting_pose(obj, face.up, 0.0, (0.0, 0.0), GENERATOR_TABLE.top)
+        wMb = wMo @ result.oMb
+        if lowest_point(hand, result.q, wMb, kin) < TABLE_CLEAR:
+            generator.rejections["the optimised hand reaches into the table"] += 1
+            return None
+        b.reset(result.q, wMo, wMb)
+        b.set_table_contact(True)
+    kin.update(result.q, wMb)
+    com = wMo[:3, :3] @ obj.com + wMo[:3, 3]
+    tau, closing = closing_torques(hand, kin, result, wMo, com, peak)
+    grasp = generator.close_and_settle(wMo, (result.q, tau, closing), face, index)
+    if grasp is not None:
+        grasp.extra["energy"] = round(result.energy.total, 6)
+        grasp.extra["pregrasp_q"] = open_hand(hand, grasp.q, tau)
+    return grasp
+
+
 def synthesize_grasps(
     hand: HandModel,
     obj: ObjectModel,
@@ -137,7 +178,7 @@ def synthesize_grasps(
     grasps: list[Grasp] = []
     tried = 0
     bar = tqdm(total=count, desc=f"grasps {obj.name}", disable=not progress)
-    b, kin = generator.backend, HandKinematics(hand)
+    kin = HandKinematics(hand)
     while len(grasps) < count and tried < max_candidates:
         face = None
         if on_table:
@@ -150,33 +191,9 @@ def synthesize_grasps(
         results = synthesizer.optimise(n, seed=int(rng.integers(2**31)))
         for result in results:
             tried += 1
-            e = result.energy
-            if e.max_depth > MAX_DEPTH:
-                generator.rejections["the optimised hand penetrates the object"] += 1
-                continue
-            if not generator.grasped(synthesizer.touching(result, MAX_CONTACT_GAP)):
-                generator.rejections["the required fingers' contacts are off the surface"] += 1
-                continue
-            if face is None:
-                wMb = hand.wMb
-                wMo = wMb @ inverse(result.oMb)
-                b.reset(result.q, wMo)
-            else:
-                wMo = resting_pose(obj, face.up, 0.0, (0.0, 0.0), GENERATOR_TABLE.top)
-                wMb = wMo @ result.oMb
-                if lowest_point(hand, result.q, wMb, kin) < TABLE_CLEAR:
-                    generator.rejections["the optimised hand reaches into the table"] += 1
-                    continue
-                b.reset(result.q, wMo, wMb)
-                b.set_table_contact(True)
-            kin.update(result.q, wMb)
-            com = wMo[:3, :3] @ obj.com + wMo[:3, 3]
-            tau, closing = closing_torques(hand, kin, result, wMo, com, peak)
-            grasp = generator.close_and_settle(wMo, (result.q, tau, closing), face, tried - 1)
+            grasp = _validate(generator, synthesizer, result, face, kin, peak, tried - 1)
             if grasp is None:
                 continue
-            grasp.extra["energy"] = round(e.total, 6)
-            grasp.extra["pregrasp_q"] = open_hand(hand, grasp.q, tau)
             grasps.append(
                 Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
             )

@@ -187,3 +187,38 @@ def test_generate_with_the_optimiser_writes_validated_grasps(tmp_path, allegro, 
     assert plan is not None
     share = min(1.0, plan.retreat / OPEN_DISTANCE)
     np.testing.assert_allclose(plan.q_pre, q + share * (own - q), atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["allegro_right", "robotis_hx5_d20_right"])
+def test_closing_directions_derived_from_the_model_are_the_shipped_ones(name):
+    """Each motor that moves a fingertip toward the palm closes that way: on both shipped hands
+    the signs agree with their hand.toml's closing torques on every joint it names."""
+    from wholehand.grasps.styles import derived_close_torque
+    from wholehand.models.hand import load_hand
+
+    hand = load_hand(name)
+    derived = derived_close_torque(hand)
+    shipped = hand.config.grasp_styles["power"].close_torque
+    assert shipped and set(shipped) <= set(derived)
+    assert all(np.sign(derived[j]) == np.sign(t) for j, t in shipped.items())
+    assert all(0.0 < abs(t) <= 0.1 for t in derived.values())
+
+
+def test_a_hand_without_grasping_tables_gets_optimised_grasps(tmp_path, capsys):
+    """The Allegro's hand.toml without its [grasping] tables: the pre-shape generator has
+    nothing to close, the optimiser needs nothing more."""
+    from wholehand.models.hand_config import shipped_hands_dir
+
+    text = (shipped_hands_dir() / "allegro_right" / "hand.toml").read_text()
+    folder = tmp_path / "bare"
+    folder.mkdir()
+    bare = text.split("# Power pre-shape")[0].replace('name = "allegro_right"', 'name = "bare"')
+    assert "[grasping" not in bare
+    (folder / "hand.toml").write_text(bare)
+    args = ["grasps", "generate", "--hand", str(folder), "--object", "077_rubiks_cube"]
+    args += ["--count", "1", "--max-candidates", "16", "--out", str(tmp_path / "out")]
+    assert main(args) == 2
+    assert "close_torque is empty" in capsys.readouterr().err
+    assert main([*args, "--method", "optimize"]) == 0
+    (grasp,) = load_grasps(tmp_path / "out" / "077_rubiks_cube.json")
+    assert "thumb" in grasp.extra["fingers"]

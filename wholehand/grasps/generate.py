@@ -51,6 +51,7 @@ from wholehand.loop.control_loop import ControlLoop
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
+from wholehand.models.hand_config import GraspStyle
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
@@ -92,6 +93,18 @@ TABLE_CLEAR = GENERATOR_TABLE.top + HAND_MARGIN
 Closing = tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]
 """How a hand closes (:class:`ClosingStage`): the pose the other joints hold (n_q,) [rad], the
 closing torques (n_v,) [N*m] and which joints close (n_v,) bool."""
+
+
+def named_style(hand: HandModel, name: str) -> GraspStyle:
+    """The grasp style ``name`` of the hand's hand.toml; an unknown name raises ConfigError
+    naming the defined ones."""
+    cfg = hand.config
+    if name not in cfg.grasp_styles:
+        raise ConfigError(
+            f"{cfg.path}: no grasp style {name!r}; this hand defines "
+            f"{sorted(cfg.grasp_styles)} (add a [grasping.{name}] table)"
+        )
+    return cfg.grasp_styles[name]
 
 
 class ClosingStage(Stage):
@@ -148,17 +161,13 @@ class GraspGenerator:
         hand: HandModel,
         obj: ObjectModel,
         backend: str = "mujoco",
-        style: str = "power",
+        style: str | GraspStyle = "power",
         on_table: bool = False,
     ) -> None:
         self.hand, self.obj, self.on_table = hand, obj, on_table
         cfg = hand.config
-        if style not in cfg.grasp_styles:
-            raise ConfigError(
-                f"{cfg.path}: no grasp style {style!r}; this hand defines "
-                f"{sorted(cfg.grasp_styles)} (add a [grasping.{style}] table)"
-            )
-        self.style = cfg.grasp_styles[style]
+        self.style = style if isinstance(style, GraspStyle) else named_style(hand, style)
+        style = self.style.name
         table = "[grasping]" if style == "power" else f"[grasping.{style}]"
         if not self.style.close_torque:
             raise ConfigError(

@@ -26,3 +26,46 @@ def style_arrays(
         i = hand.model.joints[hand.model.getJointId(name)].idx_v
         tau_close[i], closing[i] = value, True
     return hand.couple(q_pre), tau_close, closing
+
+
+CLOSING_SLOPE = 1e-3
+"""A joint closes a finger when turning it moves the finger's tip toward the palm by more than
+this [m/rad]."""
+DERIVED_CLOSE_TORQUE = 0.1
+"""Closing torque of a joint in a style derived from the model [N*m] (at most its limit)."""
+
+
+def derived_close_torque(hand: HandModel, step: float = 1e-4) -> dict[str, float]:
+    """Closing torques for a hand whose hand.toml gives none, from its model alone: each motor
+    that moves a finger's tip (the centroid of its last link's surface samples) toward the palm
+    (the centroid of the palm link's samples) at the mid-range configuration closes in that
+    direction with :data:`DERIVED_CLOSE_TORQUE` (at most its torque limit). On the shipped
+    hands these signs are those of their hand.toml on every joint it names."""
+    from wholehand.models.kinematics import HandKinematics
+
+    cfg, s, model = hand.config, hand.samples, hand.model
+    kin = HandKinematics(hand)
+    tips = [np.flatnonzero(s.link == hand.link_index(links[-1])) for links in cfg.fingers.values()]
+    tips = [rows for rows in tips if rows.size]
+    palm = np.flatnonzero(s.link == hand.link_index(cfg.palm_link))
+
+    def reach(q: FloatArray) -> float:
+        kin.update(hand.couple(q), np.eye(4))
+        centre = kin.transform_points(s.p_joint[palm], s.joint[palm]).mean(axis=0)
+        points = [kin.transform_points(s.p_joint[r], s.joint[r]).mean(axis=0) for r in tips]
+        return float(sum(np.linalg.norm(p - centre) for p in points))
+
+    q0 = hand.neutral()
+    out: dict[str, float] = {}
+    for name in hand.joint_names:
+        joint = model.joints[model.getJointId(name)]
+        if not hand.actuated_dofs[joint.idx_v] or name in hand.mimics:
+            continue
+        plus, minus = q0.copy(), q0.copy()
+        plus[joint.idx_q] += step
+        minus[joint.idx_q] -= step
+        slope = (reach(plus) - reach(minus)) / (2.0 * step)
+        if abs(slope) > CLOSING_SLOPE:
+            torque = min(DERIVED_CLOSE_TORQUE, float(hand.tau_max[joint.idx_v]))
+            out[name] = -float(np.sign(slope)) * torque
+    return out

@@ -68,16 +68,11 @@ def _rename_world_root(root: ET.Element) -> None:
     """MuJoCo's URDF importer takes a link named ``world`` for its world body and hangs the
     links below it from the world directly, so the root's placement of its children (a 90 deg
     turn, say) would be lost when the scene mounts the hand; Pinocchio keeps that link as the
-    hand's base. Renamed, it stays the hand's root body."""
-    children = {child.get("link") for child in root.iter("child")}
-    if any(link.get("name") == "world" for link in root.iter("link")) and "world" not in children:
-        for link in root.iter("link"):
-            if link.get("name") == "world":
-                link.set("name", WORLD_ROOT)
-        for joint in root.iter("joint"):
-            parent = joint.find("parent")
-            if parent is not None and parent.get("link") == "world":
-                parent.set("link", WORLD_ROOT)
+    hand's base. Renamed (:func:`mujoco_link_name`), it stays a body of the hand."""
+    for element in (*root.iter("link"), *root.iter("parent"), *root.iter("child")):
+        for key in ("name", "link"):
+            if element.get(key) == "world":
+                element.set(key, mujoco_link_name("world"))
 
 
 def _mjcf_hand_spec(hand: HandModel) -> mujoco.MjSpec:

@@ -138,8 +138,23 @@ def read_dexgraspnet(path: Path) -> list[ForeignGrasp]:
     return out
 
 
-def _world_to_object(qpos: FloatArray, wMo: FloatArray) -> FloatArray:
-    return inverse(wMo) @ pose_matrix(qpos[:7])
+def _free_hand(
+    row: FloatArray,
+    pre: FloatArray | None,
+    wMo: FloatArray,
+    names: list[str],
+    scale: float,
+    where: str,
+) -> ForeignGrasp:
+    """A grasp from ``[x, y, z, qw, qx, qy, qz, joints...]`` rows of the free hand in the
+    world (the grasp, and the pre-grasp if given), the object at ``wMo`` (4, 4)."""
+    oMw = inverse(wMo)
+    pre_oMr = pre_q = None
+    if pre is not None:
+        pre_oMr = oMw @ pose_matrix(pre[:7])
+        pre_q = dict(zip(names, pre[7:].tolist(), strict=True))
+    q = dict(zip(names, row[7:].tolist(), strict=True))
+    return ForeignGrasp(oMw @ pose_matrix(row[:7]), q, scale, pre_oMr, pre_q, where)
 
 
 def read_dexonomy(path: Path, joint_names: Sequence[str] | None = None) -> list[ForeignGrasp]:
@@ -156,24 +171,17 @@ def read_dexonomy(path: Path, joint_names: Sequence[str] | None = None) -> list[
     obj_pose = np.atleast_2d(np.asarray(data["obj_pose"], dtype=float))
     scales = np.atleast_1d(np.asarray(data.get("obj_scale", 1.0), dtype=float))
     names = _names(joint_names, data.get("joint_names"), grasp.shape[1] - 7, path, "dexonomy")
-    out = []
-    for i, row in enumerate(grasp):
-        wMo = pose_matrix(obj_pose[min(i, len(obj_pose) - 1)])
-        pre_oMr = pre_q = None
-        if pre is not None:
-            pre_oMr = _world_to_object(pre[i], wMo)
-            pre_q = dict(zip(names, pre[i, 7:].tolist(), strict=True))
-        out.append(
-            ForeignGrasp(
-                _world_to_object(row, wMo),
-                dict(zip(names, row[7:].tolist(), strict=True)),
-                float(scales[min(i, len(scales) - 1)]),
-                pre_oMr,
-                pre_q,
-                f"{path}[{i}]",
-            )
+    return [
+        _free_hand(
+            row,
+            None if pre is None else pre[i],
+            pose_matrix(obj_pose[min(i, len(obj_pose) - 1)]),
+            names,
+            float(scales[min(i, len(scales) - 1)]),
+            f"{path}[{i}]",
         )
-    return out
+        for i, row in enumerate(grasp)
+    ]
 
 
 def read_bodex(path: Path, joint_names: Sequence[str] | None = None) -> list[ForeignGrasp]:
@@ -195,19 +203,10 @@ def read_bodex(path: Path, joint_names: Sequence[str] | None = None) -> list[For
     wMo = pose_matrix(np.asarray(data["obj_pose"], dtype=float).reshape(-1, 7)[0])
     scale = float(np.asarray(data.get("obj_scale", 1.0), dtype=float).ravel()[0])
     names = _names(joint_names, data.get("joint_names"), poses.shape[2] - 7, path, "bodex")
-    out = []
-    for i, stages in enumerate(poses):
-        out.append(
-            ForeignGrasp(
-                _world_to_object(stages[1], wMo),
-                dict(zip(names, stages[1, 7:].tolist(), strict=True)),
-                scale,
-                _world_to_object(stages[0], wMo),
-                dict(zip(names, stages[0, 7:].tolist(), strict=True)),
-                f"{path}[{i}]",
-            )
-        )
-    return out
+    return [
+        _free_hand(stages[1], stages[0], wMo, names, scale, f"{path}[{i}]")
+        for i, stages in enumerate(poses)
+    ]
 
 
 def read_grasps(

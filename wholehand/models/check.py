@@ -21,6 +21,7 @@ from wholehand.errors import WholehandError
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
 from wholehand.models.kinematics import HandKinematics
+from wholehand.models.poses import rotation_angle
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -320,8 +321,7 @@ def _simulation_findings(hand: HandModel, report: HandReport) -> None:
         for i, link in enumerate(hand.link_names):
             model = kin.frame_pose(link)
             offset = float(np.linalg.norm(simulated[i, :3, 3] - model[:3, 3]))
-            cos = (np.trace(simulated[i, :3, :3].T @ model[:3, :3]) - 1.0) / 2.0
-            angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+            angle = float(np.degrees(rotation_angle(simulated[i, :3, :3], model[:3, :3])))
             if offset > POSE_MISMATCH_M or angle > POSE_MISMATCH_DEG:
                 report.add(
                     "error",

@@ -80,3 +80,9 @@ def inverse(M: FloatArray) -> FloatArray:
     Minv[:3, :3] = R.T
     Minv[:3, 3] = -R.T @ M[:3, 3]
     return Minv
+
+
+def rotation_angle(Ra: npt.ArrayLike, Rb: npt.ArrayLike) -> float:
+    """Angle of the rotation between two (3, 3) rotations [rad], in [0, pi]."""
+    dR = np.asarray(Ra).T @ np.asarray(Rb)
+    return float(np.arccos(np.clip(0.5 * (np.trace(dR) - 1.0), -1.0, 1.0)))

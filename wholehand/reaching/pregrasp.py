@@ -25,6 +25,7 @@ from wholehand.grasps.store import Grasp
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
+from wholehand.models.poses import rotation_angle
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -142,8 +143,7 @@ def nearest_plan(plans: list[GraspPlan], wMo: FloatArray, wMb_now: FloatArray) -
 
     def cost(plan: GraspPlan) -> float:
         wMb = wMo @ plan.oMb_pre
-        dR = wMb[:3, :3].T @ wMb_now[:3, :3]
-        angle = float(np.arccos(np.clip(0.5 * (np.trace(dR) - 1.0), -1.0, 1.0)))
+        angle = rotation_angle(wMb[:3, :3], wMb_now[:3, :3])
         return float(np.linalg.norm(wMb[:3, 3] - wMb_now[:3, 3])) + ROTATION_WEIGHT * angle
 
     return min(plans, key=cost)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import operator
 import os
@@ -11,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -515,6 +517,12 @@ def test_cli_resume_and_limit_reach_run_study(tmp_path, monkeypatch, capsys):
     assert main(argv) == 130  # interrupted: not a success for a shell script
     assert (calls[1]["resume"], calls[1]["limit"]) == (False, None)
     assert '"complete": false' in capsys.readouterr().out
+    only = ["--only", "theta_deg=90", "--only", "method=qp", "--only", "theta_deg=60"]
+    main([*argv, *only, "--grasps", "mine"])
+    assert calls[2]["only"] == {"theta_deg": ("90", "60"), "method": ("qp",)}
+    assert calls[2]["grasps"] == "mine"
+    assert main([*argv, "--only", "theta_deg"]) == 2
+    assert "write COLUMN=VALUE" in capsys.readouterr().err
 
 
 _ORPHAN_SCRIPT = """
@@ -578,6 +586,79 @@ def test_methods_replace_the_studys_own_in_place():
         with_methods(jobs, ("qp", "nope"))
     with pytest.raises(ConfigError, match="compares no methods"):
         with_methods(get_study("k-sweep").jobs("tiny", 0), ("qp",))
+
+
+def test_only_runs_the_matching_trials_of_the_design():
+    from wholehand.studies.base import only_jobs
+    from wholehand.studies.resume import continue_command
+
+    study = get_study("perturbation")
+    jobs = study.jobs("quick", 0)
+    only = {"theta_deg": ("90", "60"), "method": ("qp",)}
+    mine = only_jobs(jobs, only)
+    expected = [j for j in jobs if j.spec.theta_deg in (60.0, 90.0) and j.labels["method"] == "qp"]
+    assert 0 < len(mine) == len(expected) < len(jobs)
+    assert [j.index for j in mine] == list(range(len(mine)))
+    assert [j.spec for j in mine] == [j.spec for j in expected]  # seeds of the whole design
+    assert only_jobs(jobs, {"object": ("077_rubiks_cube",), "grasp": ("1",)}) == [
+        dataclasses.replace(j, index=i)
+        for i, j in enumerate(
+            j for j in jobs if j.spec.object == "077_rubiks_cube" and j.spec.grasp == 1
+        )
+    ]
+    with pytest.raises(ConfigError, match="no column 'angle'; use one of .*theta_deg"):
+        only_jobs(jobs, {"angle": ("90",)})
+    with pytest.raises(ConfigError, match="no trial of the study has theta_deg in \\['45'\\]"):
+        only_jobs(jobs, {"theta_deg": ("45",)})
+    words = continue_command(study, Path("out/x"), "quick", 0, only=only)
+    assert words.endswith("--only theta_deg=90 --only theta_deg=60 --only method=qp")
+
+
+def _grasp_folder(folder, obj, n):
+    """``folder/<obj>.json`` holding the first ``n`` stored Allegro power grasps of ``obj``."""
+    from wholehand.grasps.store import grasp_file
+
+    raw = json.loads(grasp_file("allegro_right", obj).read_text())
+    raw["grasps"] = raw["grasps"][:n]
+    folder.mkdir(exist_ok=True)
+    (folder / f"{obj}.json").write_text(json.dumps(raw))
+    return folder
+
+
+def test_grasps_from_a_folder_replace_the_stored_ones(tmp_path):
+    from wholehand.studies.base import with_grasps
+
+    jobs = get_study("perturbation").jobs("quick", 0)  # cube and cups, grasps 0 and 1
+    folder = _grasp_folder(tmp_path / "mine", "077_rubiks_cube", 1)
+    mine = with_grasps(jobs, folder)
+    cube = [j for j in jobs if j.spec.object == "077_rubiks_cube" and j.spec.grasp == 0]
+    assert len(mine) == len(cube) > 0  # cups: no file there; cube grasp 1: past the file
+    assert [j.index for j in mine] == list(range(len(mine)))
+    assert {j.spec.grasp_file for j in mine} == {str(folder / "077_rubiks_cube.json")}
+    assert [(j.labels, j.spec.seed) for j in mine] == [(j.labels, j.spec.seed) for j in cube]
+    with pytest.raises(ConfigError, match="does not exist"):
+        with_grasps(jobs, tmp_path / "absent")
+    other = _grasp_folder(tmp_path / "other", "006_mustard_bottle", 1)
+    with pytest.raises(ConfigError, match=r"\['006_mustard_bottle'\], none of the study's"):
+        with_grasps(jobs, other)
+
+
+def test_a_study_on_a_copy_of_the_stored_grasps_gives_the_same_rows(tmp_path, tiny_fresh):
+    folder = _grasp_folder(tmp_path / "copy", "077_rubiks_cube", 1)
+    result = run_study(
+        get_study("perturbation"),
+        "tiny",
+        tmp_path / "out",
+        executor="serial",
+        progress=False,
+        grasps=folder,
+    )
+    assert result.summary["grasps"] == str(folder)
+    drop = lambda rows: [  # noqa: E731
+        {k: v for k, v in r.items() if k != "grasp_file"} for r in _strip(rows)
+    ]
+    assert drop(result.rows) == drop(tiny_fresh.rows)
+    assert {r["grasp_file"] for r in result.rows} == {str(folder / "077_rubiks_cube.json")}
 
 
 def test_a_study_runs_a_users_hand_and_a_third_party_allocator(tmp_path, monkeypatch):

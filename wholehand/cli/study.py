@@ -49,6 +49,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "third-party plug-ins included; see `wholehand plugins`)",
     )
     p.add_argument(
+        "--grasps",
+        default=None,
+        metavar="DIR",
+        help="run the grasps in DIR/<object>.json (e.g. from `wholehand grasps generate --out "
+        "DIR`) instead of the hand's stored ones; trials past a file's grasps are dropped",
+    )
+    p.add_argument(
+        "--only",
+        action="append",
+        default=None,
+        metavar="COLUMN=VALUE",
+        help="run only the trials whose column (a label such as method or a spec field such "
+        "as theta_deg or object) has this value; repeat it: one of the values of a column, "
+        "every column (e.g. --only theta_deg=90 --only method=qp)",
+    )
+    p.add_argument(
         "--resume",
         action="store_true",
         help="continue the run in --out: reuse the finished trials of its rows.jsonl and "
@@ -97,6 +113,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
         limit=args.limit,
         hand=args.hand,
         methods=_methods(args),
+        grasps=args.grasps,
+        only=_only(args),
     )
     summary = {k: v for k, v in result.summary.items() if k != "description"}
     print(json.dumps(summary, indent=2))
@@ -113,6 +131,20 @@ def _methods(args: argparse.Namespace) -> tuple[str, ...] | None:
     return tuple(m.strip() for m in args.methods.split(",") if m.strip())
 
 
+def _only(args: argparse.Namespace) -> dict[str, tuple[str, ...]] | None:
+    from wholehand.errors import ConfigError
+
+    if not args.only:
+        return None
+    out: dict[str, tuple[str, ...]] = {}
+    for item in args.only:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise ConfigError(f"--only {item!r}: write COLUMN=VALUE, e.g. --only theta_deg=90")
+        out[key.strip()] = (*out.get(key.strip(), ()), value.strip())
+    return out
+
+
 def _view_one(args: argparse.Namespace, size: str) -> int:
     """Run one trial of the study in this process with the live viewer."""
     from wholehand.cli.run import live_view, print_summary, summarise
@@ -122,7 +154,7 @@ def _view_one(args: argparse.Namespace, size: str) -> int:
     from wholehand.studies.runner import study_jobs
 
     study = get_study(args.name)
-    jobs = study_jobs(study, size, args.seed, args.hand, _methods(args))
+    jobs = study_jobs(study, size, args.seed, args.hand, _methods(args), args.grasps, _only(args))
     jobs = [j for j in jobs if j.kind == "trial"]
     if not 0 <= args.view < len(jobs):
         raise ConfigError(

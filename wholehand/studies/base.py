@@ -183,6 +183,88 @@ def with_methods(jobs: list[TrialJob], methods: tuple[str, ...]) -> list[TrialJo
     return out
 
 
+def with_grasps(jobs: list[TrialJob], folder: str | Path) -> list[TrialJob]:
+    """The study's trials on the grasps in ``folder/<object>.json`` (e.g. written by
+    ``wholehand grasps generate --out folder``) instead of the hand's stored ones. A trial
+    whose grasp index is past the folder's file of its object, or whose object has no file
+    there, is dropped; other jobs are kept. Indices are renumbered.
+
+    Raises:
+        ConfigError: ``folder`` is not a folder, or it holds a grasp file of none of the
+            study's objects.
+    """
+    from wholehand.grasps.store import load_grasps, object_key
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError(f"grasp folder {folder} does not exist; pass a folder of <object>.json")
+    counts: dict[Path, int] = {}
+    out: list[TrialJob] = []
+    n_replaced = 0
+    for job in jobs:
+        if job.kind != "trial" or job.spec.grasp_file:
+            out.append(dataclasses.replace(job, index=len(out)))
+            continue
+        path = folder / f"{object_key(job.spec.object)}.json"
+        if path not in counts:
+            counts[path] = len(load_grasps(path)) if path.is_file() else 0
+        if job.spec.grasp >= counts[path]:
+            continue
+        spec = dataclasses.replace(job.spec, grasp_file=str(path))
+        out.append(dataclasses.replace(job, index=len(out), spec=spec))
+        n_replaced += 1
+    if jobs and not n_replaced:
+        wanted = sorted({object_key(j.spec.object) for j in jobs if j.kind == "trial"})
+        held = sorted(p.stem for p in folder.glob("*.json"))
+        raise ConfigError(
+            f"grasp folder {folder} holds grasps of {held or 'no object'}, none of the "
+            f"study's objects {wanted}; write them with `wholehand grasps generate --object "
+            f"NAME --out {folder}`"
+        )
+    return out
+
+
+def only_jobs(jobs: list[TrialJob], only: dict[str, tuple[str, ...]]) -> list[TrialJob]:
+    """The jobs whose labels or spec columns (:data:`wholehand.studies.rows.SPEC_COLUMNS`) match
+    ``only``: for every key one of its values (numbers compare as numbers: ``theta_deg=90``
+    matches 90.0). Other jobs are dropped; indices are renumbered, seeds kept, so the rows
+    are those of the same trials of the whole design.
+
+    Raises:
+        ConfigError: a key that is neither a label nor a spec column of the study's trials, or
+            no job left.
+    """
+    from wholehand.studies.rows import spec_columns
+
+    def cells(job: TrialJob) -> dict[str, Any]:
+        return {**spec_columns(job.spec), **job.labels}
+
+    def same(cell: Any, text: str) -> bool:
+        if isinstance(cell, bool) or not isinstance(cell, int | float):
+            return str(cell) == text
+        try:
+            return float(cell) == float(text)
+        except ValueError:
+            return False
+
+    known = set().union(*(cells(j) for j in jobs)) if jobs else set()
+    for key in only:
+        if key not in known:
+            raise ConfigError(
+                f"--only {key}=...: the study's trials have no column {key!r}; "
+                f"use one of {sorted(known)}"
+            )
+    out: list[TrialJob] = []
+    for job in jobs:
+        row = cells(job)
+        if all(any(same(row.get(k), v) for v in values) for k, values in only.items()):
+            out.append(dataclasses.replace(job, index=len(out)))
+    if jobs and not out:
+        wanted = ", ".join(f"{k} in {list(v)}" for k, v in only.items())
+        raise ConfigError(f"no trial of the study has {wanted}; check the values")
+    return out
+
+
 def group_rows(
     rows: list[dict[str, Any]], *keys: str
 ) -> dict[tuple[Any, ...], list[dict[str, Any]]]:

@@ -115,6 +115,8 @@ def continue_command(
     seed: int,
     hand: str = DEFAULT_HAND,
     methods: tuple[str, ...] | None = None,
+    grasps: str | Path | None = None,
+    only: dict[str, tuple[str, ...]] | None = None,
 ) -> str:
     """The command line that continues a study run in ``folder``."""
     words = ["wholehand", "study", study.name, "--out", str(folder), "--resume"]
@@ -126,4 +128,9 @@ def continue_command(
         words += ["--hand", hand]
     if methods is not None:
         words += ["--methods", ",".join(methods)]
+    if grasps is not None:
+        words += ["--grasps", str(grasps)]
+    for key, values in (only or {}).items():
+        for value in values:
+            words += ["--only", f"{key}={value}"]
     return shlex.join(words)

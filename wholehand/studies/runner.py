@@ -32,7 +32,14 @@ from wholehand import registry
 from wholehand.errors import ConfigError
 from wholehand.loop.trial import run_trial
 from wholehand.provenance import provenance
-from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, with_methods
+from wholehand.studies.base import (
+    DEFAULT_HAND,
+    Study,
+    TrialJob,
+    only_jobs,
+    with_grasps,
+    with_methods,
+)
 from wholehand.studies.consistency import net_force_row
 from wholehand.studies.dexgraspbench import load_test_row
 from wholehand.studies.executors import execute
@@ -166,10 +173,17 @@ def study_jobs(
     seed: int,
     hand: str = DEFAULT_HAND,
     methods: tuple[str, ...] | None = None,
+    grasps: str | Path | None = None,
+    only: dict[str, tuple[str, ...]] | None = None,
 ) -> list[TrialJob]:
-    """The jobs of ``study`` on ``hand``, with ``methods`` in place of its own (if given)."""
+    """The jobs of ``study`` on ``hand``, with ``methods`` in place of its own (if given), on
+    the grasps of the folder ``grasps`` (if given, :func:`~wholehand.studies.base.
+    with_grasps`), those matching ``only`` (if given, :func:`~wholehand.studies.base.
+    only_jobs`)."""
     jobs = study.jobs(size, seed, hand)
-    return jobs if methods is None else with_methods(jobs, tuple(methods))
+    jobs = jobs if methods is None else with_methods(jobs, tuple(methods))
+    jobs = jobs if grasps is None else with_grasps(jobs, grasps)
+    return jobs if not only else only_jobs(jobs, only)
 
 
 def run_study(
@@ -185,6 +199,8 @@ def run_study(
     limit: int | None = None,
     hand: str = DEFAULT_HAND,
     methods: tuple[str, ...] | None = None,
+    grasps: str | Path | None = None,
+    only: dict[str, tuple[str, ...]] | None = None,
 ) -> StudyResult:
     """Run the jobs of ``study`` and write ``trials.csv``, ``summary.json`` and ``<name>.png``.
 
@@ -211,6 +227,11 @@ def run_study(
             has stored are run.
         methods: allocators replacing the study's methods (:func:`~wholehand.studies.base.
             with_methods`); None: the study's own.
+        grasps: a folder of ``<object>.json`` grasp files to run instead of the hand's
+            stored grasps (:func:`~wholehand.studies.base.with_grasps`); None: the stored ones.
+        only: run only the trials whose labels or spec columns take one of the given values
+            per key (:func:`~wholehand.studies.base.only_jobs`), e.g. ``{"theta_deg":
+            ("90",)}``; None: all of them.
 
     Raises:
         ConfigError: an unknown size or executor, ``workers < 1`` or ``limit < 0``.
@@ -221,7 +242,7 @@ def run_study(
             f"limit must be >= 0 (trials to run this time), got {limit}; "
             "pass None to run every unfinished trial"
         )
-    jobs = study_jobs(study, size, seed, hand, methods)
+    jobs = study_jobs(study, size, seed, hand, methods, grasps, only)
     if not jobs:
         raise ConfigError(
             f"study {study.name} ({size}) has no trial for hand {hand!r}: it has no stored "
@@ -229,6 +250,7 @@ def run_study(
             f"--hand {hand}`"
         )
     default = f"study-{study.name}" + ("" if hand == DEFAULT_HAND else f"-{Path(hand).name}")
+    default += "" if grasps is None else f"-{Path(grasps).name}"
     folder = Path(out) if out is not None else Path("out") / default
     folder.mkdir(parents=True, exist_ok=True)
     journal_path = folder / JOURNAL_NAME
@@ -298,6 +320,8 @@ def run_study(
             "provenance": provenance(),
             "description": study.description,
             "hand": str(hand),
+            "grasps": "stored" if grasps is None else str(grasps),
+            "only": {k: list(v) for k, v in (only or {}).items()},
             "size": size,
             "seed": seed,
             "complete": complete,
@@ -322,7 +346,7 @@ def run_study(
             print(
                 f"study {study.name}: {len(rows)} of {len(jobs)} trials finished ({why}); "
                 f"partial results in {folder}. Continue with:\n"
-                f"  {continue_command(study, folder, size, seed, hand, methods)}",
+                f"  {continue_command(study, folder, size, seed, hand, methods, grasps, only)}",
                 file=sys.stderr,
             )
         return StudyResult(rows, summary, csv_path, summary_path, plot_path, interrupted)

@@ -220,6 +220,20 @@ def test_protocol_phases_follow_the_clock(allegro, cube):
     np.testing.assert_allclose(a["t"], np.arange(len(a["t"])) * 0.005, atol=1e-12)
 
 
+@pytest.mark.parametrize("rate", [227.0, 66.0, 2000.0])
+def test_a_rate_off_the_simulation_step_holds_on_average(allegro, cube, rate):
+    """Cycle n starts at n / rate rounded up to the 1 ms step: 227 Hz is not 200 Hz (five steps
+    a period), and a rate above the step's gives one cycle per step."""
+    spec = TrialSpec(object=OBJECT, grasp=0, theta_deg=0.0, protocol_params=TINY, control_rate=rate)
+    t = run_trial(spec, hand=allegro, obj=cube, stop_on_loss=False).arrays()["t"]
+    steps = np.round(t / 1e-3)
+    np.testing.assert_allclose(t, steps * 1e-3, atol=1e-9)  # on the simulation's steps
+    if rate > 1000.0:
+        np.testing.assert_array_equal(np.diff(steps), 1)
+    else:
+        np.testing.assert_array_equal(steps, np.ceil(np.arange(len(t)) * 1e3 / rate - 1e-6))
+
+
 class FaultyBackend(Backend):
     """MuJoCo, with given cycles' observations corrupted or made impossible."""
 

@@ -257,7 +257,9 @@ class ControlLoop:
     # --------------------------------------------------------------------------------------------
     def run(self, duration: float | None = None) -> LoopReport:
         """Run until ``duration`` [s] of backend time has passed (None: until a stage ends the run
-        or an observer stops it). A cycle runs when at least half a period is left."""
+        or an observer stops it). A cycle runs when at least half a period is left. On a
+        simulation clock cycle n starts at ``t0 + n / rate`` rounded up to the backend's step,
+        so the rate holds on average whatever the step (at most one cycle per step)."""
         if duration is not None and not (np.isfinite(duration) and duration >= 0.0):
             raise ConfigError(f"ControlLoop.run: duration must be >= 0 [s], got {duration!r}")
         backend = self.backend
@@ -265,6 +267,7 @@ class ControlLoop:
         for observer in self.observers:
             observer.on_start(self)
         report = self.report
+        n_run = 0  # cycles of this run
         deadline = t0  # wall clock: cycles start on a fixed schedule, so sleep overshoot never
         # accumulates into a lower rate; a cycle more than a period late restarts the schedule
         try:
@@ -288,7 +291,10 @@ class ControlLoop:
                 if next_stage is not None:
                     self._switch(next_stage, t, cycle.output.reason)
                 if backend.clock == "sim":
-                    self._advance(t + self.dt)
+                    # The schedule t0 + n dt keeps the rate on average when a period is not a
+                    # whole number of simulation steps; every cycle advances at least one step.
+                    n_run += 1
+                    self._advance(max(t0 + n_run * self.dt, t + 0.5 * self.dt))
                 else:
                     deadline += self.dt
                     overran = self._advance(deadline)

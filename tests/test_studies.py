@@ -744,3 +744,71 @@ def test_balancing_the_weight_needs_gravity(allegro):
         trial.regulation._extra["external_wrench"], [0.0, 0.0, -9.81 * mass, 0.0, 0.0, 0.0]
     )
     assert "external_wrench" not in set_up_trial(TrialSpec(gravity=True), allegro).regulation._extra
+
+
+def test_rate_study_pairs_rates_and_methods_on_the_perturbation_seeds():
+    rate = get_study("rate").jobs("full", seed=0)
+    # 5 objects x 10 grasps x 2 angles x 3 axes, 7 rates x 2 methods.
+    assert len(rate) == 50 * 2 * 3 * 7 * 2
+    assert {j.spec.control_rate for j in rate} == {30.0, 66.0, 100.0, 200.0, 227.0, 500.0, 1000.0}
+    assert all(j.labels["rate_hz"] == j.spec.control_rate for j in rate)
+    assert all(j.spec.allocator == j.labels["method"] for j in rate)
+    seeds = {
+        (j.spec.object, j.spec.grasp, j.spec.theta_deg, j.labels["repeat"]): j.spec.seed
+        for j in get_study("perturbation").jobs("full", seed=0)
+    }
+    assert all(
+        j.spec.seed == seeds[(j.spec.object, j.spec.grasp, j.spec.theta_deg, j.labels["repeat"])]
+        for j in rate
+    )
+
+
+def _rate_rows(held_by_rate):
+    """Rows of one method and angle: grasp g at rate r held in the trials ``held_by_rate[r][g]``."""
+    rows = []
+    for rate, grasps in held_by_rate.items():
+        for g, trials in enumerate(grasps):
+            for held in trials:
+                row = {"object": "o", "grasp": g, "hand": "h", "held": held, "error": ""}
+                rows.append({**row, "method": "qp", "theta_deg": 90.0, "rate_hz": rate})
+    return rows
+
+
+def test_rate_summary_compares_every_rate_with_the_fastest_by_paired_grasps():
+    from wholehand.studies.rate import enough_rate, paired_difference
+
+    rows = _rate_rows(
+        {
+            30.0: [[False, False], [False, True], [True, True]],  # 0, 0.5, 1
+            100.0: [[True, False], [True, True], [True, True]],  # 0.5, 1, 1
+            1000.0: [[True, True], [True, True], [True, False]],  # 1, 1, 0.5
+        }
+    )
+    slow = [r for r in rows if r["rate_hz"] == 30.0]
+    fast = [r for r in rows if r["rate_hz"] == 1000.0]
+    diff, se, n = paired_difference(slow, fast)
+    d = np.array([-1.0, -0.5, 0.5])
+    assert (diff, n) == (pytest.approx(d.mean()), 3)
+    assert se == pytest.approx(d.std(ddof=1) / np.sqrt(3))
+    summary = get_study("rate").summarise(rows)
+    by_rate = {g["rate_hz"]: g for g in summary["groups"]}
+    assert by_rate[1000.0]["diff_to_fastest"] == 0.0
+    # 100 Hz: differences (-0.5, 0, 0.5): mean 0, within one SE; 30 Hz: mean -1/3, SE 0.44.
+    assert by_rate[100.0]["diff_to_fastest"] == pytest.approx(0.0)
+    assert summary["enough_rate"] == [{"method": "qp", "theta_deg": 90.0, "enough_hz": 30.0}]
+    groups = [
+        {"rate_hz": 30.0, "diff_to_fastest": -0.4, "diff_se": 0.1, "n_paired": 5},
+        {"rate_hz": 100.0, "diff_to_fastest": -0.05, "diff_se": 0.1, "n_paired": 5},
+        {"rate_hz": 1000.0, "diff_to_fastest": 0.0, "diff_se": 0.0, "n_paired": 5},
+    ]
+    assert enough_rate(groups) == 100.0
+    groups[1]["diff_to_fastest"] = -0.2
+    assert enough_rate(groups) == 1000.0
+
+
+def test_tiny_rate_study_runs_its_rates(tmp_path):
+    result = run_study(get_study("rate"), "tiny", tmp_path, executor="serial", progress=False)
+    by_rate = {r["rate_hz"]: r for r in result.rows}
+    assert set(by_rate) == {30.0, 1000.0}
+    assert by_rate[1000.0]["cycles"] == pytest.approx(by_rate[30.0]["cycles"] * 1000 / 30, rel=0.05)
+    assert result.plot_path.is_file() and result.summary["enough_rate"][0]["method"] == "qp"

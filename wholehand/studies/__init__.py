@@ -14,6 +14,7 @@ from wholehand.studies.gravity import GravityStudy
 from wholehand.studies.k_sweep import KSweepStudy
 from wholehand.studies.perturbation import PerturbationStudy
 from wholehand.studies.pose_error import PoseErrorStudy
+from wholehand.studies.rate import RateStudy
 from wholehand.studies.reach import ReachStudy, ReachTableStudy
 from wholehand.studies.runner import StudyResult, run_study
 from wholehand.studies.study_files import TIMING_COLUMNS
@@ -25,6 +26,7 @@ STUDIES: dict[str, type[Study]] = {
         PerturbationStudy,
         PoseErrorStudy,
         KSweepStudy,
+        RateStudy,
         ConsistencyStudy,
         ContactsStudy,
         ReachStudy,

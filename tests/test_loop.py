@@ -893,6 +893,16 @@ def test_the_longest_run_of_cycles_without_a_torque(flags, longest):
     assert longest_run(np.array(flags, dtype=bool)) == longest
 
 
+def test_percentiles_count_the_samples_over_a_1khz_period():
+    from wholehand.timing import percentiles_us
+
+    ns = np.concatenate([np.full(997, 200_000), [1_000_000, 1_000_001, 5_000_000]])
+    stats = percentiles_us(ns)  # 1000 samples: 997 at 200 us, one at exactly 1 ms, two over
+    assert (stats["p50_us"], stats["p99_us"], stats["max_us"]) == (200.0, 200.0, 5000.0)
+    assert stats["p99.9_us"] == pytest.approx(np.percentile(ns / 1e3, 99.9), abs=0.01)
+    assert (stats["n"], stats["n_over_1ms"]) == (1000, 2)
+
+
 def test_cycle_benchmark_pools_every_cycle_until_each_trials_loss():
     from wholehand.loop.bench import run_cycle_benchmark
 
@@ -912,6 +922,7 @@ def test_cycle_benchmark_pools_every_cycle_until_each_trials_loss():
     assert all(n <= full for n in lengths)
     assert row["cycle"]["n"] == row["qp"]["n"] == row["estimate"]["n"] == sum(lengths)
     assert row["grasps_held"] == sum(n == full for n in lengths)
+    assert row["cycle"]["n_over_1ms"] <= row["cycle"]["n"] and out["machine"]["commit"]
     # No allocation ever meets a nanosecond's deadline: every cycle holds the first command.
     (late,) = run_cycle_benchmark(
         objects=(OBJECT,),

@@ -32,12 +32,10 @@ from __future__ import annotations
 
 import math
 import os
-import platform
 import time
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any, cast
 
@@ -47,6 +45,7 @@ import numpy.typing as npt
 from wholehand import registry
 from wholehand.allocation.base import Allocator
 from wholehand.contacts.base import ContactSet
+from wholehand.provenance import provenance
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -177,14 +176,8 @@ def synthetic_grasp(
     return SyntheticGrasp(hand, link, d, radius, np.zeros(3))
 
 
-def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version(), "machine": platform.machine()}
-    for dist in ("numpy", "scipy", "qpsolvers", "daqp", "osqp", "piqp"):
-        try:
-            out[dist] = metadata.version(dist)
-        except metadata.PackageNotFoundError:
-            pass
-    out["cpu_count"] = str(os.cpu_count())
+def _versions() -> dict[str, Any]:
+    out: dict[str, Any] = provenance()
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         out[var] = os.environ.get(var, "")
     return out

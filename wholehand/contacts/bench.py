@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import platform
 import time
 
 import numpy as np
@@ -17,6 +16,7 @@ from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
 from wholehand.models.poses import inverse, pose_from_xyz_rpy
+from wholehand.provenance import provenance
 from wholehand.timing import percentiles_us, time_calls
 
 FloatArray = npt.NDArray[np.float64]
@@ -120,8 +120,5 @@ def run_contact_benchmark(
         },
         "cycles": cycles,
         "seed": seed,
-        "machine": {
-            "python": platform.python_version(),
-            "cpu": platform.processor() or platform.machine(),
-        },
+        "machine": provenance(),
     }

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import platform
 from collections.abc import Sequence
 
 import numpy as np
@@ -10,6 +9,7 @@ import numpy as np
 from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
+from wholehand.provenance import provenance
 from wholehand.timing import percentiles_us
 
 
@@ -92,5 +92,5 @@ def run_cycle_benchmark(
         "allocator_params": dict(allocator_params or {}),
         "grasps": list(grasps),
         "results": rows,
-        "machine": {"python": platform.python_version(), "cpu": platform.machine()},
+        "machine": provenance(),
     }

@@ -20,7 +20,6 @@ between joint configurations.
 
 from __future__ import annotations
 
-import platform
 import time
 from typing import Any
 
@@ -32,6 +31,7 @@ from wholehand.loop.worst_case import record_poses
 from wholehand.models.hand import load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
+from wholehand.provenance import provenance
 from wholehand.timing import percentiles_us
 
 PHASES = ("kinematics", "estimate", "jacobians")
@@ -103,10 +103,7 @@ def run_recorded_contact_benchmark(
         "kept_contacts_max": int(kept.max()),
         "phases": {phase: percentiles_us(times[phase]) for phase in PHASES},
         "total": percentiles_us(total),
-        "machine": {
-            "python": platform.python_version(),
-            "cpu": platform.processor() or platform.machine(),
-        },
+        "machine": provenance(),
     }
 
 

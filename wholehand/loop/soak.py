@@ -16,7 +16,6 @@ gravity off). What must hold, and what the report counts:
 
 from __future__ import annotations
 
-import platform
 import resource
 import time
 from collections import Counter
@@ -38,6 +37,7 @@ from wholehand.loop.gate import ObservationGate
 from wholehand.loop.grasp_loss import GraspLossMonitor
 from wholehand.loop.observation import Observation
 from wholehand.loop.trial import TrialSpec, set_up_trial
+from wholehand.provenance import provenance
 from wholehand.timing import percentiles_us
 
 FloatArray = npt.NDArray[np.float64]
@@ -313,5 +313,5 @@ def run_soak(
         "memory_mb": {**monitor.rss_mb, "at_end": round(_rss_mb(), 1)},
         "cycle": percentiles_us(monitor.cycle_times[: report.cycles] * 1e9),
         "wall_time_s": round(wall, 1),
-        "machine": {"python": platform.python_version(), "cpu": platform.machine()},
+        "machine": provenance(),
     }

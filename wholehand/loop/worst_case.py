@@ -19,7 +19,6 @@ would have held the last feasible one: ``longest_hold_cycles``).
 
 from __future__ import annotations
 
-import platform
 import time
 from collections import Counter
 from collections.abc import Sequence
@@ -38,6 +37,7 @@ from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
+from wholehand.provenance import provenance
 
 WORST_OBJECTS = ("006_mustard_bottle", "052_extra_large_clamp")
 """Where the paper's method loses most grasps in the perturbation study (theta 90 deg)."""
@@ -181,5 +181,5 @@ def run_worst_case_benchmark(
         "qp_over_deadline": int((cat["qp"] > deadline * 1e9).sum()),
         "longest_hold_cycles": longest_hold,
         "deadline_ms": deadline * 1e3,
-        "machine": {"python": platform.python_version(), "cpu": platform.machine()},
+        "machine": provenance(),
     }

@@ -59,4 +59,5 @@ class GravityStudy(PerturbationStudy):
             }
 
         # The perturbation study's design and seeds: the same pull axes.
-        return pull_jobs(cfg, seed, hand, protocol, spec_for)
+        variants = [({"method": m}, spec_for(m)) for m in cfg.methods]
+        return pull_jobs(cfg, seed, hand, protocol, variants)

@@ -14,18 +14,16 @@ from typing import Any
 
 import numpy as np
 
-from wholehand.grasps.store import stored_grasp_indices
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
     Study,
     TrialJob,
-    derive_seed,
     group_rows,
     protocol_for,
     success_stats,
 )
+from wholehand.studies.perturbation import pull_jobs
 
 
 @dataclass(frozen=True)
@@ -50,25 +48,8 @@ class KSweepStudy(Study):
 
     def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
-        jobs: list[TrialJob] = []
-        for oi, obj in enumerate(cfg.objects):
-            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
-                for theta in cfg.thetas:
-                    for repeat in range(cfg.repeats):
-                        trial_seed = derive_seed(seed, oi, grasp, repeat)
-                        for k in cfg.ks:
-                            spec = TrialSpec(
-                                hand=hand,
-                                object=obj,
-                                grasp=grasp,
-                                allocator="qp",
-                                theta_deg=theta,
-                                seed=trial_seed,
-                                estimator_params={"k": k},
-                                protocol_params=protocol_for(size),
-                            )
-                            jobs.append(TrialJob(len(jobs), spec, {"k": k, "repeat": repeat}))
-        return jobs
+        variants = [({"k": k}, {"allocator": "qp", "estimator_params": {"k": k}}) for k in cfg.ks]
+        return pull_jobs(cfg, seed, hand, protocol_for(size), variants)
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         groups = []

@@ -8,10 +8,10 @@ grasp-level success rates, +- 1 standard error across them.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.trial import TrialSpec
@@ -51,23 +51,41 @@ CONFIGS = {
 }
 
 
+class PullDesign(Protocol):
+    """What :func:`pull_jobs` expands: objects, grasp indices, pull angles, axes per angle."""
+
+    @property
+    def objects(self) -> tuple[str, ...]: ...
+    @property
+    def grasps(self) -> tuple[int, ...]: ...
+    @property
+    def thetas(self) -> tuple[float, ...]: ...
+    @property
+    def repeats(self) -> int: ...
+
+
+Variant = tuple[dict[str, Any], dict[str, Any]]
+"""One trial per pull: its labels and its TrialSpec fields, e.g. ``({"method": "qp"},
+{"allocator": "qp"})``."""
+
+
 def pull_jobs(
-    cfg: PerturbationConfig,
+    cfg: PullDesign,
     seed: int,
     hand: str,
     protocol: dict[str, Any],
-    spec_for: Callable[[str], dict[str, Any]],
+    variants: Sequence[Variant],
 ) -> list[TrialJob]:
     """The jobs of a pull design: per object, stored power grasp, angle and repeat (theta = 0
-    once), one trial per method with the spec fields ``spec_for(method)``. Methods share the
-    seed of (object, grasp, repeat): the same random pull axis."""
+    once), one trial per variant with its labels (and ``repeat``) and spec fields. Variants
+    share the seed of (object, grasp, repeat): the same random pull axis."""
     jobs: list[TrialJob] = []
     for oi, obj in enumerate(cfg.objects):
         for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
             for theta in cfg.thetas:
                 for repeat in range(1 if theta == 0.0 else cfg.repeats):
                     trial_seed = derive_seed(seed, oi, grasp, repeat)
-                    for method in cfg.methods:
+                    for labels, fields in variants:
                         spec = TrialSpec(
                             hand=hand,
                             object=obj,
@@ -75,10 +93,9 @@ def pull_jobs(
                             theta_deg=theta,
                             seed=trial_seed,
                             protocol_params=protocol,
-                            **spec_for(method),
+                            **fields,
                         )
-                        labels = {"method": method, "repeat": repeat}
-                        jobs.append(TrialJob(len(jobs), spec, labels))
+                        jobs.append(TrialJob(len(jobs), spec, {**labels, "repeat": repeat}))
     return jobs
 
 
@@ -88,7 +105,8 @@ class PerturbationStudy(Study):
 
     def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
-        return pull_jobs(cfg, seed, hand, protocol_for(size), lambda method: {"allocator": method})
+        variants = [({"method": m}, {"allocator": m}) for m in cfg.methods]
+        return pull_jobs(cfg, seed, hand, protocol_for(size), variants)
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         groups = []

@@ -18,20 +18,18 @@ from typing import Any
 
 import numpy as np
 
-from wholehand.grasps.store import stored_grasp_indices
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
     Study,
     TrialJob,
-    derive_seed,
     group_rows,
     protocol_for,
     save_success_figure,
     success_stats,
     trials_label,
 )
+from wholehand.studies.perturbation import pull_jobs
 
 RATES = (30.0, 66.0, 100.0, 200.0, 227.0, 500.0, 1000.0)
 """Control rates [Hz]: the paper's 227 Hz (K = 1) and 66 Hz (K = 7), this project's default
@@ -102,27 +100,13 @@ class RateStudy(Study):
 
     def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
-        jobs: list[TrialJob] = []
-        for oi, obj in enumerate(cfg.objects):
-            for grasp in stored_grasp_indices(hand, obj, "power", cfg.grasps):
-                for theta in cfg.thetas:
-                    for repeat in range(cfg.repeats):
-                        trial_seed = derive_seed(seed, oi, grasp, repeat)
-                        for rate in cfg.rates:
-                            for method in cfg.methods:
-                                spec = TrialSpec(
-                                    hand=hand,
-                                    object=obj,
-                                    grasp=grasp,
-                                    allocator=method,
-                                    theta_deg=theta,
-                                    seed=trial_seed,
-                                    control_rate=rate,
-                                    protocol_params=protocol_for(size),
-                                )
-                                labels = {"method": method, "rate_hz": rate, "repeat": repeat}
-                                jobs.append(TrialJob(len(jobs), spec, labels))
-        return jobs
+        variants = [
+            ({"method": m, "rate_hz": r}, {"allocator": m, "control_rate": r})
+            for r in cfg.rates
+            for m in cfg.methods
+        ]
+        # The perturbation study's design and seeds: the same pull axes.
+        return pull_jobs(cfg, seed, hand, protocol_for(size), variants)
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         groups: list[dict[str, Any]] = []

@@ -1,4 +1,4 @@
-"""The ``ros2`` backend: a real robot (or ``wholehand hw-sim``) over ROS 2 messages on zenoh.
+"""The ``ros2`` backend: a real robot (or ``wholehand hw-sim``) over ROS 2 messages.
 
 Subscribes ``sensor_msgs/msg/JointState``, the tracked object's ``geometry_msgs/msg/PoseStamped``
 and a stop topic (``std_msgs/msg/Bool``); publishes the hand's torque commands as
@@ -19,14 +19,17 @@ reached on the loop's end, Ctrl-C, SIGTERM and a fault of the loop) the arm hold
 position and the hand torques ramp to zero over ``exit_ramp``.
 Topics, joint names, rates, QoS and the safety limits come from a hardware config
 (:mod:`wholehand.hardware.config`); messages go over zenoh as rmw_zenoh writes them
-(:mod:`wholehand.hardware.rmw_zenoh`), so no ROS installation is needed.
+(:mod:`wholehand.hardware.rmw_zenoh`) or over DDS as rmw_cyclonedds and rmw_fastrtps write them
+(:mod:`wholehand.hardware.ros2_dds`), by ``[ros2] transport``, so no ROS installation is
+needed.
 
 Every joint state is kept in the joint history, so the contacts of a pose are estimated at the
 joint configuration of the pose's stamp (paper Sec. V-D). With ``sync_to_joint_states`` (the
 default) a cycle whose newest joint state is no longer fresh waits for the next one, briefly
 (:mod:`wholehand.hardware.config`), so that the torque answers a joint state just measured.
-Incoming messages that fail their checks (:mod:`wholehand.hardware.inputs`), and samples without
-rmw_zenoh's attachment (dropped, as rmw_zenoh drops them), are counted by reason
+Incoming messages that fail their checks (:mod:`wholehand.hardware.inputs`), and samples the
+transport drops (on zenoh those without rmw_zenoh's attachment, as rmw_zenoh drops them), are
+counted by reason
 and the last good sample stays; every outgoing torque passes the safety rules of
 :class:`~wholehand.hardware.guard.TorqueGuard`, and a watchdog thread ramps the torque down when
 the loop stops sending.
@@ -70,7 +73,7 @@ from wholehand.hardware.messages import (
     encode_array,
     encode_joint_trajectory,
 )
-from wholehand.hardware.rmw_zenoh import Attachment, Node, Publisher, Subscriber, open_session
+from wholehand.hardware.transport import SampleMeta, open_transport
 from wholehand.loop.command import Command
 from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
 
@@ -195,38 +198,31 @@ class Ros2Backend(Backend):
         self._stamp_q_seen = np.nan
         self._last_apply = -np.inf
         self._closed = threading.Event()
-        self.session = open_session(config)
+        self.transport = transport = open_transport(config, NODE_NAME)
         try:
-            self.node = node = Node(self.session, config, NODE_NAME)
-            self._torque = Publisher(self.session, config, "torque_command", FLOAT64_ARRAY, node)
+            self._torque = transport.publisher("torque_command", FLOAT64_ARRAY)
             arm_type = JOINT_TRAJECTORY if config.arm.interface == "trajectory" else FLOAT64_ARRAY
-            self._arm = (
-                Publisher(self.session, config, "arm_command", arm_type, node) if has_arm else None
-            )
+            self._arm = transport.publisher("arm_command", arm_type) if has_arm else None
             self._hand_position = (
-                Publisher(self.session, config, "hand_position_command", FLOAT64_ARRAY, node)
+                transport.publisher("hand_position_command", FLOAT64_ARRAY)
                 if config.topic("hand_position_command")
                 else None
             )
             self._subs = [
-                Subscriber(
-                    self.session, config, "joint_states", JOINT_STATE, self._on_joints, node
-                ),
-                Subscriber(self.session, config, "object_pose", POSE_STAMPED, self._on_pose, node),
+                transport.subscriber("joint_states", JOINT_STATE, self._on_joints, self._reject),
+                transport.subscriber("object_pose", POSE_STAMPED, self._on_pose, self._reject),
             ]
             if config.topic("stop"):
-                self._subs.append(
-                    Subscriber(self.session, config, "stop", BOOL, self._on_stop, node)
-                )
+                self._subs.append(transport.subscriber("stop", BOOL, self._on_stop, self._reject))
         except Exception:
-            self.session.close()
+            transport.close()
             raise
         self._watchdog = threading.Thread(
             target=self._watch, name="wholehand-watchdog", daemon=True
         )
         self._watchdog.start()
 
-    # --- incoming (zenoh's threads) -------------------------------------------------------------
+    # --- incoming (the transport's threads) -------------------------------------------------------
     def _reject(self, reason: str, detail: str) -> None:
         with self._lock:
             self.rejected[reason] += 1
@@ -235,22 +231,7 @@ class Ros2Backend(Backend):
         if first:
             log.warning("rejected a message (%s): %s", reason, detail)
 
-    def _attached(self, attachment: bytes | None) -> bool:
-        """Whether a sample carries rmw_zenoh's attachment, as rmw_zenoh requires: one without
-        it (``no_attachment``) or with a malformed one (``bad_attachment``) is dropped."""
-        if attachment is None:
-            self._reject("no_attachment", "a sample without rmw_zenoh's attachment")
-            return False
-        try:
-            Attachment.decode(attachment)
-        except MessageError as err:
-            self._reject("bad_attachment", str(err))
-            return False
-        return True
-
-    def _on_joints(self, payload: bytes, attachment: bytes | None, received: float) -> None:
-        if not self._attached(attachment):
-            return
+    def _on_joints(self, payload: bytes, meta: SampleMeta, received: float) -> None:
         try:
             sample = self.reader.read(decode_joint_state(payload), time.time())
         except MessageError as err:
@@ -269,9 +250,7 @@ class Ros2Backend(Backend):
             self.received["joint_states"] += 1
             self._joint_arrived.notify_all()
 
-    def _on_pose(self, payload: bytes, attachment: bytes | None, received: float) -> None:
-        if not self._attached(attachment):
-            return
+    def _on_pose(self, payload: bytes, meta: SampleMeta, received: float) -> None:
         config = self.config
         try:
             msg = decode_pose(payload)
@@ -291,9 +270,7 @@ class Ros2Backend(Backend):
             self._pose_received = received
             self.received["object_pose"] += 1
 
-    def _on_stop(self, payload: bytes, attachment: bytes | None, received: float) -> None:
-        if not self._attached(attachment):
-            return
+    def _on_stop(self, payload: bytes, meta: SampleMeta, received: float) -> None:
         try:
             stop = decode_bool(payload)
         except MessageError as err:
@@ -528,8 +505,8 @@ class Ros2Backend(Backend):
             }
 
     def close(self) -> None:
-        """Send the last commands (:meth:`release`), stop the watchdog and leave the zenoh
-        session."""
+        """Send the last commands (:meth:`release`), stop the watchdog and leave the
+        network."""
         if self._closed.is_set():
             return
         self._closed.set()
@@ -542,8 +519,7 @@ class Ros2Backend(Backend):
             self._arm.close()
         if self._hand_position is not None:
             self._hand_position.close()
-        self.node.close()
-        self.session.close()
+        self.transport.close()
 
     def release(self) -> None:
         """The last commands of every exit: the arm's target at its measured position, and the

@@ -6,9 +6,11 @@ the pose lost while reaching, the controller stopped by SIGTERM and killed by SI
 from __future__ import annotations
 
 import json
+import os
 import signal
 import time
 
+import pytest
 from processes import wait_for_line, wholehand
 
 from wholehand.hardware.rmw_zenoh import loopback_endpoint
@@ -16,15 +18,20 @@ from wholehand.hardware.rmw_zenoh import loopback_endpoint
 RIG = "flexiv_rizon4_hx5_d20_right"
 
 
-def _pair(tmp_path, *sim_args: str, control_args: tuple[str, ...] = ()):
-    """Start the double (listening) and the controller (connecting) on a free port."""
+DDS_LOOPBACK = ("--transport", "dds", "--dds-peer", "127.0.0.1", "--dds-interface", "127.0.0.1")
+
+
+def _pair(tmp_path, *sim_args: str, control_args: tuple[str, ...] = (), dds: bool = False):
+    """Start the double (listening) and the controller (connecting) on a free port; over DDS
+    on loopback with ``dds`` (the domain: $ROS_DOMAIN_ID)."""
     endpoint = loopback_endpoint()
+    sim_link = DDS_LOOPBACK if dds else ("--listen", endpoint, "--connect")
+    control_link = DDS_LOOPBACK if dds else ("--connect", endpoint, "--listen")
     sim = wholehand(
-        "hw-sim", "--hand", RIG, "--listen", endpoint, "--connect",
-        "--json", str(tmp_path / "sim.json"), *sim_args,
-    )  # fmt: skip
+        "hw-sim", "--hand", RIG, *sim_link, "--json", str(tmp_path / "sim.json"), *sim_args
+    )
     control = wholehand(
-        "control", "--hand", RIG, "--connect", endpoint, "--listen",
+        "control", "--hand", RIG, *control_link,
         "--json", str(tmp_path / "control.json"), *control_args,
     )  # fmt: skip
     return sim, control, endpoint
@@ -47,10 +54,12 @@ def _stages(ctl) -> list[tuple[str, str]]:
     return [(t["source"], t["target"]) for t in ctl["loop"]["transitions"]]
 
 
+@pytest.mark.parametrize("transport", ["zenoh", "dds"])
 def test_the_controller_reaches_grasps_and_regulates_through_the_perturbations_over_ros2(
-    tmp_path,
+    tmp_path, monkeypatch, transport
 ):
-    sim, control, _ = _pair(tmp_path, "--seed", "0")
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + os.getpid() % 80))  # DDS: this test's alone
+    sim, control, _ = _pair(tmp_path, "--seed", "0", dds=transport == "dds")
     robot, ctl = _finish(sim, control, tmp_path)
     # Real-time runs are not seeded: on failure, say what both sides saw.
     seen = robot["events"], ctl["loop"], ctl["backend"]

@@ -155,6 +155,7 @@ def _cmd_hw(args: argparse.Namespace) -> int:
         stamp_source=args.stamp_source,
         sync_to_joint_states=not args.no_sync,
         config=args.config,
+        transport=args.transport,
     )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -321,6 +322,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--config", help="hardware config TOML (default: ros2.toml in the hand's folder)"
+    )
+    p.add_argument(
+        "--transport",
+        default="zenoh",
+        choices=["zenoh", "dds"],
+        help="zenoh on a loopback TCP port, or DDS unicast on loopback",
     )
     p.add_argument("--out", help="also write the JSON here")
     p.set_defaults(func=_cmd_hw)

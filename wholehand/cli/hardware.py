@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,14 @@ def _config(args: argparse.Namespace) -> Any:
     config = load_hardware_config(args.config or hand_hardware_config(args.hand))
     connect = tuple(args.connect) if args.connect is not None else None
     listen = tuple(args.listen) if args.listen is not None else None
-    return config.with_endpoints(connect, listen)
+    config = config.with_endpoints(connect, listen)
+    if args.transport is not None:
+        config = replace(config, transport=args.transport)
+    if args.dds_peer is not None:
+        config = replace(config, dds_peers=tuple(args.dds_peer))
+    if args.dds_interface is not None:
+        config = replace(config, dds_interface=args.dds_interface)
+    return config
 
 
 def _write(result: dict[str, Any], path: str | None, summary: dict[str, Any]) -> None:
@@ -116,8 +124,26 @@ def _endpoints(p: argparse.ArgumentParser) -> None:
         "--config",
         help="hardware config TOML (default: ros2.toml in the hand's folder; docs/hardware.md)",
     )
+    p.add_argument(
+        "--transport",
+        choices=("zenoh", "dds"),
+        help="zenoh (robots on rmw_zenoh) or dds (a stock ROS 2 install: rmw_cyclonedds, "
+        "rmw_fastrtps); overrides [ros2] transport",
+    )
     p.add_argument("--connect", nargs="*", help="zenoh endpoints to connect to (overrides config)")
     p.add_argument("--listen", nargs="*", help="zenoh endpoints to listen on (overrides config)")
+    p.add_argument(
+        "--dds-peer",
+        action="append",
+        metavar="ADDRESS",
+        help="DDS unicast discovery peer, repeatable (multicast off; overrides [ros2] dds_peers; "
+        "127.0.0.1 for a double on this machine)",
+    )
+    p.add_argument(
+        "--dds-interface",
+        metavar="NAME_OR_ADDRESS",
+        help="DDS network interface (overrides [ros2] dds_interface)",
+    )
     p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
     p.add_argument("--object", default="077_rubiks_cube", help="the grasped object")
     p.add_argument("--json", help="write the full result (with timings) to this JSON file")
@@ -126,8 +152,8 @@ def _endpoints(p: argparse.ArgumentParser) -> None:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "control",
-        help="the controller on a robot over ROS 2 messages (zenoh; docs/hardware.md): the whole "
-        "pipeline on an arm-hand, force regulation of a held grasp on a hand alone",
+        help="the controller on a robot over ROS 2 messages (zenoh or DDS; docs/hardware.md): "
+        "the whole pipeline on an arm-hand, force regulation of a held grasp on a hand alone",
     )
     _endpoints(p)
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: never)")

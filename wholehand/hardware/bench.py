@@ -44,6 +44,9 @@ from wholehand.hardware.rmw_zenoh import loopback_endpoint
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
 
+DDS_LOOPBACK: dict[str, Any] = {"dds_interface": "127.0.0.1", "dds_peers": ("127.0.0.1",)}
+"""The DDS settings of a controller and a double on one machine."""
+
 
 def _percentiles(values: Sequence[float]) -> dict[str, float | None]:
     arr = np.asarray(values, dtype=float)
@@ -61,15 +64,18 @@ def run_hw_benchmark(
     stamp_source: StampSource = "header",
     sync_to_joint_states: bool = True,
     config: str | Path | None = None,
+    transport: str = "zenoh",
 ) -> dict[str, Any]:
     """Run the double and the controller over each grasp of each object; latency percentiles
     over all messages, and whether each grasp held the load test. ``sync_to_joint_states``:
     the controller's setting of that name (:mod:`wholehand.hardware.config`); ``config``: the
-    hardware config both use (None: the hand folder's ``ros2.toml``)."""
+    hardware config both use (None: the hand folder's ``ros2.toml``); ``transport``: zenoh
+    (a free TCP port on loopback) or dds (unicast on loopback, the domain of the config or
+    ``$ROS_DOMAIN_ID``)."""
     spec = spec or ControllerSpec()
     config_path = hand_hardware_config(hand) if config is None else Path(config)
     hand_model = load_hand(hand)
-    answer, controller, transport, rates, rows = [], [], [], [], []
+    answer, controller, wire, rates, rows = [], [], [], [], []
     cycles: list[float] = []
     for obj, grasp in ((o, g) for o in objects for g in grasps):
         obj_model = load_object(obj)
@@ -80,6 +86,13 @@ def run_hw_benchmark(
             listen=(),
             stamp_source=stamp_source,
             sync_to_joint_states=sync_to_joint_states,
+            transport=transport,
+            **(DDS_LOOPBACK if transport == "dds" else {}),
+        )
+        link = (
+            ["--transport", "dds", "--dds-peer", "127.0.0.1", "--dds-interface", "127.0.0.1"]
+            if transport == "dds"
+            else ["--listen", endpoint, "--connect"]
         )
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "sim.json"
@@ -100,9 +113,7 @@ def run_hw_benchmark(
                 str(latency),
                 "--pose-stamp",
                 pose_stamp,
-                "--listen",
-                endpoint,
-                "--connect",
+                *link,
                 "--json",
                 str(out),
                 *(["--quick"] if quick else []),
@@ -127,12 +138,12 @@ def run_hw_benchmark(
             robot = json.loads(out.read_text())
         cycles.extend(1e3 * t for t in result["cycle_times_s"])
         arrivals = dict(robot["arrivals"])
-        for seq, stamp_q, published_ns in result["trace"]:
-            if seq in arrivals and np.isfinite(stamp_q):
-                arrived = arrivals[seq]
+        for _, stamp_q, published_ns in result["trace"]:
+            if published_ns in arrivals and np.isfinite(stamp_q):
+                arrived = arrivals[published_ns]
                 answer.append(1e3 * (1e-9 * arrived - stamp_q))
                 controller.append(1e3 * (1e-9 * published_ns - stamp_q))
-                transport.append(1e-6 * (arrived - published_ns))
+                wire.append(1e-6 * (arrived - published_ns))
         start, end = robot["run_wall_ns"]
         during = sum(start <= t <= end for t in arrivals.values())
         rates.append(during / (1e-9 * (end - start)))
@@ -160,6 +171,7 @@ def run_hw_benchmark(
         "plain_loop_held": sum(plain),
         "hand": hand,
         "objects": list(objects),
+        "transport": transport,
         "latency_s": latency,
         "quick": quick,
         "estimate_at": spec.estimate_at,
@@ -171,7 +183,7 @@ def run_hw_benchmark(
         "grasps": len(rows),
         "answer_ms": _percentiles(answer),
         "controller_ms": _percentiles(controller),
-        "transport_ms": _percentiles(transport),
+        "transport_ms": _percentiles(wire),
         "cycle_ms": _percentiles(cycles),
         "messages": len(answer),
         "rate_hz": {"min": float(min(rates)), "mean": float(np.mean(rates))},

@@ -3,12 +3,19 @@
 Schema (times in s, rates in Hz, torques in N*m; every key optional, defaults below)::
 
     [ros2]
-    domain_id = 0                   # ROS_DOMAIN_ID: the first field of every key expression
-    distro = "jazzy"                # "humble" publishes without a type hash (rmw_zenoh on Humble)
+    transport = "zenoh"             # "zenoh": as rmw_zenoh (rmw_zenoh_cpp robots); "dds": as
+                                    # rmw_cyclonedds / rmw_fastrtps (a stock ROS 2 install)
+    domain_id = 0                   # default: $ROS_DOMAIN_ID, else 0
+    distro = "jazzy"                # "humble" publishes without a type hash
+    # zenoh only:
     mode = "peer"                   # zenoh session mode: "peer" or "client"
     connect = ["tcp/127.0.0.1:7447"]   # endpoints to connect to (rmw_zenohd's default)
     listen = []                     # endpoints to listen on (hw-sim listens, the controller
                                     # connects, so the two need no router)
+    # dds only (both empty: Cyclone DDS's defaults or $CYCLONEDDS_URI, multicast discovery):
+    dds_interface = ""              # the network interface's name or address, e.g. "eth0"
+    dds_peers = []                  # unicast discovery: the other side's addresses (multicast
+                                    # off), e.g. ["192.168.1.10"] or ["127.0.0.1"] on one machine
 
     [topics]                        # ROS 2 topic names
     joint_states = "/joint_states"                          # sensor_msgs/msg/JointState, in
@@ -83,6 +90,7 @@ period; the schedule of cycles stays that of the control rate.
 from __future__ import annotations
 
 import math
+import os
 import sys
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -103,6 +111,7 @@ StampSource = Literal["header", "receipt"]
 ArmInterface = Literal["position", "trajectory"]
 
 DISTROS = ("humble", "jazzy", "kilted")
+TRANSPORTS = ("zenoh", "dds")
 """ROS 2 distributions whose rmw_zenoh key expressions we write."""
 
 TOPICS = (
@@ -165,11 +174,18 @@ class HardwareConfig:
     """Topics, joint names, rates, QoS and safety limits of a ROS 2 robot (the module's
     schema). ``path`` is the file it came from ("" for the defaults)."""
 
+    transport: str = "zenoh"
+    """``"zenoh"`` (:mod:`wholehand.hardware.rmw_zenoh`) or ``"dds"``
+    (:mod:`wholehand.hardware.ros2_dds`)."""
     domain_id: int = 0
     distro: str = "jazzy"
     mode: str = "peer"
     connect: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     listen: tuple[str, ...] = ()
+    dds_interface: str = ""
+    """DDS: the network interface (name or address) to use; "" for Cyclone DDS's choice."""
+    dds_peers: tuple[str, ...] = ()
+    """DDS: unicast discovery peers (multicast off); () for multicast discovery."""
     topics: dict[str, str] = field(
         default_factory=lambda: {
             "joint_states": "/joint_states",
@@ -215,6 +231,19 @@ class HardwareConfig:
             connect=self.connect if connect is None else tuple(connect),
             listen=self.listen if listen is None else tuple(listen),
         )
+
+
+def _environment_domain() -> int:
+    """``$ROS_DOMAIN_ID`` as ROS 2 reads it (0 when unset or empty)."""
+    value = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not value:
+        return 0
+    if not value.isdigit() or int(value) > 232:
+        raise ConfigError(
+            f"ROS_DOMAIN_ID={value!r} is not a domain id 0..232; unset it or set it as the "
+            "robot's stack does"
+        )
+    return int(value)
 
 
 def _where(path: str) -> str:
@@ -371,8 +400,25 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
     unknown = sorted(set(raw) - set(TABLES))
     if unknown:
         raise ConfigError(f"{_where(path)}: unknown tables {unknown}; valid: {', '.join(TABLES)}")
-    ros2 = _table(raw, "ros2", ("domain_id", "distro", "mode", "connect", "listen"), path)
-    domain = ros2.get("domain_id", 0)
+    ros2 = _table(
+        raw,
+        "ros2",
+        ("transport", "domain_id", "distro", "mode", "connect", "listen")
+        + ("dds_interface", "dds_peers"),
+        path,
+    )
+    transport = ros2.get("transport", "zenoh")
+    if transport not in TRANSPORTS:
+        raise ConfigError(
+            f"{_where(path)}: [ros2] transport must be one of {TRANSPORTS}, got {transport!r}"
+        )
+    interface = ros2.get("dds_interface", "")
+    if not isinstance(interface, str):
+        raise ConfigError(
+            f"{_where(path)}: [ros2] dds_interface must be a string such as 'eth0', got "
+            f"{interface!r}"
+        )
+    domain = ros2.get("domain_id", _environment_domain())
     if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= 232:
         raise ConfigError(f"{_where(path)}: [ros2] domain_id must be an integer 0..232")
     distro = ros2.get("distro", "jazzy")
@@ -425,11 +471,14 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
     command = _joint_list(joints["command"], "[joints] command", path)
     arm = _arm(raw, bool(topics["arm_command"]), path)
     return HardwareConfig(
+        transport=transport,
         domain_id=domain,
         distro=distro,
         mode=mode,
         connect=_strings(ros2.get("connect", ["tcp/127.0.0.1:7447"]), "[ros2] connect", path),
         listen=_strings(ros2.get("listen", []), "[ros2] listen", path),
+        dds_interface=interface,
+        dds_peers=_strings(ros2.get("dds_peers", []), "[ros2] dds_peers", path),
         topics=topics,
         rename=dict(rename),
         ignore=_strings(joints.get("ignore", []), "[joints] ignore", path),

@@ -36,7 +36,7 @@ from wholehand.hardware.messages import (
     encode_joint_state,
     encode_pose,
 )
-from wholehand.hardware.rmw_zenoh import Attachment, Node, Publisher, Subscriber, open_session
+from wholehand.hardware.transport import SampleMeta, TopicPublisher, open_transport
 from wholehand.loop.command import Command
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossMonitor
@@ -109,7 +109,7 @@ class RemoteTorque(Stage):
         self.received = 0
         self.malformed = 0
         self.arrivals: list[tuple[int, int]] = []
-        """(sequence number, arrival wall time [ns]) of every torque message."""
+        """(source timestamp [ns], arrival wall time [ns]) of every torque message."""
         self.max_rate = 0.0
         """Largest torque rate between consecutive commands of one controller [N*m/s], by the
         publish stamps of their attachments."""
@@ -118,13 +118,10 @@ class RemoteTorque(Stage):
         between its first command and the torque the drives applied when it arrived [N*m]."""
         self._source: tuple[bytes, int] | None = None
 
-    def on_message(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+    def on_message(self, payload: bytes, meta: SampleMeta, received: float) -> None:
         arrival = time.time_ns()
         try:
             data = decode_array(payload)
-            if attachment is None:
-                raise MessageError("no attachment")
-            meta = Attachment.decode(attachment)
         except MessageError:
             self.malformed += 1
             return
@@ -136,16 +133,20 @@ class RemoteTorque(Stage):
         tau = np.clip(tau, -self.tau_max, self.tau_max)
         with self._lock:
             applied = self._applied(received)
-            if self._source is not None and self._source[0] == meta.gid:
+            if self._source is not None and self._source[0] == meta.source:
                 dt = 1e-9 * (meta.source_timestamp - self._source[1])
                 if dt > 0.0:
                     self.max_rate = max(self.max_rate, float(np.abs(tau - applied).max()) / dt)
             elif self._source is not None:
                 self.restart_steps.append(float(np.abs(tau - applied).max()))
-            self._source = (meta.gid, meta.source_timestamp)
+            self._source = (meta.source, meta.source_timestamp)
             self._latest = (tau, received)
             self.received += 1
-            self.arrivals.append((meta.sequence_number, arrival))
+            self.arrivals.append((meta.source_timestamp, arrival))
+
+    def on_rejected(self, reason: str, detail: str) -> None:
+        """A torque sample the transport dropped counts as malformed."""
+        self.malformed += 1
 
     @property
     def latest(self) -> tuple[FloatArray, float] | None:
@@ -176,8 +177,8 @@ class RobotPublisher(Observer):
 
     def __init__(
         self,
-        joints: Publisher,
-        poses: Publisher,
+        joints: TopicPublisher,
+        poses: TopicPublisher,
         names: list[str],
         frame_id: str,
         pose_stamp: str,
@@ -273,13 +274,12 @@ def run_double(
     )
     rate = config.joint_state_rate
     protocol.check_rate(rate)
-    session = open_session(config)
+    transport = open_transport(config, DOUBLE_NODE)
     try:
-        node = Node(session, config, DOUBLE_NODE)
-        joints = Publisher(session, config, "joint_states", JOINT_STATE, node)
-        poses = Publisher(session, config, "object_pose", POSE_STAMPED, node)
-        commands = Subscriber(
-            session, config, "torque_command", FLOAT64_ARRAY, drives.on_message, node
+        joints = transport.publisher("joint_states", JOINT_STATE)
+        poses = transport.publisher("object_pose", POSE_STAMPED)
+        commands = transport.subscriber(
+            "torque_command", FLOAT64_ARRAY, drives.on_message, drives.on_rejected
         )
         publisher = RobotPublisher(joints, poses, names, config.frame_id, spec.pose_stamp)
         driver = ProtocolDriver(protocol, obj)
@@ -314,7 +314,7 @@ def run_double(
         run_end = time.time_ns()
         commands.close()
     finally:
-        session.close()
+        transport.close()
     statuses = dict(report.status_counts)
     summary = {
         "held": loss.lost_at is None,
@@ -337,8 +337,8 @@ def run_double(
 def wait_for_command(
     backend: Any,
     commanded: Callable[[], bool],
-    joints: Publisher,
-    poses: Publisher,
+    joints: TopicPublisher,
+    poses: TopicPublisher,
     names: list[str],
     config: HardwareConfig,
     timeout: float,

@@ -43,7 +43,7 @@ from wholehand.hardware.messages import (
     decode_array,
     decode_joint_trajectory,
 )
-from wholehand.hardware.rmw_zenoh import Node, Publisher, Subscriber, open_session
+from wholehand.hardware.transport import SampleMeta, open_transport
 from wholehand.loop.command import Command, JointTargets
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.reach import FINGER_KD, FINGER_KP, ArmServo
@@ -123,7 +123,7 @@ class RemoteArmHand(Stage):
         self.malformed_arm = 0
         self._lock = threading.Lock()
 
-    def on_arm(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+    def on_arm(self, payload: bytes, meta: SampleMeta, received: float) -> None:
         """A Float64MultiArray or JointTrajectory of arm positions (the controller's order)."""
         try:
             if self.trajectory:
@@ -146,7 +146,7 @@ class RemoteArmHand(Stage):
         """A first command (torque or hand position) has arrived."""
         return self.torque.received > 0 or self.hand_position_messages > 0
 
-    def on_hand_position(self, payload: bytes, attachment: bytes | None, received: float) -> None:
+    def on_hand_position(self, payload: bytes, meta: SampleMeta, received: float) -> None:
         """A Float64MultiArray of hand positions in the torque command's joint order."""
         try:
             data = decode_array(payload)
@@ -311,22 +311,20 @@ def run_episode_double(
     if spec.dropouts:
         tracking["dropouts"] = [list(d) for d in spec.dropouts]
     arm_type = JOINT_TRAJECTORY if config.arm.interface == "trajectory" else FLOAT64_ARRAY
-    session = open_session(config)
+    transport = open_transport(config, DOUBLE_NODE)
     try:
-        node = Node(session, config, DOUBLE_NODE)
-        joints = Publisher(session, config, "joint_states", JOINT_STATE, node)
-        poses = Publisher(session, config, "object_pose", POSE_STAMPED, node)
+        joints = transport.publisher("joint_states", JOINT_STATE)
+        poses = transport.publisher("object_pose", POSE_STAMPED)
+        torque = drives.torque
         subs = [
-            Subscriber(
-                session, config, "torque_command", FLOAT64_ARRAY, drives.torque.on_message, node
+            transport.subscriber(
+                "torque_command", FLOAT64_ARRAY, torque.on_message, torque.on_rejected
             ),
-            Subscriber(session, config, "arm_command", arm_type, drives.on_arm, node),
+            transport.subscriber("arm_command", arm_type, drives.on_arm),
         ]
         if config.topic("hand_position_command"):
             topic = "hand_position_command"
-            subs.append(
-                Subscriber(session, config, topic, FLOAT64_ARRAY, drives.on_hand_position, node)
-            )
+            subs.append(transport.subscriber(topic, FLOAT64_ARRAY, drives.on_hand_position))
         publisher = RobotPublisher(joints, poses, names, config.frame_id, "image")
         pacer = RealTimePacer()
         loop = ControlLoop(
@@ -345,7 +343,7 @@ def run_episode_double(
         for sub in subs:
             sub.close()
     finally:
-        session.close()
+        transport.close()
     events = [asdict(e) for e in script.events]
     return {
         "spec": {**asdict(spec.episode), "latency": spec.latency, "away": spec.away},

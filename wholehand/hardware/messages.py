@@ -57,6 +57,12 @@ def type_hash(msgtype: str) -> str:
     return str(typestore().hash_rihs01(msgtype))
 
 
+def dds_type_name(msgtype: str) -> str:
+    """``sensor_msgs/msg/JointState`` -> ``sensor_msgs::msg::dds_::JointState_``."""
+    pkg, kind, name = msgtype.split("/")
+    return f"{pkg}::{kind}::dds_::{name}_"
+
+
 def stamp_seconds(stamp: Any) -> float:
     """A ``builtin_interfaces/msg/Time`` as seconds."""
     return float(stamp.sec) + 1e-9 * float(stamp.nanosec)

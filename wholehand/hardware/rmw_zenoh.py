@@ -37,15 +37,10 @@ import zenoh.ext
 
 from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig, QoS
-from wholehand.hardware.messages import MessageError, type_hash
+from wholehand.hardware.messages import MessageError, dds_type_name, type_hash
+from wholehand.hardware.transport import Received, Rejected, SampleMeta
 
 GID_BYTES = 16
-
-
-def dds_type_name(msgtype: str) -> str:
-    """``sensor_msgs/msg/JointState`` -> ``sensor_msgs::msg::dds_::JointState_``."""
-    pkg, kind, name = msgtype.split("/")
-    return f"{pkg}::{kind}::dds_::{name}_"
 
 
 def topic_key(domain_id: int, topic: str, msgtype: str, distro: str = "jazzy") -> str:
@@ -231,7 +226,7 @@ class Publisher:
         self._pub.undeclare()
 
 
-Received = Callable[[bytes, bytes | None, float], None]
+RawReceived = Callable[[bytes, bytes | None, float], None]
 """``(payload, attachment or None, receipt time on time.monotonic [s])``."""
 
 
@@ -245,7 +240,7 @@ class Subscriber:
         config: HardwareConfig,
         topic_name: str,
         msgtype: str,
-        callback: Received,
+        callback: RawReceived,
         node: Node | None = None,
     ) -> None:
         self.key = topic_key(config.domain_id, config.topics[topic_name], msgtype, config.distro)
@@ -277,3 +272,49 @@ def _reliability(qos: QoS) -> zenoh.Reliability:
     if qos.reliability == "reliable":
         return zenoh.Reliability.RELIABLE
     return zenoh.Reliability.BEST_EFFORT
+
+
+class ZenohTransport:
+    """A ROS 2 node on zenoh as rmw_zenoh makes one (:class:`~wholehand.hardware.transport.
+    Transport`): a session with the config's endpoints, the node's liveliness tokens, and
+    subscribers that drop samples without rmw_zenoh's attachment (reason ``no_attachment``) or
+    with a malformed one (``bad_attachment``), as rmw_zenoh does."""
+
+    def __init__(self, config: HardwareConfig, node_name: str) -> None:
+        self.config = config
+        self.session = open_session(config)
+        try:
+            self.node = Node(self.session, config, node_name)
+        except Exception:
+            self.session.close()
+            raise
+
+    def publisher(self, topic_name: str, msgtype: str) -> Publisher:
+        return Publisher(self.session, self.config, topic_name, msgtype, self.node)
+
+    def subscriber(
+        self,
+        topic_name: str,
+        msgtype: str,
+        callback: Received,
+        rejected: Rejected | None = None,
+    ) -> Subscriber:
+        def handler(payload: bytes, attachment: bytes | None, received: float) -> None:
+            if attachment is None:
+                if rejected is not None:
+                    rejected("no_attachment", "a sample without rmw_zenoh's attachment")
+                return
+            try:
+                meta = Attachment.decode(attachment)
+            except MessageError as err:
+                if rejected is not None:
+                    rejected("bad_attachment", str(err))
+                return
+            sample = SampleMeta(meta.source_timestamp, meta.gid, meta.sequence_number)
+            callback(payload, sample, received)
+
+        return Subscriber(self.session, self.config, topic_name, msgtype, handler, self.node)
+
+    def close(self) -> None:
+        self.node.close()
+        self.session.close()

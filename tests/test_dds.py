@@ -1,0 +1,181 @@
+"""The DDS transport against ROS 2's conventions: Cyclone DDS's own serialiser writes the same
+bytes as rosbags' for every message, and a second participant sees the names, type names and
+USER_DATA that rmw_cyclonedds writes (the DDS discovery data, read back through Cyclone)."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import pytest
+from cyclonedds.builtin import (
+    BuiltinDataReader,
+    BuiltinTopicDcpsParticipant,
+    BuiltinTopicDcpsPublication,
+)
+from cyclonedds.core import Policy
+from cyclonedds.domain import DomainParticipant
+
+from wholehand.errors import ConfigError
+from wholehand.hardware import messages as msgs
+from wholehand.hardware.config import HardwareConfig, QoS, load_hardware_config
+from wholehand.hardware.dds_messages import IDL_TYPES
+from wholehand.hardware.messages import MessageError
+from wholehand.hardware.ros2_dds import DdsTransport, dds_topic_name, domain_xml, endpoint_qos
+
+DOMAIN = 100 + (os.getpid() + 50) % 100
+"""A domain of this test process alone (apart from test_hardware's)."""
+LOOPBACK = {"dds_interface": "127.0.0.1", "dds_peers": ("127.0.0.1",)}
+
+
+def _config(**changes) -> HardwareConfig:
+    return HardwareConfig(transport="dds", domain_id=DOMAIN, **(LOOPBACK | changes))
+
+
+PAYLOADS = {
+    msgs.JOINT_STATE: msgs.encode_joint_state(
+        1234.5, ["j0", "joint_1"], np.array([0.1, -0.2]), np.array([1.0, 2.0]), np.zeros(2)
+    ),
+    msgs.POSE_STAMPED: msgs.encode_pose(
+        7.25, "world", np.array([[0, -1, 0, 0.1], [1, 0, 0, 0.2], [0, 0, 1, 0.3], [0, 0, 0, 1.0]])
+    ),
+    msgs.FLOAT64_ARRAY: msgs.encode_array([0.5, -0.25, 0.125]),
+    msgs.JOINT_TRAJECTORY: msgs.encode_joint_trajectory(("a", "b"), np.array([0.3, 0.4]), 0.05),
+    msgs.BOOL: msgs.encode_bool(True),
+}
+
+
+@pytest.mark.parametrize("msgtype", sorted(PAYLOADS))
+def test_cyclone_writes_every_message_as_rosbags_does(msgtype):
+    payload = PAYLOADS[msgtype]
+    sample = IDL_TYPES[msgtype].deserialize(payload)
+    assert sample.serialize() == payload
+    assert type(sample).__idl_typename__ == msgs.dds_type_name(msgtype)
+
+
+def test_cyclone_reads_the_fields_rosbags_wrote():
+    js = IDL_TYPES[msgs.JOINT_STATE].deserialize(PAYLOADS[msgs.JOINT_STATE])
+    assert (js.header.stamp.sec, js.header.stamp.nanosec) == (1234, 500_000_000)
+    assert js.name == ["j0", "joint_1"] and js.position == [0.1, -0.2]
+    pose = IDL_TYPES[msgs.POSE_STAMPED].deserialize(PAYLOADS[msgs.POSE_STAMPED])
+    q = pose.pose.orientation  # 90 deg about z
+    np.testing.assert_allclose([q.x, q.y, q.z, q.w], [0, 0, np.sqrt(0.5), np.sqrt(0.5)])
+    assert pose.header.frame_id == "world" and pose.pose.position.z == 0.3
+
+
+def test_topic_names_are_ros2s():
+    assert dds_topic_name("/hand/commands") == "rt/hand/commands"
+    with pytest.raises(ConfigError, match="absolute"):
+        dds_topic_name("joint_states")
+
+
+def test_qos_is_mapped_as_rmw_cyclonedds_maps_it():
+    reliable = endpoint_qos(QoS("reliable", "keep_last", 3), msgs.JOINT_STATE, "jazzy")
+    assert reliable[Policy.History] == Policy.History.KeepLast(3)
+    assert isinstance(reliable[Policy.Reliability], Policy.Reliability.Reliable)
+    assert reliable[Policy.Durability] == Policy.Durability.Volatile
+    digest = msgs.type_hash(msgs.JOINT_STATE)
+    assert reliable[Policy.Userdata].data == f"typehash={digest};".encode()
+    best = endpoint_qos(QoS("best_effort", "keep_all", 1), msgs.BOOL, "humble")
+    assert best[Policy.Reliability] == Policy.Reliability.BestEffort
+    assert best[Policy.History] == Policy.History.KeepAll
+    assert Policy.Userdata not in best  # Humble publishes no type hash
+
+
+def test_domain_settings_become_cyclones_configuration():
+    assert domain_xml(HardwareConfig(transport="dds")) is None
+    xml = domain_xml(HardwareConfig(transport="dds", domain_id=3, dds_interface="eth0"))
+    assert '<Domain Id="3">' in xml and '<NetworkInterface name="eth0"/>' in xml
+    assert "AllowMulticast" not in xml
+    xml = domain_xml(_config())
+    assert '<NetworkInterface address="127.0.0.1"/>' in xml
+    assert "<AllowMulticast>false</AllowMulticast>" in xml and '<Peer address="127.0.0.1"/>' in xml
+
+
+def test_a_second_setting_of_an_open_domain_is_refused():
+    node = DdsTransport(_config(), "first")
+    try:
+        with pytest.raises(ConfigError, match="already open"):
+            DdsTransport(_config(dds_peers=("10.0.0.2",)), "second")
+    finally:
+        node.close()
+
+
+def _until(condition, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+def test_a_sample_crosses_with_its_bytes_and_source_timestamp():
+    config = _config()
+    robot, controller = DdsTransport(config, "robot"), DdsTransport(config, "controller")
+    got = []
+    try:
+        controller.subscriber(
+            "joint_states", msgs.JOINT_STATE, lambda p, meta, t: got.append((p, meta))
+        )
+        pub = robot.publisher("joint_states", msgs.JOINT_STATE)
+        payload = PAYLOADS[msgs.JOINT_STATE]
+
+        def sent() -> bool:
+            pub.put(payload, stamp_ns=1_700_000_000_123_456_789)
+            time.sleep(0.02)
+            return bool(got)
+
+        _until(sent)
+        received, meta = got[0]
+        assert received == payload
+        assert meta.source_timestamp == 1_700_000_000_123_456_789 and len(meta.source) == 16
+        with pytest.raises(MessageError, match="not a sensor_msgs/msg/JointState"):
+            pub.put(b"\x00\x01\x00\x00 garbage")
+    finally:
+        robot.close()
+        controller.close()
+
+
+def test_discovery_carries_ros2s_names_types_and_user_data():
+    node = DdsTransport(_config(), "wholehand_controller")
+    node.publisher("torque_command", msgs.FLOAT64_ARRAY)
+    watcher = DomainParticipant(DOMAIN)
+    try:
+        publications = BuiltinDataReader(watcher, BuiltinTopicDcpsPublication)
+        participants = BuiltinDataReader(watcher, BuiltinTopicDcpsParticipant)
+        found: dict[str, object] = {}
+
+        def seen() -> bool:
+            for s in publications.take(N=32):
+                if s.topic_name.startswith("rt/"):
+                    found[s.topic_name] = s
+            return "rt/hand_effort_controller/commands" in found
+
+        _until(seen)
+        pub = found["rt/hand_effort_controller/commands"]
+        assert pub.type_name == "std_msgs::msg::dds_::Float64MultiArray_"
+        digest = msgs.type_hash(msgs.FLOAT64_ARRAY)
+        assert pub.qos[Policy.Userdata].data == f"typehash={digest};".encode()
+        assert any(
+            Policy.Userdata in p.qos and p.qos[Policy.Userdata].data == b"enclave=/;"
+            for p in participants.read(N=32)
+        )
+    finally:
+        node.close()
+        watcher.__del__()
+
+
+def test_the_transport_and_domain_come_from_the_config_and_the_environment(tmp_path, monkeypatch):
+    path = tmp_path / "ros2.toml"
+    path.write_text(
+        '[ros2]\ntransport = "dds"\ndds_peers = ["192.168.1.10"]\n[joints]\ncommand = ["joint_0"]\n'
+    )
+    monkeypatch.setenv("ROS_DOMAIN_ID", "42")
+    config = load_hardware_config(path)
+    assert (config.transport, config.domain_id, config.dds_peers) == ("dds", 42, ("192.168.1.10",))
+    monkeypatch.setenv("ROS_DOMAIN_ID", "robot")
+    with pytest.raises(ConfigError, match="ROS_DOMAIN_ID='robot'"):
+        load_hardware_config(path)
+    path.write_text('[ros2]\ntransport = "fastdds"\n[joints]\ncommand = ["joint_0"]\n')
+    with pytest.raises(ConfigError, match=r"transport must be one of \('zenoh', 'dds'\)"):
+        load_hardware_config(path)

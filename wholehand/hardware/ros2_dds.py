@@ -1,0 +1,247 @@
+"""ROS 2 topics over DDS, written the way ROS 2's DDS middlewares write them.
+
+A ROS 2 node on rmw_cyclonedds_cpp or rmw_fastrtps_cpp (a stock ROS 2 install) publishes a
+topic ``/name`` as the DDS topic ``rt/name`` of the type ``<pkg>::msg::dds_::<Type>_`` in the
+domain ``ROS_DOMAIN_ID``, with plain little-endian CDR (XCDR1) payloads; from Iron on every
+endpoint's USER_DATA QoS carries ``typehash=RIHS01_<sha256>;`` and the participant's
+``enclave=/;``. This module does the same through Cyclone DDS's Python binding (its wheel
+carries the C library, so no ROS installation is needed): the message types below are the ROS 2
+messages wholehand speaks as Cyclone IDL structs (:mod:`wholehand.hardware.dds_messages`), their
+serialised bytes those of :mod:`wholehand.hardware.messages` (tested byte for byte).
+
+QoS as rmw_cyclonedds maps it: reliable (blocking up to 100 ms; rmw uses forever) or best
+effort, keep last ``depth`` or keep all, volatile, automatic liveliness, no auto-dispose.
+
+Discovery: with ``[ros2] dds_peers`` and ``dds_interface`` empty, Cyclone DDS's defaults (or the
+file in ``$CYCLONEDDS_URI``): multicast discovery on the default interface, as a stock ROS 2
+node. With peers, multicast is off and only those addresses are asked (unicast; what a
+network without multicast, or two processes on one machine, need).
+
+Not done: rmw's ``ros_discovery_info`` topic, which carries node names, so ``ros2 node list``
+does not show wholehand's node (``ros2 topic list`` and ``ros2 topic info`` do show its topics:
+they read DDS's own discovery).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+from xml.sax.saxutils import quoteattr
+
+from cyclonedds.core import DDSException, Listener, Policy, Qos
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.internal import InvalidSample
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+from wholehand.errors import ConfigError
+from wholehand.hardware.config import HardwareConfig, QoS
+from wholehand.hardware.dds_messages import IDL_TYPES
+from wholehand.hardware.messages import MessageError, type_hash
+from wholehand.hardware.transport import Received, Rejected, SampleMeta
+
+TOPIC_PREFIX = "rt"
+"""ROS 2's prefix of a topic's DDS name (``rt/joint_states``)."""
+MAX_BLOCKING = 0.1
+"""Longest a reliable write waits for a full reader queue [s]: a control cycle must not stall
+on a slow reader (rmw_cyclonedds waits forever)."""
+TAKE = 64
+"""Samples taken from a reader per call."""
+
+
+def dds_topic_name(topic: str) -> str:
+    """``/hand/commands`` -> ``rt/hand/commands``."""
+    if not topic.startswith("/"):
+        raise ConfigError(f"topic {topic!r} must be an absolute ROS 2 name, e.g. '/joint_states'")
+    return TOPIC_PREFIX + topic
+
+
+def domain_xml(config: HardwareConfig) -> str | None:
+    """Cyclone DDS's configuration for the config's ``dds_interface`` and ``dds_peers``; None
+    when both are empty (Cyclone's defaults or ``$CYCLONEDDS_URI``)."""
+    if not config.dds_interface and not config.dds_peers:
+        return None
+    general = ""
+    if config.dds_interface:
+        key = "address" if config.dds_interface[:1].isdigit() else "name"
+        general += f"<Interfaces><NetworkInterface {key}={quoteattr(config.dds_interface)}/>"
+        general += "</Interfaces>"
+    discovery = ""
+    if config.dds_peers:
+        general += "<AllowMulticast>false</AllowMulticast>"
+        peers = "".join(f"<Peer address={quoteattr(p)}/>" for p in config.dds_peers)
+        discovery = f"<Discovery><ParticipantIndex>auto</ParticipantIndex><Peers>{peers}</Peers>"
+        discovery += "<MaxAutoParticipantIndex>32</MaxAutoParticipantIndex></Discovery>"
+    return (
+        f'<CycloneDDS><Domain Id="{config.domain_id}"><General>{general}</General>'
+        f"{discovery}</Domain></CycloneDDS>"
+    )
+
+
+_domains: dict[int, tuple[str | None, Domain | None]] = {}
+_domains_lock = threading.Lock()
+
+
+def _domain(config: HardwareConfig) -> None:
+    """Create the process's domain ``domain_id`` with the config's settings (once: Cyclone DDS
+    keeps one configuration per domain and process); a second config asking other settings
+    of the same domain raises :class:`ConfigError`."""
+    xml = domain_xml(config)
+    with _domains_lock:
+        if config.domain_id in _domains:
+            if _domains[config.domain_id][0] != xml:
+                raise ConfigError(
+                    f"{config.path or 'hardware config'}: DDS domain {config.domain_id} is "
+                    "already open in this process with other [ros2] dds_interface / dds_peers "
+                    "settings; use one setting per domain and process"
+                )
+            return
+        try:
+            domain = None if xml is None else Domain(config.domain_id, xml)
+        except DDSException as err:
+            raise ConfigError(
+                f"{config.path or 'hardware config'}: Cyclone DDS refused [ros2] dds_interface="
+                f"{config.dds_interface!r} dds_peers={list(config.dds_peers)}: {err}; name an "
+                "interface of this machine (ip link) and peer addresses it can reach"
+            ) from err
+        _domains[config.domain_id] = (xml, domain)
+
+
+def endpoint_qos(qos: QoS, msgtype: str, distro: str) -> Qos:
+    """A ROS 2 QoS profile as rmw_cyclonedds writes it into DDS QoS, with the type hash in
+    USER_DATA (not on Humble)."""
+    if qos.reliability == "reliable":
+        reliability = Policy.Reliability.Reliable(duration(seconds=MAX_BLOCKING))
+    else:
+        reliability = Policy.Reliability.BestEffort
+    history = (
+        Policy.History.KeepAll if qos.history == "keep_all" else Policy.History.KeepLast(qos.depth)
+    )
+    policies: list[Any] = [
+        reliability,
+        history,
+        Policy.Durability.Volatile,
+        Policy.Liveliness.Automatic(duration(infinite=True)),
+        Policy.WriterDataLifecycle(autodispose=False),
+    ]
+    if distro != "humble":
+        policies.append(Policy.Userdata(f"typehash={type_hash(msgtype)};".encode()))
+    return Qos(*policies)
+
+
+class DdsPublisher:
+    """Publishes CDR payloads on one ROS 2 topic over DDS (:class:`~wholehand.hardware.
+    transport.TopicPublisher`)."""
+
+    def __init__(self, participant: DomainParticipant, config: HardwareConfig, topic_name: str,
+                 msgtype: str) -> None:  # fmt: skip
+        self.idl, self.msgtype = IDL_TYPES[msgtype], msgtype
+        topic = Topic(participant, dds_topic_name(config.topics[topic_name]), self.idl)
+        qos = endpoint_qos(config.qos_of(topic_name), msgtype, config.distro)
+        self._writer = DataWriter(participant, topic, qos=qos)
+        self.sequence_number = 0
+        self._lock = threading.Lock()
+
+    def put(self, payload: bytes, stamp_ns: int | None = None) -> int:
+        """Publish ``payload`` (a CDR message of the topic's type); returns its source timestamp
+        [ns, system clock] (``stamp_ns``, or now). Raises :class:`MessageError` when
+        ``payload`` is not such a message."""
+        try:
+            sample = self.idl.deserialize(payload)
+        except Exception as err:  # noqa: BLE001 - any decoder failure: not this message
+            raise MessageError(f"payload of {len(payload)} bytes is not a {self.msgtype}") from err
+        with self._lock:
+            self.sequence_number += 1
+            stamp = time.time_ns() if stamp_ns is None else int(stamp_ns)
+            self._writer.write(sample, timestamp=stamp)
+        return stamp
+
+    def close(self) -> None:
+        self._writer.__del__()  # Cyclone's Python entities are deleted this way
+
+
+class DdsSubscriber:
+    """Calls ``callback`` from Cyclone DDS's thread for every sample of one ROS 2 topic
+    (:class:`~wholehand.hardware.transport.TopicSubscriber`); a sample that does not
+    re-serialise goes to ``rejected`` as ``malformed``."""
+
+    def __init__(self, participant: DomainParticipant, config: HardwareConfig, topic_name: str,
+                 msgtype: str, callback: Received,
+                 rejected: Rejected | None = None) -> None:  # fmt: skip
+        self.idl = IDL_TYPES[msgtype]
+        topic = Topic(participant, dds_topic_name(config.topics[topic_name]), self.idl)
+        qos = endpoint_qos(config.qos_of(topic_name), msgtype, config.distro)
+        self._callback, self._rejected = callback, rejected
+        self._closed = False
+        self._reader = DataReader(
+            participant, topic, qos=qos, listener=Listener(on_data_available=self._on_data)
+        )
+
+    def _on_data(self, reader: DataReader[Any]) -> None:
+        received = time.monotonic()
+        try:
+            samples = reader.take(N=TAKE)
+        except Exception as err:  # noqa: BLE001 - a sample Cyclone cannot decode is malformed
+            if self._rejected is not None:
+                self._rejected("malformed", f"a DDS sample that does not decode: {err}")
+            return
+        for sample in samples:
+            if self._closed or isinstance(sample, InvalidSample):
+                continue  # a writer left (an instance state change, not data)
+            info = sample.sample_info
+            meta = SampleMeta(
+                int(info.source_timestamp), int(info.publication_handle).to_bytes(16, "little")
+            )
+            self._callback(sample.serialize(), meta, received)
+
+    def close(self) -> None:
+        self._closed = True
+        self._reader.__del__()
+
+
+class DdsTransport:
+    """A ROS 2 node on DDS (module docstring; :class:`~wholehand.hardware.transport.Transport`):
+    a participant of the config's domain with ROS 2's participant USER_DATA."""
+
+    def __init__(self, config: HardwareConfig, node_name: str) -> None:
+        self.config, self.node_name = config, node_name
+        _domain(config)
+        try:
+            self.participant = DomainParticipant(
+                config.domain_id, qos=Qos(Policy.Userdata(b"enclave=/;"))
+            )
+        except DDSException as err:
+            raise ConfigError(
+                f"{config.path or 'hardware config'}: Cyclone DDS could not join domain "
+                f"{config.domain_id}: {err}"
+            ) from err
+        self._subscribers: list[DdsSubscriber] = []
+        self._publishers: list[DdsPublisher] = []  # Cyclone deletes an entity no one holds
+
+    def publisher(self, topic_name: str, msgtype: str) -> DdsPublisher:
+        pub = DdsPublisher(self.participant, self.config, topic_name, msgtype)
+        self._publishers.append(pub)
+        return pub
+
+    def subscriber(
+        self,
+        topic_name: str,
+        msgtype: str,
+        callback: Received,
+        rejected: Rejected | None = None,
+    ) -> DdsSubscriber:
+        sub = DdsSubscriber(self.participant, self.config, topic_name, msgtype, callback, rejected)
+        self._subscribers.append(sub)
+        return sub
+
+    def close(self) -> None:
+        for sub in self._subscribers:
+            sub.close()
+        for pub in self._publishers:
+            pub.close()
+        self._subscribers.clear()
+        self._publishers.clear()
+        self.participant.__del__()

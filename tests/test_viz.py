@@ -355,3 +355,51 @@ def test_a_table_is_drawn_where_it_stands(hand, obj):
     matrix = np.asarray(umsgpack.unpackb(node.transform)["matrix"], dtype=float)
     # meshcat stores the 4x4 transform column by column; the box's centre is 2 cm below the top
     np.testing.assert_allclose(matrix.reshape(4, 4).T[:3, 3], [0.2, -0.1, 0.08], atol=1e-6)
+
+
+def test_the_camera_frames_every_point_of_the_scene():
+    from wholehand.viz.scene import CAMERA_FOV_DEG, framing
+
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-0.4, 0.4, size=(200, 3)) + [0.5, 0.0, 0.3]
+    target, offset = framing(points)
+    camera = target + np.asarray(offset)
+    axis = (target - camera) / np.linalg.norm(target - camera)
+    rays = points - camera
+    angles = np.degrees(np.arccos(rays @ axis / np.linalg.norm(rays, axis=1)))
+    assert angles.max() < 0.5 * CAMERA_FOV_DEG  # every point within the vertical field of view
+    assert angles.max() > 0.3 * CAMERA_FOV_DEG  # and the scene fills a good part of it
+    near, _ = framing([[1.0, 2.0, 3.0]])  # a single point: a small sphere about it
+    np.testing.assert_allclose(near, [1.0, 2.0, 3.0])
+
+
+def test_a_reach_recording_shows_hand_object_and_table_in_chromium(tmp_path, hand, obj, record):
+    """A reach's start: the hand between the object and where a camera aimed at the object
+    alone would stand (as the arm's start put it in `wholehand reach`), on a table. The camera
+    frames them: the palm must not fill the page, nor the object be a sliver."""
+    from wholehand.backends.table import Table
+
+    n = len(record.rows["t"])
+    reach = RunRecord(meta={**record.meta, "table": Table(top=-0.1, size=(0.8, 0.8)).__dict__})
+    reach.phases = ["run"]
+    start = hand.wMb.copy()
+    start[:3, 3] = record.rows["p_object"][0] + [0.07, 0.1, 0.12]
+    for i in range(n):
+        base = start
+        values = {key: record.rows[key][i] for key in RunRecord.FIELDS if key in record.rows}
+        values.update(p_base=base[:3, 3].copy(), r_base=pin.log3(base[:3, :3]))
+        reach.append(**values, **record.contacts_at(i))
+    html = write_html(reach, tmp_path / "reach.html", hand, obj)
+    img = screenshot(html, tmp_path / "shot.png", tmp_path / "profile").astype(int)
+    scene = np.ones(img.shape[:2], dtype=bool)
+    scene[:30, :] = False
+    scene[-300:, :170] = False
+    grey = (img.max(axis=2) - img.min(axis=2) < 20) & (img.max(axis=2) < 120) & scene
+    teal = (img[..., 1] > img[..., 0] + 40) & (img[..., 2] > img[..., 0] + 30) & scene
+    brown = (img[..., 0] > img[..., 2] + 25) & (img[..., 1] > img[..., 2] + 10) & scene
+    assert 300 < grey.sum() < 0.4 * scene.sum(), f"hand pixels: {grey.sum()}"
+    assert teal.sum() > 300, f"object pixels: {teal.sum()}"
+    assert brown.sum() > 1000, f"table pixels: {brown.sum()}"
+    rows, cols = np.nonzero(grey | teal)
+    h, w = img.shape[:2]
+    assert 0.1 * h < rows.mean() < 0.9 * h and 0.1 * w < cols.mean() < 0.9 * w

@@ -26,6 +26,20 @@ def _config(args: argparse.Namespace) -> Any:
     return config
 
 
+def _recorders(args: argparse.Namespace, spec: object) -> list[Any]:
+    """The MCAP recorder of ``--record``, if given."""
+    if not args.record:
+        return []
+    from dataclasses import asdict, is_dataclass
+
+    from wholehand.loop.mcap_recording import McapRecorder
+
+    info: dict[str, Any] = {"hand": args.hand, "object": args.object}
+    if is_dataclass(spec) and not isinstance(spec, type):
+        info["spec"] = asdict(spec)
+    return [McapRecorder(args.record, info)]
+
+
 def _write(result: dict[str, Any], path: str | None, summary: dict[str, Any]) -> None:
     print(json.dumps(summary, indent=2))
     if path:
@@ -56,6 +70,7 @@ def _cmd_control(args: argparse.Namespace) -> int:
         args.duration,
         trace=bool(args.json),
         announce=lambda line: print(line, file=sys.stderr, flush=True),
+        observers=_recorders(args, spec),
     )
     _write(result, args.json, {k: v for k, v in result.items() if k != "trace"})
     return 0
@@ -88,7 +103,7 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
         gravity=args.gravity,
         protocol_params=params,
     )
-    summary, record = run_double(spec, _config(args), args.wait)
+    summary, record = run_double(spec, _config(args), args.wait, observers=_recorders(args, spec))
     if args.save:
         record.save(args.save)
     _write(summary, args.json, {k: v for k, v in summary.items() if k != "arrivals"})
@@ -114,7 +129,7 @@ def _episode_double(args: argparse.Namespace) -> int:
         command_timeout=args.command_timeout,
         away=None if args.away is None else (float(args.away[0]), float(args.away[1])),
     )
-    summary = run_episode_double(spec, _config(args), args.wait)
+    summary = run_episode_double(spec, _config(args), args.wait, _recorders(args, spec))
     _write(summary, args.json, summary)
     return 0
 
@@ -147,6 +162,12 @@ def _endpoints(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
     p.add_argument("--object", default="077_rubiks_cube", help="the grasped object")
     p.add_argument("--json", help="write the full result (with timings) to this JSON file")
+    p.add_argument(
+        "--record",
+        metavar="RUN.mcap",
+        help="record every cycle as an MCAP file of ROS 2 messages (Foxglove, ros2 bag play, "
+        "`wholehand view`)",
+    )
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

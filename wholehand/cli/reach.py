@@ -55,7 +55,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--allocator", default="qp", help="allocator plug-in")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--save", default=None, help="write the summary (JSON) here")
-    p.add_argument("--record", default=None, help="write the run record (.npz) here")
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="RUN.npz|RUN.mcap",
+        help="write the run here: .npz, wholehand's run record; .mcap, ROS 2 messages "
+        "(Foxglove, ros2 bag play); both replay with `wholehand view`",
+    )
     p.add_argument("--record-html", default=None, help="write a standalone HTML animation here")
     p.add_argument("--view", action="store_true", help="watch it live in meshcat (prints the URL)")
     p.add_argument("--view-every", type=int, default=8, help="--view: draw every n-th cycle")
@@ -88,8 +94,18 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         start=args.start,
         **extra,
     )
-    recording = bool(args.record or args.record_html)
-    observers = []
+    mcap = bool(args.record) and Path(args.record).suffix == ".mcap"
+    recording = bool(args.record_html) or (bool(args.record) and not mcap)
+    observers: list[Any] = []
+    if mcap:
+        from dataclasses import asdict
+
+        from wholehand.loop.mcap_recording import McapRecorder
+        from wholehand.models.hand import load_hand
+        from wholehand.reaching.episode import episode_table
+
+        surface = asdict(episode_table(load_hand(spec.hand)))
+        observers.append(McapRecorder(args.record, {"spec": asdict(spec), "table": surface}))
     if args.view:
         from wholehand.cli.run import live_view
         from wholehand.models.hand import load_hand
@@ -99,7 +115,9 @@ def _cmd_reach(args: argparse.Namespace) -> int:
         observers.append(live_view(spec, args.view_every, table))
     summary = run_episode(spec, record=recording, observers=observers)
     record = summary.pop("record", None)
-    if args.record:
+    if mcap:
+        print(f"recording: {args.record}")
+    elif args.record:
         print(f"run record: {record.save(Path(args.record))}")
     if args.record_html:
         from wholehand.viz.replay import write_html

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -102,6 +103,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--view-every", type=int, default=8, help="--view: draw every n-th cycle")
     p.add_argument("--record-html", default=None, help="write a standalone HTML animation here")
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="RUN.mcap",
+        help="write the run as an MCAP file of ROS 2 messages (Foxglove, ros2 bag play, "
+        "`wholehand view`)",
+    )
     p.add_argument("--plot", default=None, help="write the per-run PNG here")
     p.set_defaults(func=_cmd_run)
 
@@ -197,11 +205,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
         estimate_at=args.estimate_at,
     )
     observers = [live_view(spec, args.view_every)] if args.view else []
+    if args.record:
+        from wholehand.loop.mcap_recording import McapRecorder
+
+        observers.append(McapRecorder(args.record, {"spec": dataclasses.asdict(spec)}))
     if args.protocol == "dexgraspbench":
         return _load_test(args, spec, observers)
     record = run_trial(spec, obj=_object(obj, args.sdf_spacing), observers=observers)
     if args.save:
         print(f"run record: {record.save(Path(args.save))}")
+    if args.record:
+        print(f"recording: {args.record}")
     if args.record_html:
         from wholehand.viz.replay import write_html
 
@@ -235,7 +249,7 @@ def _load_test(args: argparse.Namespace, spec: Any, observers: list[Observer]) -
     from wholehand.loop.dexgraspbench import FRICTION, run_load_test
     from wholehand.models.hand import load_hand
 
-    for flag in ("save", "record_html", "plot"):
+    for flag in ("save", "record_html", "plot", "record"):
         if getattr(args, flag):
             raise ConfigError(
                 f"--{flag.replace('_', '-')} records one run of the paper's protocol; "
@@ -269,7 +283,7 @@ def live_view(spec: Any, every: int, table: Table | None = None) -> Observer:
     from wholehand.loop.control_loop import Observer
     from wholehand.models.hand import load_hand
     from wholehand.models.object_catalogue import load_object
-    from wholehand.viz.scene import SceneViewer
+    from wholehand.viz.scene import SceneViewer, scene_points
 
     hand, obj = load_hand(spec.hand), load_object(spec.object)
     viewer = SceneViewer.live(hand, obj)
@@ -282,7 +296,9 @@ def live_view(spec: Any, every: int, table: Table | None = None) -> Observer:
             if cycle.index % max(1, every) or truth.wMo is None:
                 return None
             if cycle.index == 0:
-                viewer.set_camera(truth.wMo[:3, 3])
+                radius = 0.5 * float(np.linalg.norm(obj.mesh.extents))
+                states = [(truth.q, truth.wMb)]
+                viewer.frame(scene_points(hand, states, [(truth.wMo[:3, 3], radius)]))
             p = _NONE if out.contacts is None else out.contacts.p_world
             f = _NONE if out.allocation is None else out.allocation.f_world
             viewer.update(truth.q, truth.wMo, p, f, truth.wMb)

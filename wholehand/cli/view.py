@@ -9,12 +9,13 @@ from pathlib import Path
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "view",
-        help="replay a run record (.npz from `wholehand run --save`) in meshcat or write files",
+        help="replay a run record (.npz from `wholehand run --save`, or an .mcap recording from "
+        "--record) in meshcat or write files",
         description="With no output option, starts meshcat's local viewer (no network needed), "
         "prints its URL and plays the record. --html writes a standalone animation that opens "
         "offline; --plot writes the per-run PNG (contacts, residual wrench, torques, QP time).",
     )
-    p.add_argument("record", help="run record (.npz)")
+    p.add_argument("record", help="run record (.npz) or recording (.mcap)")
     p.add_argument("--html", default=None, help="write a standalone HTML animation here")
     p.add_argument("--plot", default=None, help="write the per-run PNG here")
     p.add_argument(
@@ -36,9 +37,15 @@ def _cmd_view(args: argparse.Namespace) -> int:
     path = Path(args.record)
     if not path.is_file():
         raise ConfigError(
-            f"wholehand view: no run record at {path}; write one with `wholehand run --save`"
+            f"wholehand view: no run record at {path}; write one with `wholehand run --save` "
+            "or `--record run.mcap`"
         )
-    record = RunRecord.load(path)
+    if path.suffix == ".mcap":
+        from wholehand.loop.mcap_recording import read_mcap_record
+
+        record = read_mcap_record(path)
+    else:
+        record = RunRecord.load(path)
     if args.plot:
         from wholehand.viz.plots import plot_run
 
@@ -57,7 +64,12 @@ def _cmd_view(args: argparse.Namespace) -> int:
     if args.plot or args.html:
         return 0
     from wholehand.viz.arrows import FORCE_ARROW_MIN_N
-    from wholehand.viz.replay import load_models, record_colour_scale, replay_live
+    from wholehand.viz.replay import (
+        load_models,
+        record_colour_scale,
+        record_scene_points,
+        replay_live,
+    )
     from wholehand.viz.scene import SceneViewer
 
     hand, obj = load_models(record)
@@ -69,8 +81,12 @@ def _cmd_view(args: argparse.Namespace) -> int:
         min_force=threshold,
         distance_colours=args.distance_colours,
     )
+    if record.meta.get("table"):
+        from wholehand.backends.table import Table
+
+        viewer.draw_table(Table(**record.meta["table"]))
     if record.rows.get("p_object"):
-        viewer.set_camera(record.rows["p_object"][0])
+        viewer.frame(record_scene_points(record, hand, obj))
     try:
         while True:
             replay_live(record, viewer, speed=args.speed, fps=args.fps)

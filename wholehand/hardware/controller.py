@@ -18,7 +18,7 @@ import inspect
 import signal
 import threading
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -225,6 +225,7 @@ def run_controller(
     wait: float = STREAM_TIMEOUT,
     announce: Callable[[str], None] | None = None,
     stop: Callable[[], object] | None = None,
+    observers: Sequence[Observer] = (),
 ) -> dict[str, Any]:
     """Wait for the robot's streams, then run the pipeline (an arm-hand assembly) or force
     regulation (a hand alone) against it; returns a JSON-ready report (``mode``, ``loop`` with
@@ -281,7 +282,7 @@ def run_controller(
                 stages,
                 first=first_stage,
                 rate=config.control_rate,
-                observers=[stopper],
+                observers=[stopper, *observers],
                 gate=gate,
             )
             report = loop.run(duration)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -240,6 +240,7 @@ def run_double(
     wait_for_controller: float = 30.0,
     hand: HandModel | None = None,
     obj: ObjectModel | None = None,
+    observers: Sequence[Observer] = (),
 ) -> tuple[dict[str, Any], RunRecord]:
     """Play the robot: wait for the first torque command, then run the protocol in real time.
 
@@ -298,7 +299,7 @@ def run_double(
             drives,
             rate=rate,
             filters=tracking_filters(tracking, obj.com),
-            observers=[driver, loss, recorder, publisher, pacer],
+            observers=[driver, loss, recorder, publisher, *observers, pacer],
         )
         # Everything is built and the compiled checks loaded (~0.2 s on their first call)
         # before the wait: the streams go on without a gap when it ends.

@@ -18,6 +18,7 @@ rate with its latency, noise and dropouts, as in :mod:`wholehand.hardware.double
 from __future__ import annotations
 
 import threading
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -254,7 +255,10 @@ class CarryAway(Observer):
 
 
 def run_episode_double(
-    spec: EpisodeDoubleSpec, config: HardwareConfig, wait_for_controller: float = 30.0
+    spec: EpisodeDoubleSpec,
+    config: HardwareConfig,
+    wait_for_controller: float = 30.0,
+    observers: Sequence[Observer] = (),
 ) -> dict[str, Any]:
     """Play the robot through the episode of ``spec``: wait for the first torque command, then
     run in real time until the person's script ends or ``episode.duration`` has passed.
@@ -334,7 +338,7 @@ def run_episode_double(
             drives,
             rate=config.joint_state_rate,
             filters=tracking_filters(tracking, obj.com),
-            observers=[script, publisher, pacer],
+            observers=[script, publisher, *observers, pacer],
         )
         wait_for_command(
             backend, drives.commanded, joints, poses, names, config, wait_for_controller

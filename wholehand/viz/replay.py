@@ -70,6 +70,28 @@ def frame_cycles(record: RunRecord, fps: float = REPLAY_FPS) -> IntArray:
     return cycles.astype(np.intp)
 
 
+FRAMING_SAMPLES = 12
+"""Cycles of a record whose hand poses the camera frames."""
+
+
+def record_scene_points(record: RunRecord, hand: HandModel, obj: ObjectModel) -> FloatArray:
+    """Points (N, 3) a camera must show to see the whole record: the hand at
+    :data:`FRAMING_SAMPLES` cycles spread over it and the object along its path
+    (:func:`~wholehand.viz.scene.scene_points`)."""
+    from wholehand.viz.scene import scene_points
+
+    n = len(record.rows.get("t", []))
+    if n == 0:
+        return np.zeros((0, 3))
+    cycles = np.unique(np.linspace(0, n - 1, min(n, FRAMING_SAMPLES)).astype(int))
+    states = [
+        (np.asarray(record.rows["q"][i], dtype=float), base_pose(record, int(i))) for i in cycles
+    ]
+    radius = 0.5 * float(np.linalg.norm(obj.mesh.extents))
+    path = np.asarray(record.rows["p_object"], dtype=float)[:: max(1, n // 200)]
+    return scene_points(hand, states, [(p, radius) for p in path])
+
+
 def record_colour_scale(record: RunRecord, min_force: float) -> ColourScale:
     """A force colour scale covering every commanded force of the record."""
     forces = record.rows.get("contact_f", [])
@@ -175,7 +197,7 @@ def write_html(
 
         viewer.draw_table(Table(**record.meta["table"]))
     if record.rows.get("t"):
-        viewer.set_camera(np.asarray(record.rows["p_object"][0], dtype=float))
+        viewer.frame(record_scene_points(record, hand, obj))
         if distance_colours:
             i = busiest_cycle(record)
             c = record.contacts_at(i)

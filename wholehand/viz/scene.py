@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import base64
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
@@ -364,6 +365,11 @@ class SceneViewer:
         if self.distance_colours:
             self.colour_distances(self.last_contact_p)
 
+    def frame(self, points: npt.ArrayLike) -> None:
+        """Point the camera at a scene spanning ``points`` (N, 3) [m, world] so that all of
+        it is in view (:func:`framing`)."""
+        self.set_camera(*framing(points))
+
     def set_camera(
         self, target: FloatArray, offset: tuple[float, float, float] = (0.16, 0.1, 0.13)
     ) -> None:
@@ -386,6 +392,50 @@ class SceneViewer:
         if not isinstance(window, RecordingWindow):
             return self.vis.static_html()
         return window.get_scene(self.legend_overlay_html() if overlay else "")
+
+
+CAMERA_FOV_DEG = 75.0
+"""Vertical field of view of meshcat's default camera [deg]."""
+VIEW_DIRECTION = np.array([0.16, 0.1, 0.13]) / np.linalg.norm([0.16, 0.1, 0.13])
+"""From the scene's centre towards the camera: in front, to the side and above (world)."""
+
+
+def framing(
+    points: npt.ArrayLike, min_radius: float = 0.08, margin: float = 1.15
+) -> tuple[FloatArray, tuple[float, float, float]]:
+    """Camera target (3,) and offset (world) [m] that show every one of ``points`` (N, 3):
+    the target at the centre of their bounding box, the camera along :data:`VIEW_DIRECTION`
+    far enough for a sphere around the box (at least ``min_radius``) to fill ``1/margin`` of
+    the view's height. Non-finite points are left out."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if not len(pts):
+        return np.zeros(3), cast(tuple[float, float, float], tuple(0.3 * VIEW_DIRECTION))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), min_radius)
+    distance = margin * radius / np.sin(np.radians(0.5 * CAMERA_FOV_DEG))
+    offset = distance * VIEW_DIRECTION
+    return 0.5 * (lo + hi), (float(offset[0]), float(offset[1]), float(offset[2]))
+
+
+def scene_points(
+    hand: HandModel,
+    states: Sequence[tuple[FloatArray, FloatArray | None]],
+    objects: Sequence[tuple[FloatArray, float]],
+) -> FloatArray:
+    """Points (N, 3) [m, world] a camera must show: the origin of every link of the hand at
+    each ``(q, wMb)`` of ``states`` (``wMb`` None: the hand's mount) and the six extreme points
+    of a sphere about each ``(centre, radius)`` of ``objects``. (A table under them shows from
+    :data:`VIEW_DIRECTION`, which looks down on the scene.)"""
+    kin = HandKinematics(hand)
+    out = []
+    for q, wMb in states:
+        kin.update(q, hand.wMb if wMb is None else wMb)
+        out += [kin.frame_pose(name)[:3, 3] for name in hand.all_link_names]
+    for centre, radius in objects:
+        c = np.asarray(centre, dtype=float)
+        out += [c + radius * d for d in np.concatenate((np.eye(3), -np.eye(3)))]
+    return np.asarray(out, dtype=float).reshape(-1, 3)
 
 
 class _OnTop(mg.Mesh):

@@ -1,0 +1,147 @@
+"""MCAP recordings read back with an independent reader (``mcap`` + ``mcap_ros2``'s CDR decoder,
+not the rosbags that wrote them) and checked against the run's own record, cycle by cycle."""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from urllib.parse import urlparse
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from wholehand.errors import ConfigError
+from wholehand.loop.mcap_recording import ARROW_SCALE, TOPICS, McapRecorder, read_mcap_record
+from wholehand.loop.trial import TrialSpec, run_trial
+
+QUICK = {"settle_time": 0.3, "load_duration": 0.1}
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """A short perturbation trial with the recorder beside the run's own record."""
+    path = tmp_path_factory.mktemp("mcap") / "run.mcap"
+    spec = TrialSpec(theta_deg=60.0, protocol_params=QUICK)
+    record = run_trial(spec, observers=[McapRecorder(path, {"spec": {"hand": spec.hand}})])
+    return path, record
+
+
+def _read(path: Path):
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        header = reader.get_header()
+        summary = reader.get_summary()
+        messages: dict[str, list] = {}
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            messages.setdefault(channel.topic, []).append((message.log_time, decoded))
+    return header, summary, messages
+
+
+def test_the_file_follows_rosbag2s_mcap_conventions(recorded):
+    path, _ = recorded
+    header, summary, _ = _read(path)
+    assert header.profile == "ros2"
+    assert {c.topic for c in summary.channels.values()} == set(TOPICS)
+    for channel in summary.channels.values():
+        schema = summary.schemas[channel.schema_id]
+        assert channel.message_encoding == "cdr" and schema.encoding == "ros2msg"
+        assert schema.name == TOPICS[channel.topic][0]
+        latched = TOPICS[channel.topic][1]
+        assert f"durability: {1 if latched else 2}" in channel.metadata["offered_qos_profiles"]
+
+
+def test_every_cycle_carries_the_records_state_torques_and_forces(recorded):
+    path, record = recorded
+    _, _, msgs = _read(path)
+    n = len(record.rows["t"])
+    for topic in ("/joint_states", "/tf", "/wholehand/torque_command", "/wholehand/contacts"):
+        assert len(msgs[topic]) == n, topic
+    names = json.loads(msgs["/wholehand/run_info"][0][1].data)["joint_names"]
+    for i in (0, n // 2, n - 1):
+        stamp, js = msgs["/joint_states"][i]
+        assert list(js.name) == names
+        np.testing.assert_array_equal(js.position, record.rows["q"][i])
+        np.testing.assert_array_equal(
+            msgs["/wholehand/torque_command"][i][1].data, record.rows["tau"][i]
+        )
+        tf = {t.child_frame_id: t.transform for t in msgs["/tf"][i][1].transforms}
+        v = tf["object"].translation
+        np.testing.assert_allclose([v.x, v.y, v.z], record.rows["p_object"][i], atol=1e-12)
+        assert js.header.stamp.sec + 1e-9 * js.header.stamp.nanosec == pytest.approx(
+            1e-9 * stamp, abs=1e-9
+        )
+        lines = {m.ns: m for m in msgs["/wholehand/contacts"][i][1].markers}["forces"]
+        ends = np.array([[p.x, p.y, p.z] for p in lines.points]).reshape(-1, 2, 3)
+        contacts = record.contacts_at(i)
+        np.testing.assert_allclose(ends[:, 0], contacts["contact_p"], atol=1e-12)
+        f = (ends[:, 1] - ends[:, 0]) / ARROW_SCALE
+        np.testing.assert_allclose(f, contacts["contact_f"], atol=1e-9)
+        w = msgs["/wholehand/residual_wrench"][i][1].wrench
+        np.testing.assert_allclose(
+            [w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z],
+            record.rows["residual_wrench"][i],
+        )
+    statuses = [m.data for _, m in msgs["/wholehand/status"]]
+    assert statuses[0] == f"{record.rows['stage'][0]}: {record.rows['status'][0]}"
+    assert msgs["/wholehand/stage"][0][1].data == f"start: {record.rows['stage'][0]}"
+
+
+def test_the_robot_description_draws_the_hand_from_files_that_exist(recorded):
+    path, _ = recorded
+    _, _, msgs = _read(path)
+    urdf = ET.fromstring(msgs["/robot_description"][0][1].data)
+    meshes = [m.get("filename", "") for m in urdf.iter("mesh")]
+    assert meshes and all(Path(urlparse(uri).path).is_file() for uri in meshes)
+    links = {link.get("name") for link in urdf.iter("link")}
+    frames = {t.child_frame_id for t in msgs["/tf"][0][1].transforms}
+    assert links <= frames  # every link of the model has its transform
+
+
+def test_a_recording_reads_back_as_the_run_record(recorded):
+    path, record = recorded
+    again = read_mcap_record(path)
+    assert again.meta["spec"]["hand"] == "allegro_right"
+    assert len(again.rows["t"]) == len(record.rows["t"])
+    for key in ("q", "tau", "p_object", "n_contacts", "stage", "status"):
+        np.testing.assert_array_equal(np.asarray(again.rows[key]), np.asarray(record.rows[key]))
+    np.testing.assert_allclose(again.rows["r_object"], record.rows["r_object"], atol=1e-9)
+    i = len(record.rows["t"]) // 2
+    np.testing.assert_allclose(
+        again.contacts_at(i)["contact_f"], record.contacts_at(i)["contact_f"], atol=1e-9
+    )
+
+
+def test_reading_names_a_missing_or_foreign_file(tmp_path):
+    with pytest.raises(ConfigError, match="no MCAP recording"):
+        read_mcap_record(tmp_path / "none.mcap")
+    from mcap.writer import Writer
+
+    other = tmp_path / "other.mcap"
+    with open(other, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2")
+        writer.finish()
+    with pytest.raises(ConfigError, match="no /wholehand/run_info"):
+        read_mcap_record(other)
+
+
+def test_a_failing_recording_stops_itself_not_the_run(tmp_path, monkeypatch):
+    from wholehand.loop import mcap_recording
+
+    calls = {"n": 0}
+    write = mcap_recording.McapWriter.write
+
+    def full_disk(self, topic, message, t):
+        calls["n"] += 1
+        if calls["n"] > 50:
+            raise OSError(28, "No space left on device")
+        write(self, topic, message, t)
+
+    monkeypatch.setattr(mcap_recording.McapWriter, "write", full_disk)
+    recorder = McapRecorder(tmp_path / "run.mcap")
+    record = run_trial(TrialSpec(protocol_params=QUICK), observers=[recorder])
+    assert record.meta["loop"]["n_errors"] == 0 and len(record.rows["t"]) > 100
+    assert "No space left on device" in recorder.stopped and recorder.stopped.startswith("t = ")

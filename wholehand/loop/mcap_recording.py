@@ -1,0 +1,582 @@
+"""Runs recorded as MCAP files of standard ROS 2 messages, for Foxglove, PlotJuggler, RViz and
+``ros2 bag play``.
+
+The file follows rosbag2's MCAP storage: profile ``ros2``, one schema per message type
+(``ros2msg``, the definition with its dependencies, ROS 2 Jazzy's), CDR messages, each
+channel's ``offered_qos_profiles``. Every message is stamped (header and log time) with the
+run's time: the backend's clock [s], from 0 in a simulation, the system clock on a robot.
+
+Topics (frames: ``world``, every link of the model by its name, and ``object``):
+
+==================================  ==================================  =====================
+``/robot_description``              ``std_msgs/msg/String``             the model's URDF, mesh
+                                                                        paths as file:// URIs
+                                                                        (once, latched)
+``/tf``                             ``tf2_msgs/msg/TFMessage``          world -> each link and
+                                                                        -> ``object``
+``/joint_states``                   ``sensor_msgs/msg/JointState``      q, dq and the applied
+                                                                        torques as efforts
+``/object_pose``                    ``geometry_msgs/msg/PoseStamped``   the pose the controller
+                                                                        saw
+``/wholehand/scene``                ``visualization_msgs/msg/           the object's mesh (its
+                                    MarkerArray``                       triangles in
+                                                                        ``object``) and the
+                                                                        table (latched)
+``/wholehand/torque_command``       ``std_msgs/msg/Float64MultiArray``  the applied torques
+                                                                        [N*m], model order
+``/wholehand/joint_targets``        ``sensor_msgs/msg/JointState``      position targets (arm,
+                                                                        reacher), when any
+``/wholehand/contacts``             ``visualization_msgs/msg/           the contact points and
+                                    MarkerArray``                       their forces, coloured
+                                                                        by magnitude
+``/wholehand/residual_wrench``      ``geometry_msgs/msg/WrenchStamped`` the allocation's net
+                                                                        wrench, object's CoM
+``/wholehand/status``               ``std_msgs/msg/String``             ``<stage>: <status>``
+                                                                        every cycle
+``/wholehand/stage``                ``std_msgs/msg/String``             the first stage, then
+                                                                        every transition
+``/wholehand/run_info``             ``std_msgs/msg/String``             JSON: hand, object,
+                                                                        base link, arrow
+                                                                        scale, table, spec
+                                                                        (latched)
+==================================  ==================================  =====================
+
+The contacts are two markers: their points (a SPHERE_LIST) and their forces (a LINE_LIST from
+each point to ``point + ARROW_SCALE * force``), coloured by the force's magnitude from blue to
+red; contacts without an allocated force are grey, with short lines along the object normal.
+:func:`read_mcap_record` turns a recording back into a :class:`RunRecord` for ``wholehand
+view``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from wholehand.errors import ConfigError
+from wholehand.hardware.messages import typestore
+from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.loop.record import RunRecord
+from wholehand.models.hand import HandModel
+from wholehand.models.kinematics import HandKinematics
+from wholehand.models.mesh_files import resolve_mesh_uri
+
+FloatArray = npt.NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+ARROW_SCALE = 0.01
+"""Length of a contact arrow per newton of force [m/N]."""
+FORCE_FULL_COLOUR = 10.0
+"""Force whose arrow is fully red; weaker ones shade to blue [N]."""
+NORMAL_ARROW = 0.01
+"""Length of the normal line of a contact without a force [m]."""
+GREY = (0.6, 0.6, 0.6)
+"""Colour of a contact without a force."""
+
+STRING = "std_msgs/msg/String"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+TOPICS: dict[str, tuple[str, bool]] = {
+    "/robot_description": (STRING, True),
+    "/tf": ("tf2_msgs/msg/TFMessage", False),
+    "/joint_states": (JOINT_STATE, False),
+    "/object_pose": ("geometry_msgs/msg/PoseStamped", False),
+    "/wholehand/scene": ("visualization_msgs/msg/MarkerArray", True),
+    "/wholehand/torque_command": ("std_msgs/msg/Float64MultiArray", False),
+    "/wholehand/joint_targets": (JOINT_STATE, False),
+    "/wholehand/contacts": ("visualization_msgs/msg/MarkerArray", False),
+    "/wholehand/residual_wrench": ("geometry_msgs/msg/WrenchStamped", False),
+    "/wholehand/status": (STRING, False),
+    "/wholehand/stage": (STRING, True),
+    "/wholehand/run_info": (STRING, True),
+}
+"""Topic -> (message type, latched: transient-local, as a late subscriber needs it)."""
+
+
+def _qos(latched: bool) -> str:
+    """rosbag2's ``offered_qos_profiles`` of a reliable keep-last publisher (YAML)."""
+    durability = 1 if latched else 2  # transient local / volatile
+    return (
+        f"- history: 1\n  depth: 1\n  reliability: 1\n  durability: {durability}\n"
+        "  deadline:\n    sec: 2147483647\n    nsec: 4294967295\n"
+        "  lifespan:\n    sec: 2147483647\n    nsec: 4294967295\n"
+        "  liveliness: 1\n  liveliness_lease_duration:\n    sec: 2147483647\n"
+        "    nsec: 4294967295\n  avoid_ros_namespace_conventions: false\n"
+    )
+
+
+def urdf_for_viewers(hand: HandModel) -> str | None:
+    """The hand's URDF with every mesh path a ``file://`` URI (viewers cannot resolve the
+    model's ``package://`` or relative paths); None for an MJCF model."""
+    cfg = hand.config
+    if cfg.model_format != "urdf":
+        return None
+    root = ET.parse(cfg.model_path).getroot()
+    for mesh in root.iter("mesh"):
+        path = resolve_mesh_uri(mesh.get("filename", ""), cfg.model_path, cfg.package_dirs)
+        if path is not None:
+            mesh.set("filename", path.resolve().as_uri())
+    return ET.tostring(root, encoding="unicode")
+
+
+class _Types:
+    """The rosbags message classes used here."""
+
+    def __init__(self) -> None:
+        t = typestore().types
+        self.Time, self.Header, self.String = (
+            t["builtin_interfaces/msg/Time"],
+            t["std_msgs/msg/Header"],
+            t[STRING],
+        )
+        self.Vector3, self.Quaternion, self.Point = (
+            t["geometry_msgs/msg/Vector3"],
+            t["geometry_msgs/msg/Quaternion"],
+            t["geometry_msgs/msg/Point"],
+        )
+        self.Pose, self.PoseStamped = (
+            t["geometry_msgs/msg/Pose"],
+            t["geometry_msgs/msg/PoseStamped"],
+        )
+        self.Transform = t["geometry_msgs/msg/Transform"]
+        self.TransformStamped, self.TFMessage = (
+            t["geometry_msgs/msg/TransformStamped"],
+            t["tf2_msgs/msg/TFMessage"],
+        )
+        self.JointState = t[JOINT_STATE]
+        self.Float64MultiArray = t["std_msgs/msg/Float64MultiArray"]
+        self.MultiArrayLayout = t["std_msgs/msg/MultiArrayLayout"]
+        self.Wrench, self.WrenchStamped = (
+            t["geometry_msgs/msg/Wrench"],
+            t["geometry_msgs/msg/WrenchStamped"],
+        )
+        self.Marker, self.MarkerArray = (
+            t["visualization_msgs/msg/Marker"],
+            t["visualization_msgs/msg/MarkerArray"],
+        )
+        self.ColorRGBA, self.Duration = (
+            t["std_msgs/msg/ColorRGBA"],
+            t["builtin_interfaces/msg/Duration"],
+        )
+        self.MeshFile, self.CompressedImage = (
+            t["visualization_msgs/msg/MeshFile"],
+            t["sensor_msgs/msg/CompressedImage"],
+        )
+
+    def header(self, t: float, frame: str = "world") -> Any:
+        sec = math.floor(t)
+        nanosec = min(int(round((t - sec) * 1e9)), 999_999_999)
+        return self.Header(stamp=self.Time(sec=int(sec), nanosec=nanosec), frame_id=frame)
+
+    def transform(self, M: FloatArray) -> Any:
+        x, y, z, w = pin.Quaternion(np.asarray(M[:3, :3])).coeffs()
+        return self.Transform(
+            translation=self.Vector3(x=float(M[0, 3]), y=float(M[1, 3]), z=float(M[2, 3])),
+            rotation=self.Quaternion(x=float(x), y=float(y), z=float(z), w=float(w)),
+        )
+
+    def points(self, xyz: FloatArray) -> list[Any]:
+        return [self.Point(x=float(x), y=float(y), z=float(z)) for x, y, z in xyz]
+
+    def pose(self, M: FloatArray) -> Any:
+        tr = self.transform(M)
+        v = tr.translation
+        return self.Pose(position=self.Point(x=v.x, y=v.y, z=v.z), orientation=tr.rotation)
+
+    def marker(self, header: Any, **fields: Any) -> Any:
+        """A Marker with every field not given at its default."""
+        values: dict[str, Any] = {
+            "header": header,
+            "ns": "",
+            "id": 0,
+            "type": 0,
+            "action": 0,
+            "pose": self.pose(np.eye(4)),
+            "scale": self.Vector3(x=1.0, y=1.0, z=1.0),
+            "color": self.ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0),
+            "lifetime": self.Duration(sec=0, nanosec=0),
+            "frame_locked": False,
+            "points": [],
+            "colors": [],
+            "texture_resource": "",
+            "texture": self.CompressedImage(
+                header=header, format="", data=np.zeros(0, dtype=np.uint8)
+            ),
+            "uv_coordinates": [],
+            "text": "",
+            "mesh_resource": "",
+            "mesh_file": self.MeshFile(filename="", data=np.zeros(0, dtype=np.uint8)),
+            "mesh_use_embedded_materials": False,
+        }
+        values.update(fields)
+        return self.Marker(**values)
+
+
+def force_colour(magnitude: float) -> tuple[float, float, float]:
+    """Blue (0 N) to red (:data:`FORCE_FULL_COLOUR` and above), as RGB in [0, 1]."""
+    s = min(max(magnitude / FORCE_FULL_COLOUR, 0.0), 1.0)
+    return s, 0.2, 1.0 - s
+
+
+class McapWriter:
+    """An MCAP file of ROS 2 messages with rosbag2's conventions (module docstring)."""
+
+    def __init__(self, path: str | Path) -> None:
+        from mcap.writer import Writer
+
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._writer = Writer(self._file)
+        self._writer.start(profile="ros2", library="wholehand")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, tuple[int, str]] = {}
+        self._sequence = 0
+
+    def channel(self, topic: str, msgtype: str, latched: bool = False) -> None:
+        """Declare ``topic`` of ``msgtype`` (e.g. ``std_msgs/msg/String``)."""
+        if msgtype not in self._schemas:
+            msgdef = typestore().generate_msgdef(msgtype, ros_version=2)[0]
+            self._schemas[msgtype] = self._writer.register_schema(
+                msgtype, "ros2msg", msgdef.encode()
+            )
+        cid = self._writer.register_channel(
+            topic, "cdr", self._schemas[msgtype], {"offered_qos_profiles": _qos(latched)}
+        )
+        self._channels[topic] = (cid, msgtype)
+
+    def write(self, topic: str, message: Any, t: float) -> None:
+        """Write ``message`` (a rosbags message of the topic's type) at time ``t`` [s]."""
+        cid, msgtype = self._channels[topic]
+        data = bytes(typestore().serialize_cdr(message, msgtype))
+        stamp = max(int(round(t * 1e9)), 0)
+        self._sequence += 1
+        self._writer.add_message(cid, stamp, data, stamp, self._sequence)
+
+    def close(self) -> None:
+        self._writer.finish()
+        self._file.close()
+
+
+class McapRecorder(Observer):
+    """Records every cycle of a run into an MCAP file (module docstring).
+
+    Args:
+        path: the file to write (``.mcap``).
+        info: what else ``/wholehand/run_info`` carries (e.g. the trial spec; ``hand`` and
+            ``object`` there are the names ``wholehand view`` loads), JSON-able.
+
+    The hand and the object are the loop's.
+    """
+
+    def __init__(self, path: str | Path, info: dict[str, Any] | None = None) -> None:
+        self.path = Path(path)
+        self.info = dict(info or {})
+        self.types = _Types()
+        self._writer: McapWriter | None = None
+        self._stage = ""
+        self._transitions = 0
+        self._loop: ControlLoop | None = None
+        self.stopped = ""
+        """Why the recording stopped early ("" while it runs or when it ran to the end)."""
+
+    def on_start(self, loop: ControlLoop) -> None:
+        self._loop = loop
+        hand = self.hand = loop.hand
+        self.obj = loop.obj
+        self.kin = HandKinematics(hand)
+        self.links = hand.all_link_names
+        self.dof_names = [""] * hand.nv
+        """The joint of each velocity index."""
+        for name in hand.joint_names:
+            self.dof_names[hand.model.joints[hand.model.getJointId(name)].idx_v] = name
+        writer = self._writer = McapWriter(self.path)
+        for topic, (msgtype, latched) in TOPICS.items():
+            writer.channel(topic, msgtype, latched)
+        T = self.types
+        urdf = urdf_for_viewers(self.hand)
+        if urdf is not None:
+            writer.write("/robot_description", T.String(data=urdf), 0.0)
+        info = {
+            "hand": self.hand.config.name,
+            "object": self.obj.name,
+            "base_link": self.hand.all_link_names[0],
+            "arrow_scale_m_per_N": ARROW_SCALE,
+            "joint_names": list(self.hand.joint_names),
+            **self.info,
+        }
+        writer.write("/wholehand/run_info", T.String(data=json.dumps(info, default=str)), 0.0)
+        corners = np.asarray(self.obj.mesh.vertices, dtype=float)[np.asarray(self.obj.mesh.faces)]
+        scene = [
+            T.marker(
+                T.header(0.0, "object"),
+                ns="object",
+                type=11,  # TRIANGLE_LIST: the mesh itself, so the file needs no mesh path
+                color=T.ColorRGBA(r=0.8, g=0.6, b=0.3, a=0.8),
+                frame_locked=True,
+                points=T.points(corners.reshape(-1, 3)),
+            )
+        ]
+        table = self.info.get("table")
+        if table:
+            box = np.eye(4)
+            thickness = float(table.get("thickness", 0.05))
+            box[:3, 3] = [*table["centre"], float(table["top"]) - 0.5 * thickness]
+            scene.append(
+                T.marker(
+                    T.header(0.0),
+                    ns="table",
+                    type=1,  # CUBE
+                    pose=T.pose(box),
+                    scale=T.Vector3(x=table["size"][0], y=table["size"][1], z=thickness),
+                    color=T.ColorRGBA(r=0.55, g=0.45, b=0.35, a=1.0),
+                )
+            )
+        writer.write("/wholehand/scene", T.MarkerArray(markers=scene), 0.0)
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        """Record the cycle; a failure (a full disk, a state that cannot be written) stops the
+        recording with a warning and :attr:`stopped` set, never the run."""
+        if self._writer is None:
+            return None
+        try:
+            self._record(self._writer, cycle)
+        except Exception as err:  # noqa: BLE001 - the recording must not end a robot's run
+            self.stopped = f"t = {cycle.t:.3f} s: {type(err).__name__}: {err}"
+            log.warning("MCAP recording to %s stopped at %s", self.path, self.stopped)
+            with contextlib.suppress(Exception):  # closing may fail for the same reason
+                self.on_end(self._loop)
+        return None
+
+    def _record(self, writer: McapWriter, cycle: Cycle) -> None:
+        T, hand = self.types, self.hand
+        t = cycle.t
+        obs = cycle.truth
+        header = T.header(t)
+        self.kin.update(obs.q, obs.wMb)
+        transforms = [
+            T.TransformStamped(
+                header=header, child_frame_id=name, transform=T.transform(self.kin.frame_pose(name))
+            )
+            for name in self.links
+        ]
+        seen = cycle.context.obs.wMo
+        if obs.wMo is not None:
+            transforms.append(
+                T.TransformStamped(
+                    header=header, child_frame_id="object", transform=T.transform(obs.wMo)
+                )
+            )
+        writer.write("/tf", T.TFMessage(transforms=transforms), t)
+        writer.write(
+            "/joint_states",
+            T.JointState(
+                header=header,
+                name=list(hand.joint_names),
+                position=np.asarray(obs.q, dtype=float),
+                velocity=np.asarray(obs.dq, dtype=float),
+                effort=np.asarray(cycle.command.tau, dtype=float),
+            ),
+            t,
+        )
+        if seen is not None:
+            writer.write("/object_pose", T.PoseStamped(header=header, pose=T.pose(seen)), t)
+        writer.write(
+            "/wholehand/torque_command",
+            T.Float64MultiArray(
+                layout=T.MultiArrayLayout(dim=[], data_offset=0),
+                data=np.asarray(cycle.command.tau, dtype=float),
+            ),
+            t,
+        )
+        if cycle.command.targets:
+            names, positions = [], []
+            for group in cycle.command.targets:
+                if group.q is None:
+                    continue
+                names += [self.dof_names[int(i)] for i in group.dofs]
+                positions += [float(v) for v in group.q]
+            if names:
+                writer.write(
+                    "/wholehand/joint_targets",
+                    T.JointState(
+                        header=header,
+                        name=names,
+                        position=np.asarray(positions),
+                        velocity=np.zeros(0),
+                        effort=np.zeros(0),
+                    ),
+                    t,
+                )
+        self._write_contacts(writer, cycle, header, t)
+        allocation = cycle.output.allocation
+        if allocation is not None:
+            w = np.asarray(allocation.residual_wrench, dtype=float)
+            wrench = T.Wrench(
+                force=T.Vector3(x=float(w[0]), y=float(w[1]), z=float(w[2])),
+                torque=T.Vector3(x=float(w[3]), y=float(w[4]), z=float(w[5])),
+            )
+            writer.write(
+                "/wholehand/residual_wrench", T.WrenchStamped(header=header, wrench=wrench), t
+            )
+        writer.write("/wholehand/status", T.String(data=f"{cycle.stage}: {cycle.output.status}"), t)
+        loop = self._loop
+        transitions = [] if loop is None else loop.report.transitions
+        if not self._stage:
+            self._stage = cycle.stage
+            writer.write("/wholehand/stage", T.String(data=f"start: {cycle.stage}"), t)
+        for tr in transitions[self._transitions :]:
+            text = f"{tr.source} -> {tr.target}: {tr.reason}"
+            writer.write("/wholehand/stage", T.String(data=text), tr.t)
+        self._transitions = len(transitions)
+
+    def _write_contacts(self, writer: McapWriter, cycle: Cycle, header: Any, t: float) -> None:
+        """Two markers: the contact points (``points``, SPHERE_LIST) and their forces
+        (``forces``, LINE_LIST: per contact its point and ``point + ARROW_SCALE * force``), each
+        vertex coloured by its contact's force; without an allocation, grey points and short
+        lines along the object normals."""
+        T = self.types
+        contacts, allocation = cycle.output.contacts, cycle.output.allocation
+        p = np.zeros((0, 3)) if contacts is None else np.asarray(contacts.p_world, dtype=float)
+        if allocation is not None and allocation.f_world.shape == p.shape:
+            f = np.asarray(allocation.f_world, dtype=float)
+            end = p + ARROW_SCALE * f
+            rgb = [force_colour(m) for m in np.linalg.norm(f, axis=1)]
+        else:
+            n = np.zeros_like(p) if contacts is None else np.asarray(contacts.n_world, dtype=float)
+            end = p - NORMAL_ARROW * n
+            rgb = [GREY] * len(p)
+        colours = [T.ColorRGBA(r=r, g=g, b=b, a=1.0) for r, g, b in rgb]
+        lines = np.stack((p, end), axis=1).reshape(-1, 3)
+        markers = [
+            T.marker(
+                header,
+                ns="points",
+                type=7,  # SPHERE_LIST
+                scale=T.Vector3(x=0.004, y=0.004, z=0.004),
+                points=T.points(p),
+                colors=colours,
+            ),
+            T.marker(
+                header,
+                ns="forces",
+                type=5,  # LINE_LIST
+                scale=T.Vector3(x=0.0015, y=0.0, z=0.0),
+                points=T.points(lines),
+                colors=[c for c in colours for _ in (0, 1)],
+            ),
+        ]
+        writer.write("/wholehand/contacts", T.MarkerArray(markers=markers), t)
+
+    def on_end(self, loop: ControlLoop | None) -> None:
+        if self._writer is not None:
+            writer, self._writer = self._writer, None
+            writer.close()
+
+
+# --- reading back -----------------------------------------------------------------------------
+def _messages(path: Path) -> Iterator[tuple[str, float, Any]]:
+    """(topic, log time [s], decoded message) of every message, in log time order."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=True):
+            yield channel.topic, 1e-9 * message.log_time, decoded
+
+
+def read_mcap_record(path: str | Path) -> RunRecord:
+    """A recording of :class:`McapRecorder` as a :class:`RunRecord` (what ``wholehand view``
+    replays): per cycle the joint positions, the object's and the hand base's poses, the
+    contacts and their forces, the torques, the residual wrench, the stage and status.
+    Decoded with ``mcap_ros2`` (not the writer's rosbags), so reading checks the writing."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"no MCAP recording at {path}; write one with --record run.mcap")
+    record = RunRecord(phases=["run"])
+    info: dict[str, Any] = {}
+    cycle: dict[str, Any] = {}
+    for topic, t, msg in _messages(path):
+        if topic == "/wholehand/run_info":
+            info = json.loads(msg.data)
+            record.meta = {"spec": {"hand": info["hand"], "object": info["object"]}, **info}
+            if not record.meta.get("table"):
+                record.meta.pop("table", None)
+        elif topic == "/tf":
+            if cycle:
+                _append(record, cycle, info)
+            cycle = {"t": t, "tf": {tf.child_frame_id: tf.transform for tf in msg.transforms}}
+        elif topic == "/joint_states":
+            cycle["q"] = np.asarray(msg.position, dtype=float)
+            cycle["tau"] = np.asarray(msg.effort, dtype=float)
+        elif topic == "/wholehand/contacts":
+            cycle["contacts"] = {m.ns: m for m in msg.markers}
+        elif topic == "/wholehand/residual_wrench":
+            f, m = msg.wrench.force, msg.wrench.torque
+            cycle["wrench"] = [f.x, f.y, f.z, m.x, m.y, m.z]
+        elif topic == "/wholehand/status":
+            cycle["stage"], _, cycle["status"] = msg.data.partition(": ")
+    if cycle:
+        _append(record, cycle, info)
+    if not info:
+        raise ConfigError(f"{path} is no wholehand recording: it has no /wholehand/run_info")
+    return record
+
+
+def _matrix(transform: Any) -> FloatArray:
+    r, v = transform.rotation, transform.translation
+    M = np.eye(4)
+    M[:3, :3] = pin.Quaternion(r.w, r.x, r.y, r.z).toRotationMatrix()
+    M[:3, 3] = [v.x, v.y, v.z]
+    return M
+
+
+def _append(record: RunRecord, cycle: dict[str, Any], info: dict[str, Any]) -> None:
+    tf = cycle["tf"]
+    wMo = _matrix(tf["object"]) if "object" in tf else np.eye(4)
+    base = info.get("base_link")
+    wMb = _matrix(tf[base]) if base in tf else np.eye(4)
+    scale = float(info.get("arrow_scale_m_per_N", ARROW_SCALE))
+    markers = cycle.get("contacts", {})
+    p = np.zeros((0, 3))
+    f = np.zeros((0, 3))
+    if "forces" in markers:
+        line = markers["forces"]
+        ends = np.array([[v.x, v.y, v.z] for v in line.points], dtype=float).reshape(-1, 2, 3)
+        p = ends[:, 0]
+        grey = np.array([c.r == c.g == c.b for c in line.colors[::2]], dtype=bool)
+        f = np.where(grey[:, None], 0.0, (ends[:, 1] - ends[:, 0]) / scale)
+    tau = cycle.get("tau", np.zeros(0))
+    record.append(
+        t=cycle["t"],
+        stamp_object=cycle["t"],
+        phase=0,
+        stage=cycle.get("stage", ""),
+        n_contacts=len(p),
+        residual_wrench=np.asarray(cycle.get("wrench", [np.nan] * 6), dtype=float),
+        tau=tau,
+        qp_time=np.nan,
+        estimate_time=np.nan,
+        cycle_time=np.nan,
+        status=cycle.get("status", ""),
+        held=True,
+        p_object=wMo[:3, 3],
+        r_object=pin.log3(wMo[:3, :3]),
+        q=cycle.get("q", np.zeros(0)),
+        p_base=wMb[:3, 3],
+        r_base=pin.log3(wMb[:3, :3]),
+        contact_p=p,
+        contact_n=np.zeros_like(p),
+        contact_f=f,
+        contact_link=np.full(len(p), -1, dtype=np.int64),
+    )

@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import argparse
 
-from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.models.hand import load_hand
-from wholehand.models.object_catalogue import load_object
+from wholehand import TrialSpec, load_hand, load_object, run_trial
 from wholehand.studies.base import METHODS, TINY_PROTOCOL
 from wholehand.studies.rows import record_row
 

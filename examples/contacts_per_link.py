@@ -20,9 +20,7 @@ import argparse
 
 import numpy as np
 
-from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.models.hand import load_hand
-from wholehand.models.object_catalogue import load_object
+from wholehand import TrialSpec, load_hand, load_object, run_trial
 from wholehand.studies.base import TINY_PROTOCOL
 
 

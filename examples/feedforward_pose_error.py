@@ -17,8 +17,7 @@ import argparse
 
 import numpy as np
 
-from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.models.object_catalogue import PAPER_OBJECTS
+from wholehand import PAPER_OBJECTS, TrialSpec, run_trial
 from wholehand.studies.base import TINY_PROTOCOL, derive_seed
 from wholehand.studies.models import model
 

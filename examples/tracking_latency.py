@@ -21,8 +21,7 @@ from __future__ import annotations
 
 import argparse
 
-from wholehand.loop.trial import TrialSpec
-from wholehand.models.object_catalogue import PAPER_OBJECTS
+from wholehand import PAPER_OBJECTS, TrialSpec
 from wholehand.studies.base import TINY_PROTOCOL, TrialJob, derive_seed, success_stats
 from wholehand.studies.executors import execute
 from wholehand.studies.runner import run_job

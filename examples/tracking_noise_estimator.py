@@ -24,12 +24,17 @@ import numpy as np
 import pinocchio as pin
 from wholehand_plugins.mesh_sdf import MeshSDFEstimator
 
-from wholehand.contacts import ContactEstimator, ContactSet
-from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.models.hand import HandModel, load_hand
-from wholehand.models.kinematics import HandKinematics
-from wholehand.models.object_catalogue import load_object
-from wholehand.models.objects import ObjectModel
+from wholehand import (
+    ContactEstimator,
+    ContactSet,
+    HandKinematics,
+    HandModel,
+    ObjectModel,
+    TrialSpec,
+    load_hand,
+    load_object,
+    run_trial,
+)
 from wholehand.studies.base import TINY_PROTOCOL
 from wholehand.studies.rows import record_row
 

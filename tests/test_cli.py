@@ -208,3 +208,19 @@ def test_view_names_a_file_that_is_not_a_run_record(kind, tmp_path, capsys):
     assert str(path) in err and "Traceback" not in err
     assert {"truncated": "truncated", "text": "not a", "pickled": "not a run record",
             "missing": "no run record at"}[kind] in err  # fmt: skip
+
+
+def test_a_reader_that_leaves_early_gets_no_traceback():
+    """`wholehand objects | head -1`: the pipe closes before the list is written."""
+    import subprocess
+    import sys
+
+    script = (
+        "import os, sys\n"
+        "r, w = os.pipe(); os.close(r); os.dup2(w, 1)\n"  # a pipe nobody reads
+        "from wholehand.cli.main import main\n"
+        "sys.stderr.write(f'rc={main([\"objects\"])}\\n')\n"
+    )
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and "rc=0" in run.stderr, run.stderr
+    assert "Traceback" not in run.stderr and "BrokenPipeError" not in run.stderr, run.stderr

@@ -3,7 +3,20 @@
 Conventions used everywhere: poses are 4x4 homogeneous numpy arrays named ``aMb`` (pose of
 frame b expressed in frame a; ``w`` world, ``b`` hand base, ``o`` object, ``l`` link), SI units
 (m, N, N*m, s, rad), and arrays rather than per-contact objects on the control path.
+
+The main entry points are importable from here (loaded on first use, so that ``import
+wholehand`` stays light)::
+
+    import wholehand as wh
+
+    record = wh.run_trial(wh.TrialSpec(object="077_rubiks_cube", theta_deg=60.0))
+    print(wh.outcome_of(record).held)
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from wholehand.errors import (
     AssetError,
@@ -12,12 +25,104 @@ from wholehand.errors import (
     WholehandError,
 )
 
+if TYPE_CHECKING:
+    from wholehand import registry
+    from wholehand.allocation.base import Allocation, Allocator
+    from wholehand.backends.base import Backend
+    from wholehand.contacts.base import ContactEstimator, ContactSet
+    from wholehand.loop.command import Command, JointTargets
+    from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+    from wholehand.loop.mcap_recording import McapRecorder, read_mcap_record
+    from wholehand.loop.outcome import RunOutcome, outcome_of
+    from wholehand.loop.record import Recorder, RunRecord
+    from wholehand.loop.regulation import ForceRegulation
+    from wholehand.loop.stage import Stage
+    from wholehand.loop.trial import TrialSpec, run_trial
+    from wholehand.models.hand import HandModel, load_hand
+    from wholehand.models.kinematics import HandKinematics
+    from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
+    from wholehand.models.objects import ObjectModel
+
 __version__ = "0.1.0"
 
+_PUBLIC = {
+    "registry": "wholehand",
+    "Allocation": "wholehand.allocation.base",
+    "Allocator": "wholehand.allocation.base",
+    "Backend": "wholehand.backends.base",
+    "ContactEstimator": "wholehand.contacts.base",
+    "ContactSet": "wholehand.contacts.base",
+    "Command": "wholehand.loop.command",
+    "JointTargets": "wholehand.loop.command",
+    "ControlLoop": "wholehand.loop.control_loop",
+    "Cycle": "wholehand.loop.control_loop",
+    "Observer": "wholehand.loop.control_loop",
+    "McapRecorder": "wholehand.loop.mcap_recording",
+    "read_mcap_record": "wholehand.loop.mcap_recording",
+    "RunOutcome": "wholehand.loop.outcome",
+    "outcome_of": "wholehand.loop.outcome",
+    "Recorder": "wholehand.loop.record",
+    "RunRecord": "wholehand.loop.record",
+    "ForceRegulation": "wholehand.loop.regulation",
+    "Stage": "wholehand.loop.stage",
+    "TrialSpec": "wholehand.loop.trial",
+    "run_trial": "wholehand.loop.trial",
+    "HandModel": "wholehand.models.hand",
+    "load_hand": "wholehand.models.hand",
+    "HandKinematics": "wholehand.models.kinematics",
+    "PAPER_OBJECTS": "wholehand.models.object_catalogue",
+    "load_object": "wholehand.models.object_catalogue",
+    "ObjectModel": "wholehand.models.objects",
+}
+"""Public name -> the module that defines it."""
+
+
+def __getattr__(name: str) -> Any:
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module 'wholehand' has no attribute {name!r}")
+    if name == "registry":
+        return importlib.import_module("wholehand.registry")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_PUBLIC))
+
+
 __all__ = [
+    "Allocation",
+    "Allocator",
     "AssetError",
+    "Backend",
+    "Command",
     "ConfigError",
+    "ContactEstimator",
+    "ContactSet",
+    "ControlLoop",
+    "Cycle",
+    "ForceRegulation",
+    "HandKinematics",
+    "HandModel",
+    "JointTargets",
+    "McapRecorder",
+    "ObjectModel",
+    "Observer",
+    "PAPER_OBJECTS",
     "PluginError",
+    "Recorder",
+    "RunOutcome",
+    "RunRecord",
+    "Stage",
+    "TrialSpec",
     "WholehandError",
     "__version__",
+    "load_hand",
+    "load_object",
+    "outcome_of",
+    "read_mcap_record",
+    "registry",
+    "run_trial",
 ]

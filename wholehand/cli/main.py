@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from collections.abc import Callable
 
@@ -136,6 +137,10 @@ def main(argv: list[str] | None = None) -> int:
     except WholehandError as err:
         print(f"wholehand: error: {err}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader left (`wholehand objects | head`): stop quietly
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # Python's exit flush must not fail again
+        return 0
 
 
 if __name__ == "__main__":

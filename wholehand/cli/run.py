@@ -26,9 +26,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run",
         help="hold a stored grasp in MuJoCo through the paper's perturbation protocol",
-        description="Runs one shipped grasp through settle, six-direction load test, a rotational "
-        "pull by theta about a random axis, and the load test again; prints per-stage results "
-        "and timings.",
+        description="Runs one grasp (a stored one of the hand, or one of a file from anywhere "
+        "with --grasps, e.g. from `wholehand grasps generate` or `grasps import`) through "
+        "settle, six-direction load test, a rotational pull by theta about a random axis, and "
+        "the load test again; prints per-stage results and timings.",
     )
     p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
     p.add_argument(

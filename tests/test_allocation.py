@@ -17,7 +17,6 @@ from wholehand_plugins.qp import SOLVE_SHARE, QPAllocator, QPNoConsistencyAlloca
 from wholehand import registry
 from wholehand.allocation import solve as solve_module
 from wholehand.allocation.base import Allocation, AllocationStatus, hand_keywords
-from wholehand.allocation.bench import run_allocation_benchmark, synthetic_grasp
 from wholehand.allocation.kernel_loading import load_kernels
 from wholehand.allocation.kernels import sigma_min_lower_bound
 from wholehand.allocation.null_space import ActuationNullSpace
@@ -32,6 +31,7 @@ from wholehand.allocation.reference import direct_problem, solved_problem
 from wholehand.allocation.solve import binding_rows, dense_qp, solve_allocation
 from wholehand.allocation.solvers import NATIVE_SOLVERS, available_solvers, make_solver
 from wholehand.allocation.solvers.base import DenseQP, QPResult
+from wholehand.bench.allocate import run_allocation_benchmark, synthetic_grasp
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 

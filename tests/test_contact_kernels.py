@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from wholehand_plugins.mesh_sdf import MeshSDFEstimator
 
+from wholehand.bench.contacts import grasp_like_states
 from wholehand.contacts import kernels
-from wholehand.contacts.bench import grasp_like_states
 from wholehand.contacts.reference import sdf_query, top_k_per_link
 from wholehand.errors import ConfigError
 from wholehand.models.kinematics import HandKinematics

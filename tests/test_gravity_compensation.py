@@ -16,9 +16,9 @@ from wholehand_plugins.qp import QPAllocator
 
 from wholehand import registry
 from wholehand.allocation.base import AllocationStatus
-from wholehand.allocation.bench import synthetic_grasp
 from wholehand.allocation.problem import AllocationParams, build_allocation_qp
 from wholehand.allocation.reference import direct_problem, solved_problem
+from wholehand.bench.allocate import synthetic_grasp
 from wholehand.errors import ConfigError
 from wholehand.loop.command import Command
 from wholehand.loop.regulation import ForceRegulation

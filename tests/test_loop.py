@@ -846,7 +846,7 @@ def test_wall_clock_cycles_keep_their_schedule_despite_sleep_overshoot(allegro, 
 
 
 def test_replaying_a_record_reproduces_the_loops_torques(allegro, cube):
-    from wholehand.loop.worst_case import replay
+    from wholehand.bench.worst_case import replay
 
     spec = TrialSpec(object=OBJECT, grasp=THREE_FINGER_GRASP, theta_deg=0.0, protocol_params=TINY)
     record = run_trial(spec, allegro, cube)
@@ -888,7 +888,7 @@ def test_a_supported_settle_holds_the_object_until_the_loads(allegro):
     [([], 0), ([0, 0], 0), ([1, 1, 1], 3), ([0, 1, 1, 0, 1], 2), ([1, 0, 1, 1, 1, 0, 1, 1], 3)],
 )
 def test_the_longest_run_of_cycles_without_a_torque(flags, longest):
-    from wholehand.loop.worst_case import longest_run
+    from wholehand.bench.worst_case import longest_run
 
     assert longest_run(np.array(flags, dtype=bool)) == longest
 
@@ -904,7 +904,7 @@ def test_percentiles_count_the_samples_over_a_1khz_period():
 
 
 def test_cycle_benchmark_pools_every_cycle_until_each_trials_loss():
-    from wholehand.loop.bench import run_cycle_benchmark
+    from wholehand.bench.cycle import run_cycle_benchmark
 
     objects = (OBJECT, "006_mustard_bottle")
     out = run_cycle_benchmark(
@@ -935,7 +935,7 @@ def test_cycle_benchmark_pools_every_cycle_until_each_trials_loss():
 
 
 def test_recorded_contact_benchmark_times_each_phase_of_the_loops_states():
-    from wholehand.loop.estimate_bench import PHASES, run_recorded_contact_benchmark
+    from wholehand.bench.estimate import PHASES, run_recorded_contact_benchmark
 
     out = run_recorded_contact_benchmark(
         obj=OBJECT, grasp=0, theta_deg=0.0, protocol_params=TINY, repeats=2

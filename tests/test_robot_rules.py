@@ -304,7 +304,7 @@ def test_the_shipped_arm_config_loads_against_the_rig(rig):
 
 
 def test_table_one_columns_are_counted_from_the_stage_transitions():
-    from wholehand.hardware.episode_bench import _outcome
+    from wholehand.bench.pipeline import _outcome
 
     def switch(t, source, target):
         return {"t": t, "source": source, "target": target, "reason": ""}

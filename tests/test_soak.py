@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import json
 
+from wholehand.bench.soak import FAULTS
 from wholehand.cli.main import main
-from wholehand.loop.soak import FAULTS
 
 
 def test_a_short_soak_meets_every_requirement(capsys):

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 
+from wholehand.bench.thin_walls import _TILT, grid_errors
 from wholehand.errors import ConfigError
 from wholehand.models.objects import AUTO_SPACING, ObjectModel
 from wholehand.models.sdf import DEFAULT_SPACING, MAX_GRID_NODES
 from wholehand.models.walls import MIN_AUTO_SPACING, spacing_for_wall, thinnest_wall
-from wholehand.models.walls_bench import _TILT, grid_errors
 
 
 def tilted_plate(wall: float, side: float = 0.1) -> trimesh.Trimesh:

@@ -1,4 +1,5 @@
-"""Latency statistics for benchmarks: warm-up, perf_counter_ns, percentiles."""
+"""Latency statistics: percentiles (the one helper every benchmark and summary uses), timed
+calls with warm-up."""
 
 from __future__ import annotations
 
@@ -9,6 +10,18 @@ import numpy as np
 
 OVER_US = 1000.0
 """Duration counted as over a 1 kHz period [us] (``n_over_1ms``)."""
+
+
+def percentiles(
+    values: Sequence[float] | np.ndarray, points: Sequence[float] = (50, 99)
+) -> dict[str, float]:
+    """``{"p50": ..., "p99": ..., "max": ..., "n": ...}`` of ``values`` at ``points`` [%], in
+    the values' unit; ``{}`` when there are none."""
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        return {}
+    out = {f"p{p:g}": float(q) for p, q in zip(points, np.percentile(v, points), strict=True)}
+    return {**out, "max": float(v.max()), "n": int(v.size)}
 
 
 def percentiles_us(samples_ns: Sequence[int] | np.ndarray) -> dict[str, float]:

@@ -9,11 +9,11 @@ from pathlib import Path
 
 
 def _cmd_contacts(args: argparse.Namespace) -> int:
-    from wholehand.contacts.bench import run_contact_benchmark
+    from wholehand.bench.contacts import run_contact_benchmark
 
     params = {k: v for k, v in {"d_thresh": args.d_thresh, "k": args.k}.items() if v is not None}
     if args.recorded:
-        from wholehand.loop.estimate_bench import run_recorded_contact_benchmark
+        from wholehand.bench.estimate import run_recorded_contact_benchmark
 
         recorded = run_recorded_contact_benchmark(
             hand=args.hand,
@@ -39,7 +39,7 @@ def _cmd_contacts(args: argparse.Namespace) -> int:
 
 
 def _cmd_allocate(args: argparse.Namespace) -> int:
-    from wholehand.allocation.bench import run_allocation_benchmark
+    from wholehand.bench.allocate import run_allocation_benchmark
 
     kwargs = {"cycles": args.cycles, "seed": args.seed, "out_dir": Path(args.out)}
     if args.solvers:
@@ -50,7 +50,7 @@ def _cmd_allocate(args: argparse.Namespace) -> int:
 
 
 def _cmd_cycle(args: argparse.Namespace) -> int:
-    from wholehand.loop.bench import run_cycle_benchmark
+    from wholehand.bench.cycle import run_cycle_benchmark
 
     params: dict[str, object] = {}
     if args.qp_deadline is not None:
@@ -60,7 +60,7 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
     if args.screen_edges:
         params["screen_edges"] = True
     if args.worst:
-        from wholehand.loop.worst_case import WORST_OBJECTS, run_worst_case_benchmark
+        from wholehand.bench.worst_case import WORST_OBJECTS, run_worst_case_benchmark
 
         worst = run_worst_case_benchmark(
             hand=args.hand,
@@ -91,7 +91,7 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
 
 
 def _cmd_soak(args: argparse.Namespace) -> int:
-    from wholehand.loop.soak import run_soak
+    from wholehand.bench.soak import run_soak
 
     result = run_soak(
         cycles=args.cycles, every=args.every, hand=args.hand, obj=args.object, grasp=args.grasp
@@ -102,7 +102,8 @@ def _cmd_soak(args: argparse.Namespace) -> int:
 
 
 def _cmd_reach(args: argparse.Namespace) -> int:
-    from wholehand.reaching.episode import EpisodeSpec, percentiles, run_episode
+    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.timing import percentiles
 
     cycle: dict[str, list[float]] = {}
     reacher: list[float] = []
@@ -128,7 +129,7 @@ def _cmd_reach(args: argparse.Namespace) -> int:
 
 
 def _cmd_thin_walls(args: argparse.Namespace) -> int:
-    from wholehand.models.walls_bench import run_thin_wall_benchmark
+    from wholehand.bench.thin_walls import run_thin_wall_benchmark
 
     walls = tuple(float(w) for w in args.walls_mm.split(","))
     result = run_thin_wall_benchmark(walls_mm=walls, points=args.points, seed=args.seed)
@@ -137,7 +138,7 @@ def _cmd_thin_walls(args: argparse.Namespace) -> int:
 
 
 def _cmd_hw(args: argparse.Namespace) -> int:
-    from wholehand.hardware.bench import run_hw_benchmark
+    from wholehand.bench.hw import run_hw_benchmark
     from wholehand.hardware.controller import ControllerSpec
 
     spec = ControllerSpec(estimate_at=args.estimate_at, allocate_every=args.allocate_every)
@@ -165,7 +166,7 @@ def _cmd_hw(args: argparse.Namespace) -> int:
 
 
 def _cmd_pipeline(args: argparse.Namespace) -> int:
-    from wholehand.hardware.episode_bench import run_pipeline_benchmark
+    from wholehand.bench.pipeline import run_pipeline_benchmark
     from wholehand.models.object_catalogue import PAPER_OBJECTS
 
     objects = PAPER_OBJECTS if args.object == "paper" else tuple(args.object.split(","))

@@ -51,6 +51,7 @@ from wholehand.reaching.pipeline import (
     pipeline_stages,
 )
 from wholehand.reaching.pregrasp import GraspPlan, usable_on_table
+from wholehand.timing import percentiles
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -305,9 +306,7 @@ def run_controller(
         "loop": report.as_dict(),
         "backend": stats,
         "degenerate_normals": regulation.degenerate_normals,
-        "cycle_time_ms": {
-            f"p{p}": float(np.percentile(times, p)) if times.size else None for p in (50, 99)
-        },
+        "cycle_time_ms": percentiles(times),
     }
     if trace:
         out["trace"] = traced

@@ -47,6 +47,7 @@ from wholehand.models.resting import resting_pose
 from wholehand.reaching.person import PERTURBATIONS, Person, loss_cause
 from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, pipeline_stages
 from wholehand.reaching.pregrasp import GraspPlan, hand_clearance, lowest_point, usable_on_table
+from wholehand.timing import percentiles
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -331,16 +332,3 @@ class _CycleTimes(Observer):
 
     def summary(self) -> dict[str, dict[str, float]]:
         return {kind: percentiles(v) for kind, v in self.times.items() if v}
-
-
-def percentiles(values: list[float]) -> dict[str, float]:
-    """p50, p99, max and count of ``values`` (empty: {})."""
-    if not values:
-        return {}
-    v = np.asarray(values)
-    return {
-        "p50": float(np.percentile(v, 50)),
-        "p99": float(np.percentile(v, 99)),
-        "max": float(v.max()),
-        "n": int(v.size),
-    }

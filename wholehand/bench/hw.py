@@ -43,14 +43,12 @@ from wholehand.hardware.controller import ControllerSpec, run_controller
 from wholehand.hardware.rmw_zenoh import loopback_endpoint
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
+from wholehand.timing import percentiles
 
+POINTS = (50, 95, 99)
+"""Percentiles reported [%]."""
 DDS_LOOPBACK: dict[str, Any] = {"dds_interface": "127.0.0.1", "dds_peers": ("127.0.0.1",)}
 """The DDS settings of a controller and a double on one machine."""
-
-
-def _percentiles(values: Sequence[float]) -> dict[str, float | None]:
-    arr = np.asarray(values, dtype=float)
-    return {f"p{p}": float(np.percentile(arr, p)) if arr.size else None for p in (50, 95, 99)}
 
 
 def run_hw_benchmark(
@@ -181,10 +179,10 @@ def run_hw_benchmark(
         "sync_to_joint_states": sync_to_joint_states,
         "held": sum(r["held"] for r in rows),
         "grasps": len(rows),
-        "answer_ms": _percentiles(answer),
-        "controller_ms": _percentiles(controller),
-        "transport_ms": _percentiles(wire),
-        "cycle_ms": _percentiles(cycles),
+        "answer_ms": percentiles(answer, POINTS),
+        "controller_ms": percentiles(controller, POINTS),
+        "transport_ms": percentiles(wire, POINTS),
+        "cycle_ms": percentiles(cycles, POINTS),
         "messages": len(answer),
         "rate_hz": {"min": float(min(rates)), "mean": float(np.mean(rates))},
         "control_rate_hz": load_hardware_config(config_path).control_rate,

@@ -34,6 +34,7 @@ from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
 from wholehand.provenance import provenance
 from wholehand.studies.base import derive_seed
+from wholehand.timing import percentiles
 
 RIG = "flexiv_rizon4_hx5_d20_right"
 
@@ -62,11 +63,6 @@ def _outcome(
         "returns_home": sum(t["target"] == HOME for t in transitions),
         "complete": complete,
     }
-
-
-def _percentiles(values: Sequence[float]) -> dict[str, float | None]:
-    arr = np.asarray(values, dtype=float)
-    return {f"p{p}": float(np.percentile(arr, p)) if arr.size else None for p in (50, 99)}
 
 
 def over_ros(
@@ -104,7 +100,7 @@ def over_ros(
     cycle_ms = [1e3 * t for t in result["cycle_times_s"]]
     return {
         **row,
-        "cycle_ms": _percentiles(cycle_ms),
+        "cycle_ms": percentiles(cycle_ms),
         "overruns": loop["overruns"],
         "late_cycles_double": robot["late_cycles"],
         "rejected": result["backend"]["rejected"],
@@ -125,7 +121,7 @@ def in_process(hand: str, obj: str, seed: int) -> dict[str, Any]:
     cycles = [t for times in summary["cycle_samples_us"].values() for t in times]
     return {
         **row,
-        "cycle_ms": _percentiles([1e-3 * t for t in cycles]),
+        "cycle_ms": percentiles([1e-3 * t for t in cycles]),
         "overruns": 0,
         "events": summary["events"],
     }

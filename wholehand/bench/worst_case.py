@@ -38,6 +38,7 @@ from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.provenance import provenance
+from wholehand.timing import percentiles_us
 
 WORST_OBJECTS = ("006_mustard_bottle", "052_extra_large_clamp")
 """Where the paper's method loses most grasps in the perturbation study (theta 90 deg)."""
@@ -106,17 +107,6 @@ def longest_run(flags: np.ndarray) -> int:
     return int((edges[1::2] - edges[::2]).max(initial=0))
 
 
-def _stats(ns: np.ndarray) -> dict[str, float]:
-    us = ns / 1e3
-    p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
-    return {
-        "p50_us": round(float(p50), 1),
-        "p99_us": round(float(p99), 1),
-        "p99.9_us": round(float(p999), 1),
-        "max_us": round(float(us.max()), 1),
-    }
-
-
 def run_worst_case_benchmark(
     hand: str = "allegro_right",
     objects: Sequence[str] = WORST_OBJECTS,
@@ -170,12 +160,12 @@ def run_worst_case_benchmark(
         "lost_trials": lost,
         "cycles": int(cat["step"].size),
         "stages": {
-            "step": _stats(cat["step"]),
-            "estimate": _stats(cat["estimate"]),
-            "qp": _stats(cat["qp"]),
-            "qp_solver": _stats(cat["qp_solver"]),
-            "qp_other": _stats(cat["qp"] - cat["qp_solver"]),
-            "rest": _stats(rest),
+            "step": percentiles_us(cat["step"]),
+            "estimate": percentiles_us(cat["estimate"]),
+            "qp": percentiles_us(cat["qp"]),
+            "qp_solver": percentiles_us(cat["qp_solver"]),
+            "qp_other": percentiles_us(cat["qp"] - cat["qp_solver"]),
+            "rest": percentiles_us(rest),
         },
         "statuses": dict(statuses),
         "qp_over_deadline": int((cat["qp"] > deadline * 1e9).sum()),

@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from wholehand import registry
+from wholehand.bench.worst_case import record_poses
 from wholehand.loop.trial import TrialSpec, run_trial
-from wholehand.loop.worst_case import record_poses
 from wholehand.models.hand import load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object

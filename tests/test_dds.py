@@ -14,13 +14,16 @@ from cyclonedds.builtin import (
     BuiltinTopicDcpsParticipant,
     BuiltinTopicDcpsPublication,
 )
-from cyclonedds.core import Policy
+from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
 
 from wholehand.errors import ConfigError
 from wholehand.hardware import messages as msgs
 from wholehand.hardware.config import HardwareConfig, QoS, load_hardware_config
-from wholehand.hardware.dds_messages import IDL_TYPES
+from wholehand.hardware.dds_messages import IDL_TYPES, ParticipantEntitiesInfo
 from wholehand.hardware.messages import MessageError
 from wholehand.hardware.ros2_dds import DdsTransport, dds_topic_name, domain_xml, endpoint_qos
 
@@ -139,6 +142,7 @@ def test_a_sample_crosses_with_its_bytes_and_source_timestamp():
 def test_discovery_carries_ros2s_names_types_and_user_data():
     node = DdsTransport(_config(), "wholehand_controller")
     node.publisher("torque_command", msgs.FLOAT64_ARRAY)
+    node.subscriber("joint_states", msgs.JOINT_STATE, lambda *_: None)
     watcher = DomainParticipant(DOMAIN)
     try:
         publications = BuiltinDataReader(watcher, BuiltinTopicDcpsPublication)
@@ -160,6 +164,23 @@ def test_discovery_carries_ros2s_names_types_and_user_data():
             Policy.Userdata in p.qos and p.qos[Policy.Userdata].data == b"enclave=/;"
             for p in participants.read(N=32)
         )
+        # ROS 2's graph (what `ros2 node list` reads): the node, its participant and endpoints.
+        graph_qos = Qos(
+            Policy.Reliability.Reliable(duration(seconds=1)),
+            Policy.Durability.TransientLocal,
+            Policy.History.KeepLast(1),
+        )
+        graph = DataReader(
+            watcher, Topic(watcher, "ros_discovery_info", ParticipantEntitiesInfo), qos=graph_qos
+        )
+        infos: list = []
+        _until(lambda: bool(infos.extend(graph.take(N=8)) or infos))
+        info = infos[-1]
+        (entities,) = info.node_entities_info_seq
+        assert (entities.node_namespace, entities.node_name) == ("/", "wholehand_controller")
+        assert bytes(info.gid.data) == node.participant.guid.bytes
+        assert [bytes(g.data) for g in entities.writer_gid_seq] == [pub.key.bytes]
+        assert len(entities.reader_gid_seq) == 1
     finally:
         node.close()
         watcher.__del__()

@@ -1,5 +1,5 @@
 # Cyclone's IDL annotations (sequence[float64], ...) are run-time objects mypy cannot read.
-# mypy: disable-error-code="type-arg, assignment"
+# mypy: disable-error-code="type-arg, assignment, valid-type, arg-type"
 """The ROS 2 messages wholehand speaks as Cyclone DDS IDL structs, for the DDS transport
 (:mod:`wholehand.hardware.ros2_dds`).
 
@@ -12,7 +12,7 @@ annotations`` here: Cyclone reads the field types from the annotations at run ti
 from dataclasses import dataclass, field
 
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import float64, int32, sequence, uint32
+from cyclonedds.idl.types import array, bounded_str, float64, int32, sequence, uint8, uint32
 
 from wholehand.hardware.messages import (
     BOOL,
@@ -126,3 +126,39 @@ IDL_TYPES: dict[str, type[IdlStruct]] = {
     BOOL: Bool,
 }
 """The Cyclone IDL struct of each message type wholehand speaks."""
+
+
+# --- ROS 2's graph: which node owns which endpoints (rmw_dds_common, Jazzy's 16-byte GIDs) ----
+@dataclass
+class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: array[uint8, 16] = field(default_factory=lambda: [0] * 16)
+
+
+@dataclass
+class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: bounded_str[256] = "/"
+    node_name: bounded_str[256] = ""
+    reader_gid_seq: sequence[Gid] = field(default_factory=list)
+    writer_gid_seq: sequence[Gid] = field(default_factory=list)
+
+
+@dataclass
+class ParticipantEntitiesInfo(
+    IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"
+):
+    gid: Gid = field(default_factory=Gid)
+    node_entities_info_seq: sequence[NodeEntitiesInfo] = field(default_factory=list)
+
+
+def graph_message(
+    participant: bytes, node_name: str, readers: list[bytes], writers: list[bytes]
+) -> ParticipantEntitiesInfo:
+    """The ``ros_discovery_info`` message of one node in namespace ``/``: the participant's
+    GID and the GIDs of the node's readers and writers (16-byte DDS GUIDs)."""
+    node = NodeEntitiesInfo(
+        node_namespace="/",
+        node_name=node_name,
+        reader_gid_seq=[Gid(list(g)) for g in readers],
+        writer_gid_seq=[Gid(list(g)) for g in writers],
+    )
+    return ParticipantEntitiesInfo(Gid(list(participant)), [node])

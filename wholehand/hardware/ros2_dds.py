@@ -17,9 +17,12 @@ file in ``$CYCLONEDDS_URI``): multicast discovery on the default interface, as a
 node. With peers, multicast is off and only those addresses are asked (unicast; what a
 network without multicast, or two processes on one machine, need).
 
-Not done: rmw's ``ros_discovery_info`` topic, which carries node names, so ``ros2 node list``
-does not show wholehand's node (``ros2 topic list`` and ``ros2 topic info`` do show its topics:
-they read DDS's own discovery).
+ROS 2's graph: as rmw does, each node publishes on the DDS topic ``ros_discovery_info``
+(``rmw_dds_common/msg/ParticipantEntitiesInfo``; reliable, transient local, keep last 1) its
+participant's GID, its name and namespace and the GIDs (DDS GUIDs, 16 bytes from Jazzy on) of
+its readers and writers, again after each new endpoint; ``ros2 node list`` and ``ros2 node
+info`` read it (not with ``distro = "humble"``, whose GIDs are 24 bytes). ``ros2 topic list``
+and ``ros2 topic info`` read DDS's own discovery.
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from cyclonedds.util import duration
 
 from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig, QoS
-from wholehand.hardware.dds_messages import IDL_TYPES
+from wholehand.hardware.dds_messages import IDL_TYPES, ParticipantEntitiesInfo, graph_message
 from wholehand.hardware.messages import MessageError, type_hash
 from wholehand.hardware.transport import Received, Rejected, SampleMeta
 
@@ -50,6 +53,8 @@ MAX_BLOCKING = 0.1
 on a slow reader (rmw_cyclonedds waits forever)."""
 TAKE = 64
 """Samples taken from a reader per call."""
+DISCOVERY_TOPIC = "ros_discovery_info"
+"""rmw's graph topic (no ``rt/`` prefix: it is not a ROS topic)."""
 
 
 def dds_topic_name(topic: str) -> str:
@@ -141,7 +146,7 @@ class DdsPublisher:
         self.idl, self.msgtype = IDL_TYPES[msgtype], msgtype
         topic = Topic(participant, dds_topic_name(config.topics[topic_name]), self.idl)
         qos = endpoint_qos(config.qos_of(topic_name), msgtype, config.distro)
-        self._writer = DataWriter(participant, topic, qos=qos)
+        self.writer = DataWriter(participant, topic, qos=qos)
         self.sequence_number = 0
         self._lock = threading.Lock()
 
@@ -156,11 +161,11 @@ class DdsPublisher:
         with self._lock:
             self.sequence_number += 1
             stamp = time.time_ns() if stamp_ns is None else int(stamp_ns)
-            self._writer.write(sample, timestamp=stamp)
+            self.writer.write(sample, timestamp=stamp)
         return stamp
 
     def close(self) -> None:
-        self._writer.__del__()  # Cyclone's Python entities are deleted this way
+        self.writer.__del__()  # Cyclone's Python entities are deleted this way
 
 
 class DdsSubscriber:
@@ -176,7 +181,7 @@ class DdsSubscriber:
         qos = endpoint_qos(config.qos_of(topic_name), msgtype, config.distro)
         self._callback, self._rejected = callback, rejected
         self._closed = False
-        self._reader = DataReader(
+        self.reader = DataReader(
             participant, topic, qos=qos, listener=Listener(on_data_available=self._on_data)
         )
 
@@ -199,7 +204,7 @@ class DdsSubscriber:
 
     def close(self) -> None:
         self._closed = True
-        self._reader.__del__()
+        self.reader.__del__()
 
 
 class DdsTransport:
@@ -220,10 +225,36 @@ class DdsTransport:
             ) from err
         self._subscribers: list[DdsSubscriber] = []
         self._publishers: list[DdsPublisher] = []  # Cyclone deletes an entity no one holds
+        graph = Topic(self.participant, DISCOVERY_TOPIC, ParticipantEntitiesInfo)
+        graph_qos = Qos(
+            Policy.Reliability.Reliable(duration(seconds=MAX_BLOCKING)),
+            Policy.History.KeepLast(1),
+            Policy.Durability.TransientLocal,
+            Policy.WriterDataLifecycle(autodispose=False),
+        )
+        self._graph: DataWriter[ParticipantEntitiesInfo] | None = None
+        if config.distro != "humble":  # Humble's GIDs are 24 bytes: another message
+            self._graph = DataWriter(self.participant, graph, qos=graph_qos)
+        self._announce()
+
+    def _announce(self) -> None:
+        """Publish the node's entities on :data:`DISCOVERY_TOPIC` (module docstring; not on
+        Humble)."""
+        if self._graph is None:
+            return
+
+        message = graph_message(
+            self.participant.guid.bytes,
+            self.node_name,
+            [sub.reader.guid.bytes for sub in self._subscribers],
+            [pub.writer.guid.bytes for pub in self._publishers],
+        )
+        self._graph.write(message)
 
     def publisher(self, topic_name: str, msgtype: str) -> DdsPublisher:
         pub = DdsPublisher(self.participant, self.config, topic_name, msgtype)
         self._publishers.append(pub)
+        self._announce()
         return pub
 
     def subscriber(
@@ -235,6 +266,7 @@ class DdsTransport:
     ) -> DdsSubscriber:
         sub = DdsSubscriber(self.participant, self.config, topic_name, msgtype, callback, rejected)
         self._subscribers.append(sub)
+        self._announce()
         return sub
 
     def close(self) -> None:
@@ -244,4 +276,6 @@ class DdsTransport:
             pub.close()
         self._subscribers.clear()
         self._publishers.clear()
+        if self._graph is not None:
+            self._graph.__del__()
         self.participant.__del__()

@@ -105,7 +105,7 @@ def _position_targets(command: Command, n_v: int) -> FloatArray:
 
 
 class Ros2Backend(Backend):
-    """A robot reached through ROS 2 messages over zenoh (wall clock).
+    """A robot reached through ROS 2 messages over zenoh or DDS (wall clock).
 
     Args:
         hand: the hand (or arm-hand assembly) model.
@@ -310,10 +310,9 @@ class Ros2Backend(Backend):
         ]
         rejected = f"; rejected meanwhile: {dict(self.rejected)} (last: {self.last_rejection})"
         raise ConfigError(
-            f"{' and '.join(missing)} within {timeout:g} s (zenoh connect="
-            f"{list(self.config.connect)} listen={list(self.config.listen)}, domain "
-            f"{self.config.domain_id}){rejected if self.rejected else ''}; check that the robot "
-            "publishes, the topic names in [topics] and the endpoints in [ros2]"
+            f"{' and '.join(missing)} within {timeout:g} s ({self.config.link()})"
+            f"{rejected if self.rejected else ''}; check that the robot publishes, the topic "
+            "names in [topics] and the transport settings in [ros2] (docs/hardware.md)"
         )
 
     def observe(self) -> Observation:

@@ -545,7 +545,17 @@ def test_backend_with_no_joint_state_sends_zero_and_wait_names_the_topic(allegro
         assert np.isnan(b.observe().q).all()  # the loop's bad_state
         b.apply(Command.torques(np.full(allegro.nv, 0.2)))
         assert b.guard.counts == {"joints_stale": 1}
-        with pytest.raises(ConfigError, match="no joint state on '/joint_states'"):
+        with pytest.raises(ConfigError, match="no joint state on '/joint_states'.*zenoh connect"):
+            b.wait_for_streams(0.1)
+
+
+def test_a_silent_dds_robot_is_named_with_the_dds_settings(allegro):
+    from wholehand_plugins.ros2_backend import Ros2Backend
+
+    _, config = loopback_configs("dds", command_joints=ALLEGRO_ORDER)
+    with Ros2Backend(allegro, None, config) as b:
+        expected = rf"no joint state .*DDS domain {DDS_DOMAIN}, peers \['127.0.0.1'\]"
+        with pytest.raises(ConfigError, match=expected):
             b.wait_for_streams(0.1)
 
 

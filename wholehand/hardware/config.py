@@ -222,6 +222,17 @@ class HardwareConfig:
         """The QoS of a topic key of ``[topics]`` (reliable, keep last 1 unless set)."""
         return self.qos.get(topic, QoS())
 
+    def link(self) -> str:
+        """How the config reaches the robot, for messages: the transport and its settings."""
+        if self.transport == "dds":
+            peers = f"peers {list(self.dds_peers)}" if self.dds_peers else "multicast discovery"
+            where = f", interface {self.dds_interface!r}" if self.dds_interface else ""
+            return f"DDS domain {self.domain_id}, {peers}{where}"
+        return (
+            f"zenoh connect={list(self.connect)} listen={list(self.listen)}, domain "
+            f"{self.domain_id}"
+        )
+
     def with_endpoints(
         self, connect: tuple[str, ...] | None = None, listen: tuple[str, ...] | None = None
     ) -> HardwareConfig:

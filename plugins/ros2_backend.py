@@ -27,10 +27,10 @@ Every joint state is kept in the joint history, so the contacts of a pose are es
 joint configuration of the pose's stamp (paper Sec. V-D). With ``sync_to_joint_states`` (the
 default) a cycle whose newest joint state is no longer fresh waits for the next one, briefly
 (:mod:`wholehand.hardware.config`), so that the torque answers a joint state just measured.
-Incoming messages that fail their checks (:mod:`wholehand.hardware.inputs`), and samples the
-transport drops (on zenoh those without rmw_zenoh's attachment, as rmw_zenoh drops them), are
-counted by reason
-and the last good sample stays; every outgoing torque passes the safety rules of
+Incoming messages are read by :class:`~wholehand.hardware.streams.RobotStreams`: those that
+fail their checks (:mod:`wholehand.hardware.inputs`), and samples the transport drops (on zenoh
+those without rmw_zenoh's attachment, as rmw_zenoh drops them), are counted by reason and the
+last good sample stays. Every outgoing torque passes the safety rules of
 :class:`~wholehand.hardware.guard.TorqueGuard`, and a watchdog thread ramps the torque down when
 the loop stops sending.
 """
@@ -48,32 +48,18 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.backends.base import Backend
-from wholehand.errors import ConfigError
 from wholehand.hardware.arm_guard import ArmGuard
 from wholehand.hardware.config import HardwareConfig, load_hardware_config
 from wholehand.hardware.guard import TorqueGuard
-from wholehand.hardware.inputs import (
-    JointSample,
-    JointStateReader,
-    RejectedMessage,
-    arm_command_dofs,
-    command_dofs,
-    read_pose,
-)
+from wholehand.hardware.inputs import JointSample, JointStateReader, arm_command_dofs, command_dofs
 from wholehand.hardware.messages import (
-    BOOL,
     FLOAT64_ARRAY,
-    JOINT_STATE,
     JOINT_TRAJECTORY,
-    POSE_STAMPED,
-    MessageError,
-    decode_bool,
-    decode_joint_state,
-    decode_pose,
     encode_array,
     encode_joint_trajectory,
 )
-from wholehand.hardware.transport import SampleMeta, open_transport
+from wholehand.hardware.streams import Latest, RobotStreams
+from wholehand.hardware.transport import open_transport
 from wholehand.loop.command import Command
 from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
 
@@ -165,16 +151,9 @@ class Ros2Backend(Backend):
         )
         self.history = JointHistory(hand.nq, history)
         self.guard = TorqueGuard(np.where(hand.actuated_dofs, hand.tau_max, 0.0), config.safety)
-        self.stop_requested = False
-        """A stop message asked the robot to stop (until one that releases it)."""
-        self.stops = 0
-        """Stop requests received (each true after a false or none)."""
         self.hand_position_messages = 0
         """Position commands sent to the hand (``[topics] hand_position_command``)."""
         self._hand_in_position = False
-        self.received: Counter[str] = Counter()
-        self.rejected: Counter[str] = Counter()
-        self.last_rejection = ""
         self.trace: deque[tuple[int, float, int]] | None = (
             deque(maxlen=TRACE_SAMPLES) if trace else None
         )
@@ -188,13 +167,7 @@ class Ros2Backend(Backend):
             else 0.0
         )
         self._lock = threading.Lock()
-        self._joint_arrived = threading.Condition(self._lock)
-        self._pending: list[JointSample] = []
-        self._joint: JointSample | None = None
-        self._previous: JointSample | None = None
-        self._joint_received = -np.inf
-        self._pose: tuple[FloatArray, float] | None = None
-        self._pose_received = -np.inf
+        """Guards the torque guard, the publishers and the apply time (loop and watchdog)."""
         self._stamp_q_seen = np.nan
         self._last_apply = -np.inf
         self._closed = threading.Event()
@@ -208,12 +181,7 @@ class Ros2Backend(Backend):
                 if config.topic("hand_position_command")
                 else None
             )
-            self._subs = [
-                transport.subscriber("joint_states", JOINT_STATE, self._on_joints, self._reject),
-                transport.subscriber("object_pose", POSE_STAMPED, self._on_pose, self._reject),
-            ]
-            if config.topic("stop"):
-                self._subs.append(transport.subscriber("stop", BOOL, self._on_stop, self._reject))
+            self.streams = RobotStreams(config, self.reader, transport)
         except Exception:
             transport.close()
             raise
@@ -222,68 +190,25 @@ class Ros2Backend(Backend):
         )
         self._watchdog.start()
 
-    # --- incoming (the transport's threads) -------------------------------------------------------
-    def _reject(self, reason: str, detail: str) -> None:
-        with self._lock:
-            self.rejected[reason] += 1
-            first = self.rejected[reason] == 1
-            self.last_rejection = f"{reason}: {detail}"
-        if first:
-            log.warning("rejected a message (%s): %s", reason, detail)
+    # --- the streams' counts, for callers and tests --------------------------------------------
+    @property
+    def received(self) -> Counter[str]:
+        """Accepted messages per stream (:class:`~wholehand.hardware.streams.RobotStreams`)."""
+        return self.streams.received
 
-    def _on_joints(self, payload: bytes, meta: SampleMeta, received: float) -> None:
-        try:
-            sample = self.reader.read(decode_joint_state(payload), time.time())
-        except MessageError as err:
-            self._reject("malformed", str(err))
-            return
-        except RejectedMessage as err:
-            self._reject(err.reason, str(err))
-            return
-        with self._lock:
-            if self._joint is not None and sample.stamp <= self._joint.stamp:
-                self.rejected["old_stamp"] += 1
-                return
-            self._previous, self._joint = self._joint, sample
-            self._joint_received = received
-            self._pending.append(sample)
-            self.received["joint_states"] += 1
-            self._joint_arrived.notify_all()
+    @property
+    def rejected(self) -> Counter[str]:
+        """Rejected messages per reason."""
+        return self.streams.rejected
 
-    def _on_pose(self, payload: bytes, meta: SampleMeta, received: float) -> None:
-        config = self.config
-        try:
-            msg = decode_pose(payload)
-            wMo = read_pose(msg, config.frame_id, time.time(), config.safety.max_future_stamp)
-        except MessageError as err:
-            self._reject("malformed", str(err))
-            return
-        except RejectedMessage as err:
-            self._reject(err.reason, str(err))
-            return
-        stamp = msg.stamp if config.stamp_source == "header" else time.time()
-        with self._lock:
-            if self._pose is not None and stamp <= self._pose[1]:
-                self.rejected["old_stamp"] += 1
-                return
-            self._pose = (wMo, stamp)
-            self._pose_received = received
-            self.received["object_pose"] += 1
+    @property
+    def last_rejection(self) -> str:
+        return self.streams.last_rejection
 
-    def _on_stop(self, payload: bytes, meta: SampleMeta, received: float) -> None:
-        try:
-            stop = decode_bool(payload)
-        except MessageError as err:
-            self._reject("malformed", str(err))
-            return
-        with self._lock:
-            if stop and not self.stop_requested:
-                self.stops += 1
-                log.warning(
-                    "stop requested on %s: arm frozen, hand ramping to zero",
-                    self.config.topic("stop"),
-                )
-            self.stop_requested = stop
+    @property
+    def stop_requested(self) -> bool:
+        """A stop message asked the robot to stop (until one that releases it)."""
+        return self.streams.stop_requested
 
     # --- Backend interface ----------------------------------------------------------------------
     def wait_for_streams(self, timeout: float) -> None:
@@ -293,36 +218,15 @@ class Ros2Backend(Backend):
             ConfigError: one of them did not within ``timeout`` [s] (named, with what was
                 rejected meanwhile).
         """
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            with self._lock:
-                if self._joint is not None and self._pose is not None:
-                    return
-            time.sleep(0.01)
-        topics = self.config.topics
-        missing = [
-            f"{kind} on {topics[key]!r}"
-            for kind, key, got in (
-                ("no joint state", "joint_states", self._joint),
-                ("no object pose", "object_pose", self._pose),
-            )
-            if got is None
-        ]
-        rejected = f"; rejected meanwhile: {dict(self.rejected)} (last: {self.last_rejection})"
-        raise ConfigError(
-            f"{' and '.join(missing)} within {timeout:g} s ({self.config.link()})"
-            f"{rejected if self.rejected else ''}; check that the robot publishes, the topic "
-            "names in [topics] and the transport settings in [ros2] (docs/hardware.md)"
-        )
+        self.streams.wait_for_first(timeout)
 
     def observe(self) -> Observation:
         """The newest joint state (every one since the last call goes into the history) and the
         newest object pose. Before a first joint state, q is NaN (the loop's ``bad_state``)."""
-        with self._lock:
-            pending, self._pending = self._pending, []
-            joint, previous, pose = self._joint, self._previous, self._pose
-        for sample in pending:
+        for sample in self.streams.take_pending():
             self.history.push(sample.stamp, sample.q, self.hand.wMb)
+        latest = self.streams.latest()
+        joint, previous, pose = latest.joint, latest.previous, latest.pose
         if joint is None:
             unknown = np.full(self.hand.nq, np.nan)
             return Observation(
@@ -337,16 +241,18 @@ class Ros2Backend(Backend):
         """Send the command's hand torques (its hand targets as a PD law in torque) through the
         torque guard and its arm targets through the arm guard; on a stop request, the arm's
         frozen target and the hand's ramp to zero instead."""
+        latest = self.streams.latest()
+        stop = latest.stop_requested
         with self._lock:
             now, stamp_ns = time.monotonic(), time.time_ns()
-            joint, joint_age = self._joint, now - self._joint_received
-            pose_age = self._pose_age(now, joint)
+            joint, joint_age = latest.joint, now - latest.joint_received
+            pose_age = self._pose_age(now, latest)
             self._last_apply = now
             if joint is not None:
                 self.guard.start_from(joint.effort, now)
             positions, position_pub = None, self._hand_position
             self._hand_in_position = False
-            if self.stop_requested:
+            if stop:
                 tau = self.guard.ramp_down(now, self.config.safety.pose_ramp, "stop")
             elif position_pub is not None and joint_age <= self.config.safety.joint_timeout:
                 positions = self._hand_targets(command)
@@ -358,21 +264,22 @@ class Ros2Backend(Backend):
                 # rate-limited from the effort they then report, as after a restart.
                 self.guard.last = None
             else:
-                if not self.stop_requested:
-                    wanted = self._hand_torques(command, joint)
+                if not stop:
+                    wanted = self._hand_torques(command, joint, latest.previous)
                     tau, _ = self.guard.filter(wanted, now, joint_age, pose_age)
                 self._publish(tau, stamp_ns)
-            arm = self._arm_target(command, joint, joint_age, now)
+            arm = self._arm_target(command, joint, joint_age, now, stop)
         if arm is not None:
             self._publish_arm(arm)
 
-    def _pose_age(self, now: float, joint: JointSample | None) -> float:
+    def _pose_age(self, now: float, latest: Latest) -> float:
         """Age of the newest pose [s]: since it arrived, or, with header stamps, how much older
         its stamp is than the newest joint state's, whichever is larger (a stalled tracker that
         keeps sending its last, old-stamped pose gets the stale-pose rule)."""
-        age = now - self._pose_received
-        if self.config.stamp_source == "header" and joint is not None and self._pose is not None:
-            age = max(age, joint.stamp - self._pose[1])
+        age = now - latest.pose_received
+        joint, pose = latest.joint, latest.pose
+        if self.config.stamp_source == "header" and joint is not None and pose is not None:
+            age = max(age, joint.stamp - pose[1])
         return age
 
     def _hand_targets(self, command: Command) -> FloatArray | None:
@@ -384,7 +291,9 @@ class Ros2Backend(Backend):
         q_index = self._q_index[self.command_dofs]
         return np.clip(out, self.hand.q_lower[q_index], self.hand.q_upper[q_index])
 
-    def _hand_torques(self, command: Command, joint: JointSample | None) -> FloatArray:
+    def _hand_torques(
+        self, command: Command, joint: JointSample | None, previous: JointSample | None
+    ) -> FloatArray:
         """(n_v,) the command's torques with each target group's PD law on the hand's joints,
         evaluated on the newest joint state (:mod:`wholehand.loop.command`); zero on an arm's
         joints."""
@@ -392,7 +301,7 @@ class Ros2Backend(Backend):
         tau[self.hand.arm_dofs] = 0.0  # the arm's own controller holds it; not sent
         if not command.targets or joint is None:
             return tau
-        dq = joint.dq if joint.dq is not None else self._velocity(joint, self._previous)
+        dq = joint.dq if joint.dq is not None else self._velocity(joint, previous)
         for group in command.targets:
             hand = ~self.hand.arm_dofs[group.dofs]
             dofs = group.dofs[hand]
@@ -405,16 +314,21 @@ class Ros2Backend(Backend):
         return tau
 
     def _arm_target(
-        self, command: Command, joint: JointSample | None, joint_age: float, now: float
+        self,
+        command: Command,
+        joint: JointSample | None,
+        joint_age: float,
+        now: float,
+        stop: bool,
     ) -> FloatArray | None:
         """(n_arm,) the arm target to send, model order, through the arm guard; None when there
         is no arm, no joint state yet, or the command gives the arm no full target."""
         guard = self.arm_guard
         if guard is None or joint is None:
             return None
-        if self.stop_requested or not joint_age <= self.config.safety.joint_timeout:
+        if stop or not joint_age <= self.config.safety.joint_timeout:
             # Frozen where the arm was when it began (a stale joint state: its last target).
-            if guard.last is None or (self.stop_requested and guard.counts["hold"] == 0):
+            if guard.last is None or (stop and guard.counts["hold"] == 0):
                 return guard.hold(joint.q, now)
             return guard.last
         arm = _position_targets(command, self.hand.nv)[guard.dofs]
@@ -455,19 +369,10 @@ class Ros2Backend(Backend):
             self._wait_for_fresh_joints()
 
     def _wait_for_fresh_joints(self) -> None:
-        with self._joint_arrived:
-            received = self._joint_received
-            started = time.monotonic()
-            if self._joint is None:
-                return  # nothing to wait for: the cycle reports bad_state
-            if started - received < self._fresh_age:
-                self.sync["fresh"] += 1
-                return
-            arrived = self._joint_arrived.wait_for(
-                lambda: self._joint_received != received, timeout=self._max_sync_wait
-            )
-            self.sync["waited" if arrived else "timed_out"] += 1
-            self.sync_wait += time.monotonic() - started
+        how, waited = self.streams.wait_for_fresh_joint(self._fresh_age, self._max_sync_wait)
+        if how != "none":  # nothing to wait for before a first joint state: bad_state
+            self.sync[how] += 1
+            self.sync_wait += waited
 
     @property
     def time(self) -> float:
@@ -486,18 +391,19 @@ class Ros2Backend(Backend):
     # --- extras ---------------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:
         """Counts of received and rejected messages and of the safety rules, JSON-ready."""
+        streams = self.streams
         with self._lock:
             return {
-                "received": dict(self.received),
-                "rejected": dict(self.rejected),
-                "last_rejection": self.last_rejection,
+                "received": dict(streams.received),
+                "rejected": dict(streams.rejected),
+                "last_rejection": streams.last_rejection,
                 "guard": dict(self.guard.counts),
                 "torque_messages": self._torque.sequence_number,
                 "command_joints": self.command_names,
                 "arm_guard": {} if self.arm_guard is None else dict(self.arm_guard.counts),
                 "arm_messages": 0 if self._arm is None else self._arm.sequence_number,
                 "arm_joints": self.arm_names,
-                "stops": self.stops,
+                "stops": streams.stops,
                 "hand_position_messages": self.hand_position_messages,
                 "sync": dict(self.sync),
                 "sync_wait_s": self.sync_wait,
@@ -511,8 +417,7 @@ class Ros2Backend(Backend):
         self._closed.set()
         self._watchdog.join()
         self.release()
-        for sub in self._subs:
-            sub.close()
+        self.streams.close()
         self._torque.close()
         if self._arm is not None:
             self._arm.close()
@@ -529,8 +434,8 @@ class Ros2Backend(Backend):
         if self.guard.last is None and not self._hand_in_position:
             return
         duration, period = self.config.safety.exit_ramp, 1.0 / self.config.control_rate
+        joint = self.streams.latest().joint
         with self._lock:
-            joint = self._joint
             arm = None
             if self.arm_guard is not None and joint is not None:
                 arm = self.arm_guard.hold(joint.q, time.monotonic())

@@ -132,8 +132,15 @@ def test_a_sample_crosses_with_its_bytes_and_source_timestamp():
         received, meta = got[0]
         assert received == payload
         assert meta.source_timestamp == 1_700_000_000_123_456_789 and len(meta.source) == 16
-        with pytest.raises(MessageError, match="not a sensor_msgs/msg/JointState"):
-            pub.put(b"\x00\x01\x00\x00 garbage")
+        stops: list[bool] = []  # 5 bytes: padded to 8 on the wire, read back as it was
+        controller.subscriber(
+            "stop", msgs.BOOL, lambda p, meta, t: stops.append(msgs.decode_bool(p))
+        )
+        stop = robot.publisher("stop", msgs.BOOL)
+        _until(lambda: bool(stop.put(msgs.encode_bool(True)) and time.sleep(0.02) or stops))
+        assert stops[0] is True
+        with pytest.raises(MessageError, match="not a little-endian CDR sensor_msgs/msg/Joint"):
+            pub.put(b"\x01\x00\x00\x00 big-endian")
     finally:
         robot.close()
         controller.close()

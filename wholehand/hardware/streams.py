@@ -1,0 +1,225 @@
+"""What the robot sends the controller: joint states, object poses and stop requests.
+
+Each message is decoded and checked when it arrives, on the transport's thread
+(:mod:`wholehand.hardware.inputs`); the newest good one of each stream is kept with its receipt
+time on ``time.monotonic``, and a message that fails a check, or is older than the newest, is
+counted by reason (:attr:`RobotStreams.rejected`) while the last good one stays.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.errors import ConfigError
+from wholehand.hardware.config import HardwareConfig
+from wholehand.hardware.inputs import JointSample, JointStateReader, RejectedMessage, read_pose
+from wholehand.hardware.messages import (
+    BOOL,
+    JOINT_STATE,
+    POSE_STAMPED,
+    MessageError,
+    decode_bool,
+    decode_joint_state,
+    decode_pose,
+)
+from wholehand.hardware.transport import SampleMeta, TopicSubscriber, Transport
+
+log = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Latest:
+    """The newest good samples and when they arrived."""
+
+    joint: JointSample | None
+    previous: JointSample | None
+    """The joint state before :attr:`joint` (velocities of states sent without them)."""
+    joint_received: float
+    """Receipt of :attr:`joint` [s, monotonic]; -inf before the first."""
+    pose: tuple[FloatArray, float] | None
+    """(4, 4) object pose in the world and its stamp [s]."""
+    pose_received: float
+    stop_requested: bool
+
+
+class RobotStreams:
+    """Subscribes the config's ``joint_states``, ``object_pose`` and ``stop`` topics on
+    ``transport`` and keeps the newest good sample of each (module docstring).
+
+    Attributes:
+        received: accepted messages per stream (``joint_states``, ``object_pose``).
+        rejected: rejected messages per reason (``malformed``, ``not_finite``,
+            ``unknown_joint``, ``old_stamp``, ``no_attachment``, ...).
+        last_rejection: ``"<reason>: <detail>"`` of the latest rejection.
+        stops: stop requests received (each true after a false or none).
+    """
+
+    def __init__(self, config: HardwareConfig, reader: JointStateReader, transport: Transport):
+        self.config, self.reader = config, reader
+        self.received: Counter[str] = Counter()
+        self.rejected: Counter[str] = Counter()
+        self.last_rejection = ""
+        self.stops = 0
+        self._lock = threading.Lock()
+        self._joint_arrived = threading.Condition(self._lock)
+        self._pending: list[JointSample] = []
+        self._joint: JointSample | None = None
+        self._previous: JointSample | None = None
+        self._joint_received = -np.inf
+        self._pose: tuple[FloatArray, float] | None = None
+        self._pose_received = -np.inf
+        self._stop = False
+        self._subs: list[TopicSubscriber] = [
+            transport.subscriber("joint_states", JOINT_STATE, self._on_joints, self.reject),
+            transport.subscriber("object_pose", POSE_STAMPED, self._on_pose, self.reject),
+        ]
+        if config.topic("stop"):
+            self._subs.append(transport.subscriber("stop", BOOL, self._on_stop, self.reject))
+
+    # --- the transport's threads ----------------------------------------------------------------
+    def reject(self, reason: str, detail: str) -> None:
+        """Count a dropped message (logged the first time of each reason)."""
+        with self._lock:
+            self.rejected[reason] += 1
+            first = self.rejected[reason] == 1
+            self.last_rejection = f"{reason}: {detail}"
+        if first:
+            log.warning("rejected a message (%s): %s", reason, detail)
+
+    def _on_joints(self, payload: bytes, meta: SampleMeta, received: float) -> None:
+        try:
+            sample = self.reader.read(decode_joint_state(payload), time.time())
+        except MessageError as err:
+            self.reject("malformed", str(err))
+            return
+        except RejectedMessage as err:
+            self.reject(err.reason, str(err))
+            return
+        with self._lock:
+            if self._joint is not None and sample.stamp <= self._joint.stamp:
+                self.rejected["old_stamp"] += 1
+                return
+            self._previous, self._joint = self._joint, sample
+            self._joint_received = received
+            self._pending.append(sample)
+            self.received["joint_states"] += 1
+            self._joint_arrived.notify_all()
+
+    def _on_pose(self, payload: bytes, meta: SampleMeta, received: float) -> None:
+        config = self.config
+        try:
+            msg = decode_pose(payload)
+            wMo = read_pose(msg, config.frame_id, time.time(), config.safety.max_future_stamp)
+        except MessageError as err:
+            self.reject("malformed", str(err))
+            return
+        except RejectedMessage as err:
+            self.reject(err.reason, str(err))
+            return
+        stamp = msg.stamp if config.stamp_source == "header" else time.time()
+        with self._lock:
+            if self._pose is not None and stamp <= self._pose[1]:
+                self.rejected["old_stamp"] += 1
+                return
+            self._pose = (wMo, stamp)
+            self._pose_received = received
+            self.received["object_pose"] += 1
+
+    def _on_stop(self, payload: bytes, meta: SampleMeta, received: float) -> None:
+        try:
+            stop = decode_bool(payload)
+        except MessageError as err:
+            self.reject("malformed", str(err))
+            return
+        with self._lock:
+            if stop and not self._stop:
+                self.stops += 1
+                log.warning(
+                    "stop requested on %s: arm frozen, hand ramping to zero",
+                    self.config.topic("stop"),
+                )
+            self._stop = stop
+
+    # --- the controller's thread ----------------------------------------------------------------
+    @property
+    def stop_requested(self) -> bool:
+        """A stop message asked the robot to stop (until one that releases it)."""
+        with self._lock:
+            return self._stop
+
+    def latest(self) -> Latest:
+        """The newest samples, consistent with each other."""
+        with self._lock:
+            return Latest(
+                self._joint,
+                self._previous,
+                self._joint_received,
+                self._pose,
+                self._pose_received,
+                self._stop,
+            )
+
+    def take_pending(self) -> list[JointSample]:
+        """Every joint state accepted since the last call, oldest first."""
+        with self._lock:
+            pending, self._pending = self._pending, []
+        return pending
+
+    def wait_for_first(self, timeout: float) -> None:
+        """Block until a first joint state and a first object pose have arrived.
+
+        Raises:
+            ConfigError: one of them did not within ``timeout`` [s] (named, with what was
+                rejected meanwhile and how the config reaches the robot).
+        """
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self._lock:
+                if self._joint is not None and self._pose is not None:
+                    return
+            time.sleep(0.01)
+        topics = self.config.topics
+        missing = [
+            f"{kind} on {topics[key]!r}"
+            for kind, key, got in (
+                ("no joint state", "joint_states", self._joint),
+                ("no object pose", "object_pose", self._pose),
+            )
+            if got is None
+        ]
+        rejected = f"; rejected meanwhile: {dict(self.rejected)} (last: {self.last_rejection})"
+        raise ConfigError(
+            f"{' and '.join(missing)} within {timeout:g} s ({self.config.link()})"
+            f"{rejected if self.rejected else ''}; check that the robot publishes, the topic "
+            "names in [topics] and the transport settings in [ros2] (docs/hardware.md)"
+        )
+
+    def wait_for_fresh_joint(self, fresh_age: float, max_wait: float) -> tuple[str, float]:
+        """If the newest joint state is older than ``fresh_age`` [s], wait up to ``max_wait``
+        [s] for the next; returns how (``fresh``, ``waited``, ``timed_out``; ``none`` before
+        a first joint state) and the time waited [s]."""
+        with self._joint_arrived:
+            received = self._joint_received
+            started = time.monotonic()
+            if self._joint is None:
+                return "none", 0.0
+            if started - received < fresh_age:
+                return "fresh", 0.0
+            arrived = self._joint_arrived.wait_for(
+                lambda: self._joint_received != received, timeout=max_wait
+            )
+            return ("waited" if arrived else "timed_out"), time.monotonic() - started
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.close()
+        self._subs.clear()

@@ -79,14 +79,20 @@ def paired_difference(
     return float(d.mean()), se, int(d.size)
 
 
+SHORTFALL_SE = 2.0
+"""A rate falls short of the fastest when its paired difference is below minus this many
+standard errors (one-sided, about 2 % by chance per rate)."""
+
+
 def enough_rate(groups: list[dict[str, Any]]) -> float:
-    """The lowest rate [Hz] from which on every rate's success is within one standard error of
-    the paired difference from the fastest rate's: above it, speed stops mattering. The fastest
-    rate itself when the next slower one already differs."""
+    """The lowest rate [Hz] from which on no rate holds fewer grasps than the fastest by more
+    than :data:`SHORTFALL_SE` standard errors of the paired difference: above it, speed stops
+    mattering. A slower rate that holds more is no shortfall. The fastest rate itself when the
+    next slower one already falls short."""
     ordered = sorted(groups, key=lambda g: g["rate_hz"])
     found = float(ordered[-1]["rate_hz"])
     for g in reversed(ordered[:-1]):
-        if g["n_paired"] == 0 or abs(g["diff_to_fastest"]) > g["diff_se"]:
+        if g["n_paired"] == 0 or g["diff_to_fastest"] < -SHORTFALL_SE * g["diff_se"]:
             break
         found = float(g["rate_hz"])
     return found

@@ -5,7 +5,7 @@ USER_DATA that rmw_cyclonedds writes (the DDS discovery data, read back through 
 from __future__ import annotations
 
 import os
-import time
+import threading
 
 import numpy as np
 import pytest
@@ -14,7 +14,15 @@ from cyclonedds.builtin import (
     BuiltinTopicDcpsParticipant,
     BuiltinTopicDcpsPublication,
 )
-from cyclonedds.core import Policy, Qos
+from cyclonedds.core import (
+    InstanceState,
+    Policy,
+    Qos,
+    ReadCondition,
+    SampleState,
+    ViewState,
+    WaitSet,
+)
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
@@ -105,39 +113,60 @@ def test_a_second_setting_of_an_open_domain_is_refused():
         node.close()
 
 
-def _until(condition, timeout=10.0):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.01)
+ATTEMPTS = 200
+"""Publications tried until discovery has matched the endpoints (each waits up to 50 ms)."""
+
+
+def _published_until_received(publish, received: threading.Event) -> None:
+    """Publish until the subscriber's callback sets ``received``: samples sent before the
+    endpoints have discovered each other are lost (volatile durability)."""
+    for _ in range(ATTEMPTS):
+        publish()
+        if received.wait(0.05):
+            return
+    pytest.fail(f"nothing received after {ATTEMPTS} publications")
+
+
+def _wait_for(reader, accept) -> None:
+    """Hand ``reader``'s samples to ``accept`` until it returns True, waking on each arrival
+    (a WaitSet on the reader, not a clock)."""
+    waitset = WaitSet(reader.participant)
+    waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    for _ in range(ATTEMPTS):
+        if accept(reader.take(N=32)):
+            return
+        waitset.wait(duration(milliseconds=50))
+    pytest.fail("the expected discovery data never arrived")
 
 
 def test_a_sample_crosses_with_its_bytes_and_source_timestamp():
     config = _config()
     robot, controller = DdsTransport(config, "robot"), DdsTransport(config, "controller")
-    got = []
+    got: list = []
+    arrived = threading.Event()
+
+    def on_joints(payload, meta, t) -> None:
+        got.append((payload, meta))
+        arrived.set()
+
     try:
-        controller.subscriber(
-            "joint_states", msgs.JOINT_STATE, lambda p, meta, t: got.append((p, meta))
-        )
+        controller.subscriber("joint_states", msgs.JOINT_STATE, on_joints)
         pub = robot.publisher("joint_states", msgs.JOINT_STATE)
         payload = PAYLOADS[msgs.JOINT_STATE]
-
-        def sent() -> bool:
-            pub.put(payload, stamp_ns=1_700_000_000_123_456_789)
-            time.sleep(0.02)
-            return bool(got)
-
-        _until(sent)
+        _published_until_received(lambda: pub.put(payload, 1_700_000_000_123_456_789), arrived)
         received, meta = got[0]
         assert received == payload
         assert meta.source_timestamp == 1_700_000_000_123_456_789 and len(meta.source) == 16
         stops: list[bool] = []  # 5 bytes: padded to 8 on the wire, read back as it was
-        controller.subscriber(
-            "stop", msgs.BOOL, lambda p, meta, t: stops.append(msgs.decode_bool(p))
-        )
+        stopped = threading.Event()
+
+        def on_stop(payload, meta, t) -> None:
+            stops.append(msgs.decode_bool(payload))
+            stopped.set()
+
+        controller.subscriber("stop", msgs.BOOL, on_stop)
         stop = robot.publisher("stop", msgs.BOOL)
-        _until(lambda: bool(stop.put(msgs.encode_bool(True)) and time.sleep(0.02) or stops))
+        _published_until_received(lambda: stop.put(msgs.encode_bool(True)), stopped)
         assert stops[0] is True
         with pytest.raises(MessageError, match="not a little-endian CDR sensor_msgs/msg/Joint"):
             pub.put(b"\x01\x00\x00\x00 big-endian")
@@ -156,13 +185,11 @@ def test_discovery_carries_ros2s_names_types_and_user_data():
         participants = BuiltinDataReader(watcher, BuiltinTopicDcpsParticipant)
         found: dict[str, object] = {}
 
-        def seen() -> bool:
-            for s in publications.take(N=32):
-                if s.topic_name.startswith("rt/"):
-                    found[s.topic_name] = s
+        def commands_seen(samples) -> bool:
+            found.update({s.topic_name: s for s in samples if s.topic_name.startswith("rt/")})
             return "rt/hand_effort_controller/commands" in found
 
-        _until(seen)
+        _wait_for(publications, commands_seen)
         pub = found["rt/hand_effort_controller/commands"]
         assert pub.type_name == "std_msgs::msg::dds_::Float64MultiArray_"
         digest = msgs.type_hash(msgs.FLOAT64_ARRAY)
@@ -181,7 +208,7 @@ def test_discovery_carries_ros2s_names_types_and_user_data():
             watcher, Topic(watcher, "ros_discovery_info", ParticipantEntitiesInfo), qos=graph_qos
         )
         infos: list = []
-        _until(lambda: bool(infos.extend(graph.take(N=8)) or infos))
+        _wait_for(graph, lambda samples: bool(infos.extend(samples) or infos))
         info = infos[-1]
         (entities,) = info.node_entities_info_seq
         assert (entities.node_namespace, entities.node_name) == ("/", "wholehand_controller")

@@ -14,7 +14,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from wholehand.errors import ConfigError
-from wholehand.loop.mcap_recording import ARROW_SCALE, TOPICS, McapRecorder, read_mcap_record
+from wholehand.loop.mcap_recording import ARROW_SCALE, TOPICS, McapRecorder
+from wholehand.loop.mcap_replay import read_mcap_record
 from wholehand.loop.trial import TrialSpec, run_trial
 
 QUICK = {"settle_time": 0.3, "load_duration": 0.1}

@@ -32,7 +32,8 @@ if TYPE_CHECKING:
     from wholehand.contacts.base import ContactEstimator, ContactSet
     from wholehand.loop.command import Command, JointTargets
     from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-    from wholehand.loop.mcap_recording import McapRecorder, read_mcap_record
+    from wholehand.loop.mcap_recording import McapRecorder
+    from wholehand.loop.mcap_replay import read_mcap_record
     from wholehand.loop.outcome import RunOutcome, outcome_of
     from wholehand.loop.record import Recorder, RunRecord
     from wholehand.loop.regulation import ForceRegulation
@@ -58,7 +59,7 @@ _PUBLIC = {
     "Cycle": "wholehand.loop.control_loop",
     "Observer": "wholehand.loop.control_loop",
     "McapRecorder": "wholehand.loop.mcap_recording",
-    "read_mcap_record": "wholehand.loop.mcap_recording",
+    "read_mcap_record": "wholehand.loop.mcap_replay",
     "RunOutcome": "wholehand.loop.outcome",
     "outcome_of": "wholehand.loop.outcome",
     "Recorder": "wholehand.loop.record",

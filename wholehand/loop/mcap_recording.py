@@ -44,8 +44,8 @@ Topics (frames: ``world``, every link of the model by its name, and ``object``):
 The contacts are two markers: their points (a SPHERE_LIST) and their forces (a LINE_LIST from
 each point to ``point + ARROW_SCALE * force``), coloured by the force's magnitude from blue to
 red; contacts without an allocated force are grey, with short lines along the object normal.
-:func:`read_mcap_record` turns a recording back into a :class:`RunRecord` for ``wholehand
-view``.
+:func:`~wholehand.loop.mcap_replay.read_mcap_record` turns a recording back into a run record
+for ``wholehand view``.
 """
 
 from __future__ import annotations
@@ -55,7 +55,6 @@ import json
 import logging
 import math
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -63,10 +62,8 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from wholehand.errors import ConfigError
 from wholehand.hardware.messages import typestore
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.record import RunRecord
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.mesh_files import resolve_mesh_uri
@@ -128,49 +125,31 @@ def urdf_for_viewers(hand: HandModel) -> str | None:
     return ET.tostring(root, encoding="unicode")
 
 
+MESSAGE_PACKAGES = (
+    "builtin_interfaces",
+    "std_msgs",
+    "geometry_msgs",
+    "sensor_msgs",
+    "tf2_msgs",
+    "visualization_msgs",
+)
+"""Where :class:`_Types` looks a short message name up, in order."""
+
+
 class _Types:
-    """The rosbags message classes used here."""
+    """The rosbags message classes by their short names (``T.Point``: the first of
+    :data:`MESSAGE_PACKAGES` that has it), and builders of the messages' common parts."""
 
     def __init__(self) -> None:
-        t = typestore().types
-        self.Time, self.Header, self.String = (
-            t["builtin_interfaces/msg/Time"],
-            t["std_msgs/msg/Header"],
-            t[STRING],
-        )
-        self.Vector3, self.Quaternion, self.Point = (
-            t["geometry_msgs/msg/Vector3"],
-            t["geometry_msgs/msg/Quaternion"],
-            t["geometry_msgs/msg/Point"],
-        )
-        self.Pose, self.PoseStamped = (
-            t["geometry_msgs/msg/Pose"],
-            t["geometry_msgs/msg/PoseStamped"],
-        )
-        self.Transform = t["geometry_msgs/msg/Transform"]
-        self.TransformStamped, self.TFMessage = (
-            t["geometry_msgs/msg/TransformStamped"],
-            t["tf2_msgs/msg/TFMessage"],
-        )
-        self.JointState = t[JOINT_STATE]
-        self.Float64MultiArray = t["std_msgs/msg/Float64MultiArray"]
-        self.MultiArrayLayout = t["std_msgs/msg/MultiArrayLayout"]
-        self.Wrench, self.WrenchStamped = (
-            t["geometry_msgs/msg/Wrench"],
-            t["geometry_msgs/msg/WrenchStamped"],
-        )
-        self.Marker, self.MarkerArray = (
-            t["visualization_msgs/msg/Marker"],
-            t["visualization_msgs/msg/MarkerArray"],
-        )
-        self.ColorRGBA, self.Duration = (
-            t["std_msgs/msg/ColorRGBA"],
-            t["builtin_interfaces/msg/Duration"],
-        )
-        self.MeshFile, self.CompressedImage = (
-            t["visualization_msgs/msg/MeshFile"],
-            t["sensor_msgs/msg/CompressedImage"],
-        )
+        self._all = typestore().types
+
+    def __getattr__(self, name: str) -> Any:
+        for package in MESSAGE_PACKAGES:
+            cls = self._all.get(f"{package}/msg/{name}")
+            if cls is not None:
+                setattr(self, name, cls)  # found once
+                return cls
+        raise AttributeError(f"no message type {name!r} in {MESSAGE_PACKAGES}")
 
     def header(self, t: float, frame: str = "world") -> Any:
         sec = math.floor(t)
@@ -481,102 +460,3 @@ class McapRecorder(Observer):
         if self._writer is not None:
             writer, self._writer = self._writer, None
             writer.close()
-
-
-# --- reading back -----------------------------------------------------------------------------
-def _messages(path: Path) -> Iterator[tuple[str, float, Any]]:
-    """(topic, log time [s], decoded message) of every message, in log time order."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
-    with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=True):
-            yield channel.topic, 1e-9 * message.log_time, decoded
-
-
-def read_mcap_record(path: str | Path) -> RunRecord:
-    """A recording of :class:`McapRecorder` as a :class:`RunRecord` (what ``wholehand view``
-    replays): per cycle the joint positions, the object's and the hand base's poses, the
-    contacts and their forces, the torques, the residual wrench, the stage and status.
-    Decoded with ``mcap_ros2`` (not the writer's rosbags), so reading checks the writing."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"no MCAP recording at {path}; write one with --record run.mcap")
-    record = RunRecord(phases=["run"])
-    info: dict[str, Any] = {}
-    cycle: dict[str, Any] = {}
-    for topic, t, msg in _messages(path):
-        if topic == "/wholehand/run_info":
-            info = json.loads(msg.data)
-            record.meta = {"spec": {"hand": info["hand"], "object": info["object"]}, **info}
-            if not record.meta.get("table"):
-                record.meta.pop("table", None)
-        elif topic == "/tf":
-            if cycle:
-                _append(record, cycle, info)
-            cycle = {"t": t, "tf": {tf.child_frame_id: tf.transform for tf in msg.transforms}}
-        elif topic == "/joint_states":
-            cycle["q"] = np.asarray(msg.position, dtype=float)
-            cycle["tau"] = np.asarray(msg.effort, dtype=float)
-        elif topic == "/wholehand/contacts":
-            cycle["contacts"] = {m.ns: m for m in msg.markers}
-        elif topic == "/wholehand/residual_wrench":
-            f, m = msg.wrench.force, msg.wrench.torque
-            cycle["wrench"] = [f.x, f.y, f.z, m.x, m.y, m.z]
-        elif topic == "/wholehand/status":
-            cycle["stage"], _, cycle["status"] = msg.data.partition(": ")
-    if cycle:
-        _append(record, cycle, info)
-    if not info:
-        raise ConfigError(f"{path} is no wholehand recording: it has no /wholehand/run_info")
-    return record
-
-
-def _matrix(transform: Any) -> FloatArray:
-    r, v = transform.rotation, transform.translation
-    M = np.eye(4)
-    M[:3, :3] = pin.Quaternion(r.w, r.x, r.y, r.z).toRotationMatrix()
-    M[:3, 3] = [v.x, v.y, v.z]
-    return M
-
-
-def _append(record: RunRecord, cycle: dict[str, Any], info: dict[str, Any]) -> None:
-    tf = cycle["tf"]
-    wMo = _matrix(tf["object"]) if "object" in tf else np.eye(4)
-    base = info.get("base_link")
-    wMb = _matrix(tf[base]) if base in tf else np.eye(4)
-    scale = float(info.get("arrow_scale_m_per_N", ARROW_SCALE))
-    markers = cycle.get("contacts", {})
-    p = np.zeros((0, 3))
-    f = np.zeros((0, 3))
-    if "forces" in markers:
-        line = markers["forces"]
-        ends = np.array([[v.x, v.y, v.z] for v in line.points], dtype=float).reshape(-1, 2, 3)
-        p = ends[:, 0]
-        grey = np.array([c.r == c.g == c.b for c in line.colors[::2]], dtype=bool)
-        f = np.where(grey[:, None], 0.0, (ends[:, 1] - ends[:, 0]) / scale)
-    tau = cycle.get("tau", np.zeros(0))
-    record.append(
-        t=cycle["t"],
-        stamp_object=cycle["t"],
-        phase=0,
-        stage=cycle.get("stage", ""),
-        n_contacts=len(p),
-        residual_wrench=np.asarray(cycle.get("wrench", [np.nan] * 6), dtype=float),
-        tau=tau,
-        qp_time=np.nan,
-        estimate_time=np.nan,
-        cycle_time=np.nan,
-        status=cycle.get("status", ""),
-        held=True,
-        p_object=wMo[:3, 3],
-        r_object=pin.log3(wMo[:3, :3]),
-        q=cycle.get("q", np.zeros(0)),
-        p_base=wMb[:3, 3],
-        r_base=pin.log3(wMb[:3, :3]),
-        contact_p=p,
-        contact_n=np.zeros_like(p),
-        contact_f=f,
-        contact_link=np.full(len(p), -1, dtype=np.int64),
-    )

@@ -18,7 +18,7 @@ A stop request freezes the arm and ramps the hand torques to zero; on every exit
 reached on the loop's end, Ctrl-C, SIGTERM and a fault of the loop) the arm holds its measured
 position and the hand torques ramp to zero over ``exit_ramp``.
 Topics, joint names, rates, QoS and the safety limits come from a hardware config
-(:mod:`wholehand.hardware.config`); messages go over zenoh as rmw_zenoh writes them
+(:mod:`wholehand.hardware.config_file`); messages go over zenoh as rmw_zenoh writes them
 (:mod:`wholehand.hardware.rmw_zenoh`) or over DDS as rmw_cyclonedds and rmw_fastrtps write them
 (:mod:`wholehand.hardware.ros2_dds`), by ``[ros2] transport``, so no ROS installation is
 needed.
@@ -26,7 +26,7 @@ needed.
 Every joint state is kept in the joint history, so the contacts of a pose are estimated at the
 joint configuration of the pose's stamp (paper Sec. V-D). With ``sync_to_joint_states`` (the
 default) a cycle whose newest joint state is no longer fresh waits for the next one, briefly
-(:mod:`wholehand.hardware.config`), so that the torque answers a joint state just measured.
+(:mod:`wholehand.hardware.config_file`), so that the torque answers a joint state just measured.
 Incoming messages are read by :class:`~wholehand.hardware.streams.RobotStreams`: those that
 fail their checks (:mod:`wholehand.hardware.inputs`), and samples the transport drops (on zenoh
 those without rmw_zenoh's attachment, as rmw_zenoh drops them), are counted by reason and the
@@ -49,7 +49,8 @@ import numpy.typing as npt
 
 from wholehand.backends.base import Backend
 from wholehand.hardware.arm_guard import ArmGuard
-from wholehand.hardware.config import HardwareConfig, load_hardware_config
+from wholehand.hardware.config import HardwareConfig
+from wholehand.hardware.config_file import load_hardware_config
 from wholehand.hardware.guard import TorqueGuard
 from wholehand.hardware.inputs import JointSample, JointStateReader, arm_command_dofs, command_dofs
 from wholehand.hardware.messages import (
@@ -362,7 +363,7 @@ class Ros2Backend(Backend):
 
     def step(self, duration: float) -> None:
         """Wait ``duration`` [s], then, with ``sync_to_joint_states``, for a fresh joint state
-        (:mod:`wholehand.hardware.config`; counted in :attr:`sync`)."""
+        (:mod:`wholehand.hardware.config_file`; counted in :attr:`sync`)."""
         if duration > 0.0:
             time.sleep(duration)
         if self._max_sync_wait > 0.0:

@@ -30,7 +30,8 @@ from cyclonedds.util import duration
 
 from wholehand.errors import ConfigError
 from wholehand.hardware import messages as msgs
-from wholehand.hardware.config import HardwareConfig, QoS, load_hardware_config
+from wholehand.hardware.config import HardwareConfig, QoS
+from wholehand.hardware.config_file import load_hardware_config
 from wholehand.hardware.dds_messages import IDL_TYPES, ParticipantEntitiesInfo
 from wholehand.hardware.messages import MessageError
 from wholehand.hardware.ros2_dds import DdsTransport, dds_topic_name, domain_xml, endpoint_qos

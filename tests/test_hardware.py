@@ -15,13 +15,8 @@ import pytest
 
 from wholehand.errors import ConfigError
 from wholehand.hardware import messages as msgs
-from wholehand.hardware.config import (
-    HardwareConfig,
-    QoS,
-    SafetyLimits,
-    load_hardware_config,
-    parse_hardware_config,
-)
+from wholehand.hardware.config import HardwareConfig, QoS, SafetyLimits
+from wholehand.hardware.config_file import load_hardware_config, parse_hardware_config
 from wholehand.hardware.guard import TorqueGuard
 from wholehand.hardware.inputs import JointStateReader, RejectedMessage, read_pose
 from wholehand.hardware.rmw_zenoh import (
@@ -567,7 +562,7 @@ def test_control_cli_names_a_missing_config(tmp_path, capsys):
 
 
 def test_shipped_config_loads_against_the_allegro_in_its_urdf_order(allegro):
-    from wholehand.hardware.config import hand_hardware_config
+    from wholehand.hardware.config_file import hand_hardware_config
     from wholehand.hardware.inputs import command_dofs
 
     config = load_hardware_config(hand_hardware_config("allegro_right"))
@@ -580,7 +575,7 @@ def test_shipped_config_loads_against_the_allegro_in_its_urdf_order(allegro):
 
 
 def test_a_hand_without_a_hardware_config_is_named(tmp_path):
-    from wholehand.hardware.config import hand_hardware_config
+    from wholehand.hardware.config_file import hand_hardware_config
 
     with pytest.raises(ConfigError, match="no hardware config for hand 'robotis_hx5_d20_right'"):
         hand_hardware_config("robotis_hx5_d20_right")

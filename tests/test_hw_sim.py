@@ -133,7 +133,7 @@ time.sleep(float(sys.argv[2]))
 
 
 def test_controller_and_double_as_clients_of_a_router_hold_the_grasp(endpoint, tmp_path):
-    from wholehand.hardware.config import hand_hardware_config
+    from wholehand.hardware.config_file import hand_hardware_config
 
     router = subprocess.Popen(
         [sys.executable, "-c", ROUTER, endpoint, "120"], stdout=subprocess.PIPE, text=True

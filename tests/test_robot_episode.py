@@ -131,7 +131,7 @@ def test_sigterm_mid_reach_ends_on_the_last_commands_and_sigkill_leaves_it_to_th
 
 
 def test_a_hand_on_a_position_interface_reaches_and_then_regulates_in_torque(tmp_path):
-    from wholehand.hardware.config import hand_hardware_config
+    from wholehand.hardware.config_file import hand_hardware_config
 
     config = tmp_path / "position.toml"
     text = hand_hardware_config(RIG).read_text()

@@ -10,7 +10,7 @@ import pytest
 
 from wholehand.errors import ConfigError
 from wholehand.hardware.arm_guard import ArmGuard
-from wholehand.hardware.config import parse_hardware_config
+from wholehand.hardware.config_file import parse_hardware_config
 from wholehand.loop.home import HOME_DWELL, HOME_SPEED, HomeStage
 from wholehand.loop.observation import JointHistory, Observation
 from wholehand.loop.reach import HOME, PREGRASP, ReachPlanner, ReachStage
@@ -293,7 +293,7 @@ def test_the_arm_command_must_name_every_arm_joint_once(rig):
 
 
 def test_the_shipped_arm_config_loads_against_the_rig(rig):
-    from wholehand.hardware.config import hand_hardware_config, load_hardware_config
+    from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
     from wholehand.hardware.inputs import arm_command_dofs, command_dofs
 
     config = load_hardware_config(hand_hardware_config(RIG))

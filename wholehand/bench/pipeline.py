@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import hand_hardware_config, load_hardware_config
+from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
 from wholehand.hardware.controller import ControllerSpec, run_controller
 from wholehand.hardware.rmw_zenoh import loopback_endpoint
 from wholehand.loop.reach import HOME, PREGRASP, REGULATE

@@ -11,7 +11,7 @@ from typing import Any
 
 
 def _config(args: argparse.Namespace) -> Any:
-    from wholehand.hardware.config import hand_hardware_config, load_hardware_config
+    from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
 
     config = load_hardware_config(args.config or hand_hardware_config(args.hand))
     connect = tuple(args.connect) if args.connect is not None else None

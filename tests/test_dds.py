@@ -235,3 +235,9 @@ def test_the_transport_and_domain_come_from_the_config_and_the_environment(tmp_p
     path.write_text('[ros2]\ntransport = "fastdds"\n[joints]\ncommand = ["joint_0"]\n')
     with pytest.raises(ConfigError, match=r"transport must be one of \('zenoh', 'dds'\)"):
         load_hardware_config(path)
+
+
+def test_an_interface_the_machine_lacks_is_named():
+    config = HardwareConfig(transport="dds", domain_id=231, dds_interface="nosuchif0")
+    with pytest.raises(ConfigError, match=r"dds_interface='nosuchif0'.*\(ip link\)"):
+        DdsTransport(config, "controller")

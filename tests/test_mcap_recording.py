@@ -146,3 +146,10 @@ def test_a_failing_recording_stops_itself_not_the_run(tmp_path, monkeypatch):
     record = run_trial(TrialSpec(protocol_params=QUICK), observers=[recorder])
     assert record.meta["loop"]["n_errors"] == 0 and len(record.rows["t"]) > 100
     assert "No space left on device" in recorder.stopped and recorder.stopped.startswith("t = ")
+
+
+def test_a_recording_path_that_cannot_be_written_is_named(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ConfigError, match=r"cannot write the recording .*file/run.mcap"):
+        run_trial(TrialSpec(protocol_params=QUICK), observers=[McapRecorder(blocker / "run.mcap")])

@@ -62,6 +62,7 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
+from wholehand.errors import ConfigError
 from wholehand.hardware.messages import typestore
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.models.hand import HandModel
@@ -213,8 +214,14 @@ class McapWriter:
         from mcap.writer import Writer
 
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        except OSError as err:
+            raise ConfigError(
+                f"cannot write the recording {self.path}: {err.strerror}; give --record a path "
+                "in a writable folder"
+            ) from err
         self._writer = Writer(self._file)
         self._writer.start(profile="ros2", library="wholehand")
         self._schemas: dict[str, int] = {}
@@ -281,10 +288,16 @@ class McapRecorder(Observer):
         writer = self._writer = McapWriter(self.path)
         for topic, (msgtype, latched) in TOPICS.items():
             writer.channel(topic, msgtype, latched)
+        self._started = False
+
+    def _write_latched(self, writer: McapWriter, t: float) -> None:
+        """The messages written once, at the first cycle's time ``t`` [s]: the URDF, the run's
+        information and the scene (so that a robot's run, on its monotonic clock, starts at
+        its first cycle, not at 0)."""
         T = self.types
         urdf = urdf_for_viewers(self.hand)
         if urdf is not None:
-            writer.write("/robot_description", T.String(data=urdf), 0.0)
+            writer.write("/robot_description", T.String(data=urdf), t)
         info = {
             "hand": self.hand.config.name,
             "object": self.obj.name,
@@ -293,11 +306,11 @@ class McapRecorder(Observer):
             "joint_names": list(self.hand.joint_names),
             **self.info,
         }
-        writer.write("/wholehand/run_info", T.String(data=json.dumps(info, default=str)), 0.0)
+        writer.write("/wholehand/run_info", T.String(data=json.dumps(info, default=str)), t)
         corners = np.asarray(self.obj.mesh.vertices, dtype=float)[np.asarray(self.obj.mesh.faces)]
         scene = [
             T.marker(
-                T.header(0.0, "object"),
+                T.header(t, "object"),
                 ns="object",
                 type=11,  # TRIANGLE_LIST: the mesh itself, so the file needs no mesh path
                 color=T.ColorRGBA(r=0.8, g=0.6, b=0.3, a=0.8),
@@ -312,7 +325,7 @@ class McapRecorder(Observer):
             box[:3, 3] = [*table["centre"], float(table["top"]) - 0.5 * thickness]
             scene.append(
                 T.marker(
-                    T.header(0.0),
+                    T.header(t),
                     ns="table",
                     type=1,  # CUBE
                     pose=T.pose(box),
@@ -320,7 +333,7 @@ class McapRecorder(Observer):
                     color=T.ColorRGBA(r=0.55, g=0.45, b=0.35, a=1.0),
                 )
             )
-        writer.write("/wholehand/scene", T.MarkerArray(markers=scene), 0.0)
+        writer.write("/wholehand/scene", T.MarkerArray(markers=scene), t)
 
     def on_cycle(self, cycle: Cycle) -> str | None:
         """Record the cycle; a failure (a full disk, a state that cannot be written) stops the
@@ -339,6 +352,9 @@ class McapRecorder(Observer):
     def _record(self, writer: McapWriter, cycle: Cycle) -> None:
         T, hand = self.types, self.hand
         t = cycle.t
+        if not self._started:
+            self._write_latched(writer, t)
+            self._started = True
         obs = cycle.truth
         header = T.header(t)
         self.kin.update(obs.q, obs.wMb)

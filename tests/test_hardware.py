@@ -340,6 +340,12 @@ def robot_and_backend(request, allegro):
     robot.close()
 
 
+WAIT = 5.0
+"""Longest wait for messages the test sent [s] (a failure's bound, not a timing check)."""
+CONNECT_ATTEMPTS = 250
+"""Publications until the transport has connected (each waits up to 20 ms for an arrival)."""
+
+
 def _until(condition, timeout=5.0):
     deadline = time.monotonic() + timeout
     while not condition():
@@ -365,11 +371,9 @@ def test_backend_reads_joints_in_any_order_and_interpolates_q_at_the_pose_stamp(
 
     joints, poses = backend.received["joint_states"], backend.received["object_pose"]
     publish()
-    _until(
-        lambda: (
-            backend.received["joint_states"] >= joints + 2
-            and backend.received["object_pose"] >= poses + 1
-        )
+    assert backend.streams.wait_until(
+        lambda s: s.received["joint_states"] >= joints + 2 and s.received["object_pose"] > poses,
+        WAIT,
     )
     obs = backend.observe()
     np.testing.assert_allclose(obs.q, q1)
@@ -395,7 +399,7 @@ def test_backend_rejects_bad_messages_and_keeps_the_last_good_sample(allegro, ro
     nan_pose = np.eye(4)
     nan_pose[0, 3] = np.nan
     robot.poses.put(msgs.encode_pose(time.time(), "world", nan_pose))
-    _until(lambda: sum(backend.rejected.values()) >= 3 + zenoh)
+    assert backend.streams.wait_until(lambda s: sum(s.rejected.values()) >= 3 + zenoh, WAIT)
     expected = {"not_finite": 2, "unknown_joint": 1} | ({"malformed": 1} if zenoh else {})
     assert dict(backend.rejected) == expected
     obs = backend.observe()
@@ -414,7 +418,7 @@ def test_samples_without_rmw_zenohs_attachment_are_dropped_and_counted(allegro, 
     raw = robot.transport.session.declare_publisher(robot.joints.key)
     raw.put(msgs.encode_joint_state(time.time(), names, moved))  # no attachment
     raw.put(msgs.encode_joint_state(time.time(), names, moved), attachment=b"\x01\x02\x03")
-    _until(lambda: sum(backend.rejected.values()) >= 2)
+    assert backend.streams.wait_until(lambda s: sum(s.rejected.values()) >= 2, WAIT)
     assert backend.rejected == {"no_attachment": 1, "bad_attachment": 1}
     np.testing.assert_array_equal(backend.observe().q, good.q)
     raw.undeclare()
@@ -443,14 +447,18 @@ def test_poses_stamped_far_behind_the_joint_states_get_the_stale_pose_rule(
 
 def _until_connected(robot, backend, names, q, stamp_age=0.0):
     """Publish until the backend has a joint state and a pose (the session may still be
-    connecting), stamped ``stamp_age`` seconds in the past."""
-    deadline = time.monotonic() + 5.0
-    while backend.received["joint_states"] == 0 or backend.received["object_pose"] == 0:
-        assert time.monotonic() < deadline
+    connecting), stamped ``stamp_age`` seconds in the past; each round waits for an arrival."""
+
+    def connected(s) -> bool:
+        return s.received["joint_states"] > 0 and s.received["object_pose"] > 0
+
+    for _ in range(CONNECT_ATTEMPTS):
         stamp = time.time() - stamp_age
         robot.joints.put(msgs.encode_joint_state(stamp, names, q, effort=np.full(len(names), 0.1)))
         robot.poses.put(msgs.encode_pose(stamp, "world", np.eye(4)))
-        time.sleep(0.02)
+        if backend.streams.wait_until(connected, 0.02):
+            return
+    pytest.fail(f"the backend received nothing after {CONNECT_ATTEMPTS} publications")
 
 
 def test_backend_starts_from_the_measured_effort_and_ramps_when_the_pose_stops(

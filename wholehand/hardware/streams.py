@@ -12,6 +12,7 @@ import logging
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,7 +71,8 @@ class RobotStreams:
         self.last_rejection = ""
         self.stops = 0
         self._lock = threading.Lock()
-        self._joint_arrived = threading.Condition(self._lock)
+        self._changed = threading.Condition(self._lock)
+        """Notified on every message, accepted or rejected."""
         self._pending: list[JointSample] = []
         self._joint: JointSample | None = None
         self._previous: JointSample | None = None
@@ -88,10 +90,11 @@ class RobotStreams:
     # --- the transport's threads ----------------------------------------------------------------
     def reject(self, reason: str, detail: str) -> None:
         """Count a dropped message (logged the first time of each reason)."""
-        with self._lock:
+        with self._changed:
             self.rejected[reason] += 1
             first = self.rejected[reason] == 1
             self.last_rejection = f"{reason}: {detail}"
+            self._changed.notify_all()
         if first:
             log.warning("rejected a message (%s): %s", reason, detail)
 
@@ -104,7 +107,8 @@ class RobotStreams:
         except RejectedMessage as err:
             self.reject(err.reason, str(err))
             return
-        with self._lock:
+        with self._changed:
+            self._changed.notify_all()
             if self._joint is not None and sample.stamp <= self._joint.stamp:
                 self.rejected["old_stamp"] += 1
                 return
@@ -112,7 +116,6 @@ class RobotStreams:
             self._joint_received = received
             self._pending.append(sample)
             self.received["joint_states"] += 1
-            self._joint_arrived.notify_all()
 
     def _on_pose(self, payload: bytes, meta: SampleMeta, received: float) -> None:
         config = self.config
@@ -126,7 +129,8 @@ class RobotStreams:
             self.reject(err.reason, str(err))
             return
         stamp = msg.stamp if config.stamp_source == "header" else time.time()
-        with self._lock:
+        with self._changed:
+            self._changed.notify_all()
             if self._pose is not None and stamp <= self._pose[1]:
                 self.rejected["old_stamp"] += 1
                 return
@@ -140,7 +144,8 @@ class RobotStreams:
         except MessageError as err:
             self.reject("malformed", str(err))
             return
-        with self._lock:
+        with self._changed:
+            self._changed.notify_all()
             if stop and not self._stop:
                 self.stops += 1
                 log.warning(
@@ -181,12 +186,8 @@ class RobotStreams:
             ConfigError: one of them did not within ``timeout`` [s] (named, with what was
                 rejected meanwhile and how the config reaches the robot).
         """
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            with self._lock:
-                if self._joint is not None and self._pose is not None:
-                    return
-            time.sleep(0.01)
+        if self.wait_until(lambda s: s._joint is not None and s._pose is not None, timeout):
+            return
         topics = self.config.topics
         missing = [
             f"{kind} on {topics[key]!r}"
@@ -203,18 +204,24 @@ class RobotStreams:
             "names in [topics] and the transport settings in [ros2] (docs/hardware.md)"
         )
 
+    def wait_until(self, condition: Callable[[RobotStreams], bool], timeout: float) -> bool:
+        """Block until ``condition(self)`` holds, checked under the streams' lock at every
+        message (accepted or rejected), at most ``timeout`` [s]; whether it holds."""
+        with self._changed:
+            return self._changed.wait_for(lambda: condition(self), timeout)
+
     def wait_for_fresh_joint(self, fresh_age: float, max_wait: float) -> tuple[str, float]:
         """If the newest joint state is older than ``fresh_age`` [s], wait up to ``max_wait``
         [s] for the next; returns how (``fresh``, ``waited``, ``timed_out``; ``none`` before
         a first joint state) and the time waited [s]."""
-        with self._joint_arrived:
+        with self._changed:
             received = self._joint_received
             started = time.monotonic()
             if self._joint is None:
                 return "none", 0.0
             if started - received < fresh_age:
                 return "fresh", 0.0
-            arrived = self._joint_arrived.wait_for(
+            arrived = self._changed.wait_for(
                 lambda: self._joint_received != received, timeout=max_wait
             )
             return ("waited" if arrived else "timed_out"), time.monotonic() - started

@@ -14,9 +14,14 @@ hand sample ``x``:
       + w_align sum_i (1 + m_i . g_i)                          pads face the object
       + w_pen   sum_x max(0, -d(x))                            hand samples not inside [m]
       + w_table sum_x max(0, margin - h(x))                    hand samples above the table [m]
+      + w_self  sum_(x,y) max(0, gap - |x - y|)                 fingers apart [m]
 
 ``L`` is the object's radius (half its bounding-box diagonal), so that the torque term is
-unitless like the force term. Joint limits are kept by clipping. Each start takes RMSprop-scaled
+unitless like the force term. The last sum runs over pairs of surface samples of two different
+fingers' links past their first (every :data:`SELF_STRIDE`-th sample), closer than ``gap``: a
+finger pressed into another starts MuJoCo's validation with interpenetrating links.
+
+Joint limits are kept by clipping. Each start takes RMSprop-scaled
 gradient steps (Pinocchio point and angular Jacobians, the SDF's gradient) and re-draws each
 contact point with a small probability; a step is kept by the Metropolis rule at a temperature
 that decays geometrically, as in DexGraspNet's annealing.
@@ -52,6 +57,8 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 
 
+SELF_STRIDE = 3
+"""Every this-many-th sample of the fingers' links enters the fingers-apart term."""
 MIN_PAD_SAMPLES = 5
 """A finger with fewer pad samples than this takes its contacts anywhere on its links."""
 
@@ -71,6 +78,10 @@ class SynthesisParams:
     """Weight of the hand samples' depth inside the object [1/m]."""
     w_table: float = 300.0
     """Weight of the hand samples' depth below the table's margin [1/m]."""
+    w_self: float = 300.0
+    """Weight of the fingers' samples coming closer than ``self_gap`` [1/m]."""
+    self_gap: float = 0.004
+    """Least distance between samples of two fingers [m]."""
     iterations: int = 1500
     """Steps per start."""
     step_translation: float = 0.002
@@ -112,6 +123,8 @@ class Energy:
     """Sum of the hand samples' depths below the table margin [m]."""
     max_depth: float
     """Deepest hand sample inside the object [m]."""
+    self_penetration: float = 0.0
+    """Sum over pairs of two fingers' samples of how much closer than the gap they are [m]."""
 
 
 @dataclass
@@ -191,6 +204,7 @@ class GraspSynthesizer:
         self.a_lower = hand.q_lower[self.act]
         self.a_upper = hand.q_upper[self.act]
         self.candidates = self._contact_candidates(tau_close)
+        self.self_samples, self.self_finger = self._finger_samples()
 
     # --------------------------------------------------------------------------------------------
     def _contact_candidates(self, tau_close: FloatArray) -> list[IntArray]:
@@ -226,6 +240,35 @@ class GraspSynthesizer:
                 out.append(on_face)
                 self.contact_fingers.append("")
         return out
+
+    def _finger_samples(self) -> tuple[IntArray, IntArray]:
+        """The samples of the fingers-apart term (every :data:`SELF_STRIDE`-th of each
+        finger's links past its first) and the index of the finger of each."""
+        hand, cfg, s = self.hand, self.hand.config, self.samples
+        rows, finger = [], []
+        for k, links in enumerate(cfg.fingers.values()):
+            on = np.flatnonzero(np.isin(s.link, [hand.link_index(n) for n in links[1:]]))
+            on = on[::SELF_STRIDE]
+            rows.append(on)
+            finger.append(np.full(on.size, k))
+        if not rows:
+            return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+        return np.concatenate(rows).astype(np.intp), np.concatenate(finger).astype(np.intp)
+
+    def _self_pairs(self, X: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
+        """Pairs (i, j) of :attr:`self_samples` rows on different fingers closer than the gap
+        at the sample positions ``X`` (P, 3), and their distances [m]."""
+        from scipy.spatial import cKDTree
+
+        rows = self.self_samples
+        if rows.size < 2 or self.params.w_self == 0.0:
+            empty = np.zeros(0, dtype=np.intp)
+            return empty, empty, np.zeros(0)
+        pairs = cKDTree(X[rows]).query_pairs(self.params.self_gap, output_type="ndarray")
+        i, j = pairs[:, 0], pairs[:, 1]
+        other = self.self_finger[i] != self.self_finger[j]
+        i, j = rows[i[other]], rows[j[other]]
+        return i, j, np.linalg.norm(X[i] - X[j], axis=1)
 
     def touching(self, result: SynthesisResult, gap: float) -> set[str]:
         """Fingers whose contact of ``result`` lies within ``gap`` [m] of the surface ("" for
@@ -293,15 +336,18 @@ class GraspSynthesizer:
             short = np.maximum(p.table_margin - h, 0.0)
             below = np.flatnonzero(short > 0.0)
             e_table = float(short.sum())
+        si, sj, dist = self._self_pairs(X)
+        e_self = float(np.maximum(p.self_gap - dist, 0.0).sum())
         total = (
             p.w_dis * e_dis
             + p.w_fc * e_fc
             + p.w_align * e_align
             + p.w_pen * e_pen
             + p.w_table * e_table
+            + p.w_self * e_self
         )
         max_depth = float(depth.max()) if depth.size else 0.0
-        energy = Energy(total, e_dis, e_fc, e_align, e_pen, e_table, max_depth)
+        energy = Energy(total, e_dis, e_fc, e_align, e_pen, e_table, max_depth, e_self)
         state.energy = energy
         if not gradient:
             return energy
@@ -322,6 +368,11 @@ class GraspSynthesizer:
             gx.append(np.broadcast_to(-p.w_table * self.table_up, (below.size, 3)))
             points.append(X[below])
             joints.append(s.joint[below])
+        if si.size:  # d(gap - |x - y|)/dx = -(x - y)/|x - y|, and the opposite for y
+            u = (X[si] - X[sj]) / np.maximum(dist, 1e-12)[:, None]
+            gx += [-p.w_self * u, p.w_self * u]
+            points += [X[si], X[sj]]
+            joints += [s.joint[si], s.joint[sj]]
         G = np.concatenate(gx)
         P = np.ascontiguousarray(np.concatenate(points))
         J = np.concatenate(joints)

@@ -115,4 +115,4 @@ def test_table_top_grasps_have_their_own_folder_and_the_error_names_the_flag():
         == folder / "precision" / "on_table" / "x.json"
     )
     with pytest.raises(ConfigError, match="--on-table"):
-        load_grasps("allegro_right", "065-f_cups", on_table=True)
+        load_grasps("allegro_right", "052_extra_large_clamp", on_table=True)  # none on a table

@@ -69,8 +69,19 @@ def test_a_coupling_past_the_followers_limits_and_a_clamped_close_torque_are_fla
         "WARNING: joint 'f1_j2' follows 'f1_j1' as 2 x f1_j1 + 0.1, which spans [-0.300, 3.300]"
         in out
     )
+    assert "past its own limits [-0.200, 1.600] by 1.700" in out
     assert "[grasping] close_torque of 'f1_j1' is 0.1 N*m, above its torque limit 0.05" in out
     assert "that wholehand does not use" not in out  # hand.toml sets the limits
+
+    # A multiplier rounded in the URDF overshoots by a fraction of a milliradian: no finding.
+    # q2 = 1.0005 q1 over q1 in [-0.2, 1.6] spans [-0.2001, 1.6008], 0.8 mrad past q2's limit.
+    urdf.write_text(
+        urdf.read_text()
+        .replace('multiplier="2.0"', 'multiplier="1.0005"')
+        .replace('offset="0.1"', 'offset="0"')
+    )
+    assert main(["hand", "check", str(folder)]) == 0
+    assert "past its own limits" not in capsys.readouterr().out
 
 
 def test_a_broken_hand_toml_is_a_finding_not_a_traceback(tmp_path, capsys):

@@ -129,8 +129,15 @@ def _raw_joint_findings(cfg: HandConfig, report: HandReport) -> None:
         )
 
 
+COUPLING_SLACK = 0.01
+"""How far [rad or m] a coupling may drive its follower past the follower's limits before
+``hand check`` flags it: URDFs round multipliers (the Inspire hand's 1.334 x 0.6 = 0.8004
+against a limit of 0.8), and such an overshoot is of no consequence."""
+
+
 def _coupling_findings(hand: HandModel, report: HandReport) -> None:
-    """A follower that its coupling drives past its own limits within its leader's range."""
+    """A follower that its coupling drives past its own limits (by more than
+    :data:`COUPLING_SLACK`) within its leader's range."""
     model = hand.model
     for follower, mimic in hand.mimics.items():
         f = model.joints[model.getJointId(follower)].idx_q
@@ -138,13 +145,14 @@ def _coupling_findings(hand: HandModel, report: HandReport) -> None:
         ends = mimic.multiplier * np.array([hand.q_lower[lead], hand.q_upper[lead]])
         ends += mimic.offset
         lo, hi = float(ends.min()), float(ends.max())
-        if lo < hand.q_lower[f] - 1e-9 or hi > hand.q_upper[f] + 1e-9:
+        past = max(hand.q_lower[f] - lo, hi - hand.q_upper[f])
+        if past > COUPLING_SLACK:
             report.add(
                 "warning",
                 f"joint {follower!r} follows {mimic.leader!r} as {mimic.multiplier:g} x "
                 f"{mimic.leader} + {mimic.offset:g}, which spans [{lo:.3f}, {hi:.3f}] rad over "
                 f"the leader's range, past its own limits [{hand.q_lower[f]:.3f}, "
-                f"{hand.q_upper[f]:.3f}]",
+                f"{hand.q_upper[f]:.3f}] by {past:.3f}",
                 "check the multiplier and offset of the coupling, or the limits of both joints",
             )
 

@@ -43,6 +43,7 @@ from wholehand.studies.base import (
 from wholehand.studies.consistency import net_force_row
 from wholehand.studies.dexgraspbench import load_test_row
 from wholehand.studies.executors import execute
+from wholehand.studies.grasp_synthesis import generation_row
 from wholehand.studies.models import model
 from wholehand.studies.reach import episode_row
 from wholehand.studies.resume import (
@@ -77,6 +78,7 @@ JOB_KINDS: dict[str, Callable[[TrialJob], dict[str, Any]]] = {
     "net_force": net_force_row,
     "episode": episode_row,
     "load_test": load_test_row,
+    "grasp_generation": generation_row,
 }
 """Job kind -> function computing its outcome columns (studies add their measurements)."""
 
@@ -97,10 +99,16 @@ def run_job(job: TrialJob) -> dict[str, Any]:
     return row
 
 
+WITHOUT_ESTIMATOR = frozenset({"grasp_generation"})
+"""Job kinds that run no contact estimator (nothing to build for them before the pool)."""
+
+
 def _warm_caches(jobs: list[TrialJob]) -> None:
     """Build each (hand, object, estimator) once here so that workers only read the disk cache."""
     seen = set()
     for job in jobs:
+        if job.kind in WITHOUT_ESTIMATOR:
+            continue
         s = job.spec
         key = (s.hand, s.object, s.estimator, json.dumps(s.estimator_params, sort_keys=True))
         if key in seen:

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import argparse
 
-from wholehand import TrialSpec, load_hand, load_object, run_trial
-from wholehand.studies.base import METHODS, TINY_PROTOCOL
-from wholehand.studies.rows import record_row
+from wholehand import TrialSpec, load_hand, load_object, protocol_for, record_row, run_trial
+
+METHODS = ("qp", "fingertip_only", "feedforward", "impedance")
 
 
 def main() -> None:
@@ -32,7 +32,7 @@ def main() -> None:
     args = parser.parse_args()
 
     hand, obj = load_hand("allegro_right"), load_object(args.object)
-    protocol = dict(TINY_PROTOCOL) if args.quick else {}
+    protocol = protocol_for("tiny" if args.quick else "full")
     print(f"{obj.name} grasp {args.grasp}, pull by {args.theta:g} deg, seed {args.seed}")
     print(f"{'method':<16} {'held':<5} {'lost in':<10} {'contacts':>8} {'moved mm':>9}")
     for method in METHODS:

@@ -20,8 +20,7 @@ import argparse
 
 import numpy as np
 
-from wholehand import TrialSpec, load_hand, load_object, run_trial
-from wholehand.studies.base import TINY_PROTOCOL
+from wholehand import TrialSpec, load_hand, load_object, protocol_for, run_trial, write_html
 
 
 def main() -> None:
@@ -39,7 +38,7 @@ def main() -> None:
         grasp=args.grasp,
         grasp_type=args.grasp_type,
         theta_deg=0.0,
-        protocol_params=dict(TINY_PROTOCOL) if args.quick else {},
+        protocol_params=protocol_for("tiny" if args.quick else "full"),
     )
     record = run_trial(spec, hand=hand, obj=obj)
     last = len(record.rows["t"]) - 1
@@ -55,8 +54,6 @@ def main() -> None:
         force = float(np.linalg.norm(c["contact_f"][rows].sum(axis=0)))
         print(f"{name:<16} {kind:<10} {int(rows.sum()):>6} {force:>7.2f}")
     if args.html:
-        from wholehand.viz.replay import write_html
-
         print(f"replay: {write_html(record, args.html, hand=hand, obj=obj)}")
 
 

@@ -17,10 +17,17 @@ import argparse
 
 import numpy as np
 
-from wholehand import PAPER_OBJECTS, TrialSpec, run_trial
-from wholehand.studies.base import TINY_PROTOCOL, derive_seed
-from wholehand.studies.models import model
+from wholehand import (
+    PAPER_OBJECTS,
+    TrialSpec,
+    derive_seed,
+    load_hand,
+    load_object,
+    protocol_for,
+    run_trial,
+)
 
+HAND = load_hand("allegro_right")
 ERROR = {"rot_deg": 30.0, "trans_mm": 5.0}
 
 
@@ -30,10 +37,10 @@ def first_torque(obj: str, grasp: int, pose_error: dict[str, float]) -> np.ndarr
         grasp=grasp,
         allocator="feedforward",
         theta_deg=0.0,
-        protocol_params=dict(TINY_PROTOCOL),
+        protocol_params=protocol_for("tiny"),
         pose_error=pose_error,
     )
-    record = run_trial(spec, hand=model("hand", spec.hand), obj=model("object", obj))
+    record = run_trial(spec, hand=HAND, obj=load_object(obj))
     return np.asarray(record.arrays()["tau"][0])
 
 

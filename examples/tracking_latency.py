@@ -21,10 +21,14 @@ from __future__ import annotations
 
 import argparse
 
-from wholehand import PAPER_OBJECTS, TrialSpec
-from wholehand.studies.base import TINY_PROTOCOL, TrialJob, derive_seed, success_stats
-from wholehand.studies.executors import execute
-from wholehand.studies.runner import run_job
+from wholehand import (
+    PAPER_OBJECTS,
+    TrialSpec,
+    derive_seed,
+    protocol_for,
+    run_trials,
+    success_stats,
+)
 
 TRACKER = {"rate_hz": 30.0, "latency_s": 0.033}
 CONDITIONS = {
@@ -34,8 +38,11 @@ CONDITIONS = {
 }
 
 
-def jobs(objects: tuple[str, ...], grasps: range, theta: float, quick: bool) -> list[TrialJob]:
-    out: list[TrialJob] = []
+def trials(
+    objects: tuple[str, ...], grasps: range, theta: float, quick: bool
+) -> list[tuple[str, TrialSpec]]:
+    """(condition, spec) of every trial: each grasp under each condition, one pull axis."""
+    out: list[tuple[str, TrialSpec]] = []
     for oi, obj in enumerate(objects):
         for grasp in grasps:
             for name, (tracking, estimate_at) in CONDITIONS.items():
@@ -46,9 +53,9 @@ def jobs(objects: tuple[str, ...], grasps: range, theta: float, quick: bool) -> 
                     seed=derive_seed(0, oi, grasp, 0),
                     tracking=dict(tracking),
                     estimate_at=estimate_at,
-                    protocol_params=dict(TINY_PROTOCOL) if quick else {},
+                    protocol_params=protocol_for("tiny" if quick else "full"),
                 )
-                out.append(TrialJob(len(out), spec, {"condition": name}))
+                out.append((name, spec))
     return out
 
 
@@ -60,9 +67,13 @@ def main() -> None:
     args = parser.parse_args()
 
     objects = PAPER_OBJECTS[:1] if args.quick else PAPER_OBJECTS
-    todo = jobs(objects, range(2 if args.quick else 10), args.theta, args.quick)
+    todo = trials(objects, range(2 if args.quick else 10), args.theta, args.quick)
     executor = "serial" if args.quick else "process"
-    rows = execute(todo, run_job, executor=executor, workers=args.workers, progress=not args.quick)
+    rows = run_trials(
+        [spec for _, spec in todo], args.workers, executor=executor, progress=not args.quick
+    )
+    for (name, _), row in zip(todo, rows, strict=True):
+        row["condition"] = name
     print(f"{len(todo) // len(CONDITIONS)} grasps, pull by {args.theta:g} deg")
     print(f"{'condition':<14} {'success %':>9} {'+- SE':>6} {'diverged':>8} {'QP contacts':>11}")
     for name in CONDITIONS:

@@ -22,7 +22,6 @@ import argparse
 
 import numpy as np
 import pinocchio as pin
-from wholehand_plugins.mesh_sdf import MeshSDFEstimator
 
 from wholehand import (
     ContactEstimator,
@@ -33,10 +32,11 @@ from wholehand import (
     TrialSpec,
     load_hand,
     load_object,
+    protocol_for,
+    record_row,
+    registry,
     run_trial,
 )
-from wholehand.studies.base import TINY_PROTOCOL
-from wholehand.studies.rows import record_row
 
 
 class NoisyPoseEstimator(ContactEstimator):
@@ -47,7 +47,7 @@ class NoisyPoseEstimator(ContactEstimator):
         sigma_rot_deg: standard deviation of the rotation angle [deg].
         sigma_trans_mm: standard deviation of the translation per axis [mm].
         seed: seeds the noise.
-        **params: passed on to :class:`MeshSDFEstimator` (``d_thresh``, ``k``, ...).
+        **params: passed on to the ``mesh_sdf`` estimator (``d_thresh``, ``k``, ...).
     """
 
     def __init__(
@@ -59,7 +59,7 @@ class NoisyPoseEstimator(ContactEstimator):
         seed: int = 0,
         **params: float,
     ) -> None:
-        self.inner = MeshSDFEstimator(hand, obj, **params)
+        self.inner = registry.load("contact_estimators", "mesh_sdf", hand=hand, obj=obj, **params)
         self.com = obj.com
         self.sigma_rot = np.deg2rad(sigma_rot_deg)
         self.sigma_trans = 1e-3 * sigma_trans_mm
@@ -84,7 +84,7 @@ def main() -> None:
     args = parser.parse_args()
 
     hand, obj = load_hand("allegro_right"), load_object(args.object)
-    protocol = dict(TINY_PROTOCOL) if args.quick else {}
+    protocol = protocol_for("tiny" if args.quick else "full")
     print(f"{obj.name} grasp {args.grasp}: load test with per-cycle pose noise")
     print(f"{'sigma deg':>9} {'sigma mm':>8} {'held':<5} {'lost in':<10} {'moved mm':>9}")
     for sigma_rot, sigma_trans in ((0.0, 0.0), (2.0, 1.0), (5.0, 2.0), (10.0, 4.0)):

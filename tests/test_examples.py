@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -32,6 +33,19 @@ def test_every_example_is_tested():
         "feedforward_pose_error.py",
     }
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
+
+
+def test_examples_use_the_public_names_only():
+    """An example is what a user copies: it imports from ``wholehand`` itself, not from its
+    modules or the plug-ins."""
+    for path in EXAMPLES.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                top = node.module.split(".")[0]
+                if top.startswith("wholehand"):
+                    assert node.module == "wholehand", f"{path.name}: from {node.module} import"
+            elif isinstance(node, ast.Import):
+                assert not any(a.name.startswith("wholehand") for a in node.names), path.name
 
 
 def test_compare_methods_reports_every_method():

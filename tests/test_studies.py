@@ -258,6 +258,17 @@ def test_read_csv_inverts_write_csv(tiny_fresh, tmp_path):
     assert isinstance(row["x"], float) and row["x"] != row["x"]
 
 
+def test_run_trials_gives_the_rows_of_a_study(tiny_fresh):
+    """``wholehand.run_trials`` on a study's specs: the study's rows without its labels."""
+    import wholehand
+
+    specs = [job.spec for job in get_study("perturbation").jobs("tiny", 0)[:2]]
+    rows = wholehand.run_trials(specs, executor="serial")
+    for row, study_row in zip(rows, tiny_fresh.rows[:2], strict=True):
+        same = [k for k in row if k not in TIMING_COLUMNS and k not in ("index", "kind")]
+        assert {k: row[k] for k in same} == {k: study_row[k] for k in same}
+
+
 def test_limit_then_resume_gives_the_rows_of_a_complete_run(tmp_path, tiny_fresh, capsys):
     study = get_study("perturbation")
     folder = tmp_path / "run"

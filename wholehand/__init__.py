@@ -43,6 +43,10 @@ if TYPE_CHECKING:
     from wholehand.models.kinematics import HandKinematics
     from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
     from wholehand.models.objects import ObjectModel
+    from wholehand.studies.base import derive_seed, protocol_for, success_stats
+    from wholehand.studies.rows import record_row
+    from wholehand.studies.runner import run_trials
+    from wholehand.viz.replay import write_html
 
 __version__ = "0.1.0"
 
@@ -74,6 +78,12 @@ _PUBLIC = {
     "PAPER_OBJECTS": "wholehand.models.object_catalogue",
     "load_object": "wholehand.models.object_catalogue",
     "ObjectModel": "wholehand.models.objects",
+    "derive_seed": "wholehand.studies.base",
+    "protocol_for": "wholehand.studies.base",
+    "success_stats": "wholehand.studies.base",
+    "record_row": "wholehand.studies.rows",
+    "run_trials": "wholehand.studies.runner",
+    "write_html": "wholehand.viz.replay",
 }
 """Public name -> the module that defines it."""
 
@@ -120,10 +130,16 @@ __all__ = [
     "TrialSpec",
     "WholehandError",
     "__version__",
+    "derive_seed",
     "load_hand",
     "load_object",
     "outcome_of",
+    "protocol_for",
     "read_mcap_record",
+    "record_row",
     "registry",
     "run_trial",
+    "run_trials",
+    "success_stats",
+    "write_html",
 ]

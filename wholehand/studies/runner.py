@@ -23,14 +23,14 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from wholehand import registry
 from wholehand.errors import ConfigError
-from wholehand.loop.trial import run_trial
+from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.provenance import provenance
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -101,6 +101,21 @@ def run_job(job: TrialJob) -> dict[str, Any]:
 
 WITHOUT_ESTIMATOR = frozenset({"grasp_generation"})
 """Job kinds that run no contact estimator (nothing to build for them before the pool)."""
+
+
+def run_trials(
+    specs: Sequence[TrialSpec],
+    workers: int | None = None,
+    executor: str = "process",
+    progress: bool = False,
+) -> list[dict[str, Any]]:
+    """Run trials as a study runs them: one row per spec, in the order of ``specs``, with the
+    spec's columns and the outcome's (``held``, ``failure_stage``, ``contacts_mean``, ...,
+    ``error`` for a trial that raised or diverged; see :func:`~wholehand.studies.rows.
+    record_row`). ``executor`` is ``"process"`` (``workers`` processes, default one per core),
+    ``"serial"`` or ``"ray"``."""
+    jobs = [TrialJob(i, spec) for i, spec in enumerate(specs)]
+    return execute(jobs, run_job, executor=executor, workers=workers, progress=progress)
 
 
 def _warm_caches(jobs: list[TrialJob]) -> None:

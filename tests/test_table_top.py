@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import Delaunay
 
 from wholehand import registry
 from wholehand.backends.table import HAND_MARGIN, Table
@@ -12,7 +13,13 @@ from wholehand.grasps.generate import GENERATOR_TABLE, MAX_TILT, GraspGenerator
 from wholehand.grasps.store import grasp_file, hand_grasps_dir, load_grasps
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
-from wholehand.models.resting import resting_faces, resting_pose, up_rotation
+from wholehand.models.resting import (
+    MIN_PROBABILITY,
+    ROUND_FACES,
+    resting_faces,
+    resting_pose,
+    up_rotation,
+)
 
 BOX = (0.07, 0.14, 0.168)
 """A box the Allegro's power pre-shape can reach from above without its thumb in the table."""
@@ -33,6 +40,24 @@ def test_a_box_rests_on_its_six_faces_the_largest_most_likely(box):
     by_axis = {int(np.argmax(np.abs(f.up))): f.probability for f in faces}
     assert by_axis[0] > by_axis[1] > by_axis[2]
     assert sum(f.probability for f in faces) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_a_ball_rests_on_its_likeliest_faces_with_its_centre_over_them():
+    """A sphere's hull has thousands of faces, none 2 % likely: it rests on the likeliest few,
+    each a pose whose centre of mass lies over the face it stands on."""
+    ball = ObjectModel.sphere(0.03, mass=0.05, name="ball")
+    faces = resting_faces(ball)
+    assert 1 <= len(faces) <= ROUND_FACES
+    assert all(0.0 < f.probability < MIN_PROBABILITY for f in faces)
+    for face in faces:
+        wMo = resting_pose(ball, face.up, 0.0, (0.0, 0.0), 0.0)
+        world = np.asarray(ball.mesh.vertices) @ wMo[:3, :3].T + wMo[:3, 3]
+        low = world[world[:, 2] < 1e-6]  # the face it stands on
+        assert len(low) >= 3
+        com = wMo[:3, :3] @ ball.com + wMo[:3, 3]
+        assert com[2] == pytest.approx(0.03, abs=1e-3)
+        hull = Delaunay(low[:, :2])
+        assert hull.find_simplex(com[:2]) >= 0
 
 
 def test_resting_pose_puts_up_to_z_and_the_lowest_point_on_the_plane(box):

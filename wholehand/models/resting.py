@@ -22,6 +22,9 @@ FloatArray = npt.NDArray[np.float64]
 
 MIN_PROBABILITY = 0.02
 """Resting faces less likely than this (from a random drop) are left out [-]."""
+ROUND_FACES = 8
+"""A round object (a ball: hundreds of hull faces, none as likely as :data:`MIN_PROBABILITY`)
+rests on its this-many likeliest faces."""
 
 
 @dataclass(frozen=True)
@@ -35,15 +38,22 @@ class RestingFace:
 
 
 def resting_faces(obj: ObjectModel, min_probability: float = MIN_PROBABILITY) -> list[RestingFace]:
-    """The object's stable resting faces, most probable first (at least one)."""
+    """The object's stable resting faces, most probable first (at least one): those at least
+    ``min_probability`` likely, or for a round object, whose many faces are each less likely,
+    its :data:`ROUND_FACES` likeliest."""
     transforms, probabilities = trimesh.poses.compute_stable_poses(
         obj.mesh, center_mass=np.asarray(obj.com, dtype=float), sigma=0.0, n_samples=1
     )
-    faces = [
-        RestingFace(np.asarray(T[2, :3], dtype=float), float(p))
-        for T, p in zip(transforms, probabilities, strict=True)
-        if p >= min_probability
-    ]
+    ranked = sorted(
+        (
+            RestingFace(np.asarray(T[2, :3], dtype=float), float(p))
+            for T, p in zip(transforms, probabilities, strict=True)
+        ),
+        key=lambda face: -face.probability,
+    )
+    faces = [face for face in ranked if face.probability >= min_probability]
+    if not faces:
+        faces = [face for face in ranked[:ROUND_FACES] if face.probability > 0.0]
     if not faces:
         raise ConfigError(
             f"object {obj.name!r}: trimesh found no stable resting face (is the mesh closed and "

@@ -87,3 +87,6 @@ def test_a_tiny_run_finds_what_the_generators_find_by_themselves(tmp_path):
         assert (len(grasps), info["candidates_tried"]) == (row["grasps"], row["candidates"])
         assert json.loads(row["rejections"]) == info["rejected"]
     assert (tmp_path / "grasp-synthesis.png").stat().st_size > 0
+    # --resume finds every row finished: nothing runs again.
+    again = run_study(study, "tiny", tmp_path, executor="serial", progress=False, resume=True)
+    assert again.summary["n_reused"] == 4 and again.rows == result.rows

@@ -33,12 +33,16 @@ def failed_to_run(row: dict[str, Any]) -> bool:
 
 
 RESULT_COLUMNS = ("held",)
-"""Result columns every finished row of every study has."""
+"""Result columns every finished row of a trial has."""
+RESULT_COLUMNS_OF_KIND = {"grasp_generation": ("grasps",)}
+"""Result columns of the rows of job kinds that run no trial."""
 
 
 def has_result(row: dict[str, Any]) -> bool:
-    """The row holds every result column (:data:`RESULT_COLUMNS`)."""
-    return all(row.get(c) not in (None, "") for c in RESULT_COLUMNS)
+    """The row holds every result column of its kind (:data:`RESULT_COLUMNS_OF_KIND`, else
+    :data:`RESULT_COLUMNS`)."""
+    columns = RESULT_COLUMNS_OF_KIND.get(str(row.get("kind", "")), RESULT_COLUMNS)
+    return all(row.get(c) not in (None, "") for c in columns)
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,8 @@ the floating wrist in MuJoCo, and one seeded episode that grasps, loses and regr
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -206,6 +208,65 @@ def test_grasp_hands_over_on_thumb_and_two_fingers(allegro, plans, fingers, fire
     assert (out.next is not None) is fires
 
 
+def _pinch(allegro, plan):
+    """``plan`` as if made in the Allegro's pinch style (thumb and index)."""
+    from wholehand.grasps.styles import derived_close_torque, style_arrays
+
+    style = allegro.config.grasp_styles["pinch"]
+    closing = style_arrays(
+        allegro, dataclasses.replace(style, close_torque=derived_close_torque(allegro))
+    )[1]
+    return dataclasses.replace(plan, style="pinch", fingers=("thumb", "index"), closing=closing)
+
+
+@pytest.mark.parametrize(
+    ("fingers", "fires"),
+    [(["thumb", "index"], True), (["thumb", "middle", "ring"], False), (["index"], False)],
+)
+def test_a_pinch_hands_over_when_its_own_fingers_touch(allegro, plans, fingers, fires) -> None:
+    plan = _pinch(allegro, plans[0])
+    planner = ReachPlanner([plan], usable=lambda p, w: True)
+    planner.choose(np.eye(4), plan.oMb_grasp)
+    stage = ReachStage(allegro, StandStill(), planner, Touching(allegro, fingers), "grasp")
+    out = run_stage(stage, context(allegro, plan.q_grasp, plan.oMb_grasp, np.eye(4)))
+    assert (out.next is not None) is fires
+
+
+def test_a_pinch_squeezes_its_own_closing_joints(allegro, plans) -> None:
+    """At the grasp pose the servo aims SQUEEZE past the grasp on the closing joints of the
+    plan's style: the pinch's (derived from the model), not the power style's."""
+    from wholehand.grasps.styles import style_arrays
+    from wholehand.loop.reach import SQUEEZE
+
+    power = plans[0]
+    pinch = _pinch(allegro, power)
+    power_closing = style_arrays(allegro, allegro.config.grasp_styles["power"])[1]
+    assert np.any((pinch.closing != 0) != (power_closing != 0))  # the styles close differently
+    for plan, closing in ((power, power_closing), (pinch, pinch.closing)):
+        planner = ReachPlanner([plan], usable=lambda p, w: True)
+        planner.choose(np.eye(4), plan.oMb_grasp)
+        stage = ReachStage(
+            allegro, StandStill(), planner, Touching(allegro, []), "grasp", closing=power_closing
+        )
+        servo = {}
+        stage._servo = lambda obs, q, wMb, servo=servo: servo.setdefault("q", q)  # the aim
+        run_stage(stage, context(allegro, plan.q_grasp, plan.oMb_grasp, np.eye(4)))
+        expected = np.clip(
+            plan.q_grasp + SQUEEZE * np.sign(closing), allegro.q_lower, allegro.q_upper
+        )
+        assert servo["q"] == pytest.approx(expected, abs=1e-9)
+
+
+def test_the_planner_tells_a_failed_pinch_from_the_power_grasp_of_its_id(allegro, plans) -> None:
+    power = plans[0]
+    pinch = _pinch(allegro, power)
+    planner = ReachPlanner([pinch, power], usable=lambda p, w: True)
+    planner.choose(np.eye(4), pinch.oMb_grasp)
+    chosen = planner.chosen
+    planner.fail()
+    assert planner.choose(np.eye(4), pinch.oMb_grasp) is not chosen  # the other, same id
+
+
 def test_grasp_times_out_back_to_pregrasp_and_fails_the_plan(allegro, plans) -> None:
     plan = plans[0]
     planner = ReachPlanner([plan], usable=lambda p, w: True)
@@ -215,7 +276,7 @@ def test_grasp_times_out_back_to_pregrasp_and_fails_the_plan(allegro, plans) -> 
     late = context(allegro, plan.q_grasp, plan.oMb_grasp, np.eye(4), t=3.01)
     out = stage.step(late)
     assert out.next == PREGRASP and "no grasp within 3.0 s" in out.reason
-    assert plan.grasp_id in planner.failed
+    assert (plan.style, plan.grasp_id) in planner.failed
 
 
 def test_hold_stage_reports_a_loss_only_when_the_object_left_the_hand(allegro, cube, plans) -> None:

@@ -93,14 +93,15 @@ class ReachPlanner:
     plans: list[GraspPlan]
     usable: Callable[[GraspPlan, FloatArray], bool]
     chosen: GraspPlan | None = None
-    failed: set[int] = field(default_factory=set)
-    """Grasp ids whose pre-grasp or grasp timed out; skipped until every usable one has."""
+    failed: set[tuple[str, int]] = field(default_factory=set)
+    """(style, grasp id) of the plans whose pre-grasp or grasp timed out; skipped until every
+    usable one has."""
 
     def choose(self, wMo: FloatArray, wMb_now: FloatArray) -> GraspPlan | None:
         """Choose the usable plan nearest the current base pose, preferring those that have not
         failed; None if none is usable."""
         plans = [p for p in self.plans if self.usable(p, wMo)]
-        fresh = [p for p in plans if p.grasp_id not in self.failed]
+        fresh = [p for p in plans if (p.style, p.grasp_id) not in self.failed]
         if plans and not fresh:
             self.failed.clear()
             fresh = plans
@@ -110,7 +111,7 @@ class ReachPlanner:
     def fail(self) -> None:
         """The chosen plan did not work: skip it at the next choice."""
         if self.chosen is not None:
-            self.failed.add(self.chosen.grasp_id)
+            self.failed.add((self.chosen.style, self.chosen.grasp_id))
 
 
 def _targets(
@@ -191,10 +192,7 @@ class ReachStage(Stage):
             [hand.model.joints[hand.model.getJointId(n)].idx_q for n in self.grasp_hand.joint_names]
         )
         self._root = root_link(self.grasp_hand)
-        squeeze = np.zeros(hand.nv)
-        if closing is not None:
-            squeeze[self._hand_q] = SQUEEZE * np.sign(closing)
-        self.squeeze = squeeze
+        self.squeeze = np.zeros(hand.nv) if closing is None else self._squeeze(closing)
         self.tips = [links[-1] for links in hand.config.fingers.values()]
         self.links = [hand.palm_link, *self.tips]
         self._kin = HandKinematics(self.grasp_hand)
@@ -231,6 +229,13 @@ class ReachStage(Stage):
         if self.grasp_hand is self.hand:
             return context.obs.wMb
         return context.kinematics.frame_pose(self._root)
+
+    def _squeeze(self, closing: FloatArray) -> FloatArray:
+        """(n_v,) how far past the grasp the finger servo closes [rad]: :data:`SQUEEZE` on the
+        joints that ``closing`` (the grasp hand's (n_v,) closing torques) closes, their way."""
+        squeeze = np.zeros(self.hand.nv)
+        squeeze[self._hand_q] = SQUEEZE * np.sign(closing)
+        return squeeze
 
     def fingers_touching(self, context: CycleContext) -> set[str]:
         """Fingers with a sample within ``touch_distance`` of the object (geometric estimate)."""
@@ -315,7 +320,8 @@ class ReachStage(Stage):
         )
         q_servo = q_next
         if self.kind == "grasp" and palm_error < SQUEEZE_PALM_ERROR:
-            q_servo = np.clip(q_next + self.squeeze, self.hand.q_lower, self.hand.q_upper)
+            squeeze = self.squeeze if plan.closing is None else self._squeeze(plan.closing)
+            q_servo = np.clip(q_next + squeeze, self.hand.q_lower, self.hand.q_upper)
         command = self._servo(obs, q_servo, wMb_next if self.arm is None else None)
         errors = [np.linalg.norm(now.frame_pose(t)[:3, 3] - targets[t][:3, 3]) for t in self.tips]
         error = float(np.mean(errors))
@@ -331,7 +337,11 @@ class ReachStage(Stage):
         if self.kind == "grasp":
             fingers = self.fingers_touching(context)
             thumb = self.hand.config.thumb
-            if thumb in fingers and len(fingers - {thumb}) >= 2:
+            if plan.fingers:
+                grasped = set(plan.fingers) <= fingers
+            else:
+                grasped = thumb in fingers and len(fingers - {thumb}) >= 2
+            if grasped:
                 reason = f"touching: {', '.join(sorted(fingers))}"
                 return StageOutput(command, "reaching", next=REGULATE, reason=reason)
             if context.t - self._since > self.timeout:

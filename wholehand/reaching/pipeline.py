@@ -47,15 +47,30 @@ def grasp_hand_of(hand: HandModel) -> HandModel:
 
 
 def grasp_plans(hand: HandModel, obj: ObjectModel, on_table: bool = False) -> list[GraspPlan]:
-    """The plans of the hand's stored power grasps (its table-top ones if ``on_table``).
+    """The plans of the hand's stored power grasps; with ``on_table``, of its table-top grasps
+    of every grasp style (power first), so that e.g. a pinch picks an object too small for a
+    power grasp.
 
     Raises:
-        ConfigError: no stored grasp has a pre-grasp.
+        ConfigError: no stored grasp has a pre-grasp; no grasp file (the power style's
+            message, naming the command that makes one).
     """
     q_open = style_arrays(hand, hand.config.grasp_styles["power"])[0]
-    grasps = load_grasps(hand.name, obj.name, "power", on_table=on_table)
-    plans = [plan_pregrasp(hand, obj, g, q_open) for g in grasps]
-    found = [p for p in plans if p is not None]
+    styles = list(hand.config.grasp_styles) if on_table else ["power"]
+    styles = ["power", *(s for s in styles if s != "power")]
+    found: list[GraspPlan] = []
+    missing: ConfigError | None = None
+    for name in styles:
+        try:
+            grasps = load_grasps(hand.name, obj.name, name, on_table=on_table)
+        except ConfigError as err:
+            missing = missing or err
+            continue
+        style = None if name == "power" else hand.config.grasp_styles[name]
+        plans = [plan_pregrasp(hand, obj, g, q_open, style=style) for g in grasps]
+        found += [p for p in plans if p is not None]
+    if not found and missing is not None:
+        raise missing
     if not found:
         raise ConfigError(f"no stored grasp of {obj.name!r} for {hand.name!r} has a pre-grasp")
     return found

@@ -14,6 +14,7 @@ pre-grasp palm is nearest the current palm (:func:`nearest_plan`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +23,9 @@ import numpy.typing as npt
 from wholehand import defaults
 from wholehand.backends.table import Table
 from wholehand.grasps.store import Grasp
+from wholehand.grasps.styles import derived_close_torque, style_arrays
 from wholehand.models.hand import HandModel
+from wholehand.models.hand_config import GraspStyle
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import rotation_angle
@@ -57,6 +60,15 @@ class GraspPlan:
     table_up: FloatArray | None = None
     """(3,) for a table-top grasp, the object-frame direction that was up when it was made
     (the face the object rested on); None for a grasp made in the air."""
+    style: str = "power"
+    """The grasp style the grasp was made with (hand.toml ``[grasping]`` or
+    ``[grasping.<style>]``)."""
+    fingers: tuple[str, ...] = ()
+    """The style's fingers, which must all touch to hand over to regulation; empty: the
+    thumb and two other fingers."""
+    closing: FloatArray | None = None
+    """(n_v,) the style's closing torques of the grasp hand [N*m]: the grasp stage squeezes
+    these joints past the grasp; None: the stage's own (the power style's)."""
 
 
 def _min_distance(kin: HandKinematics, hand: HandModel, obj: ObjectModel) -> float:
@@ -79,10 +91,13 @@ def plan_pregrasp(
     grasp: Grasp,
     q_open: FloatArray,
     clearance: float = defaults.PREGRASP_CLEARANCE,
+    style: GraspStyle | None = None,
 ) -> GraspPlan | None:
     """The pre-grasp of ``grasp`` (see the module docstring); None if none within
     ``MAX_RETREAT``. A grasp that stores its own open hand (``pregrasp_q``, joint angles by
-    name: the optimiser's and imported grasps) opens toward that instead of ``q_open``."""
+    name: the optimiser's and imported grasps) opens toward that instead of ``q_open``.
+    ``style``: the grasp style of a grasp that is not a power grasp (its fingers and closing
+    torques go into the plan)."""
     q_grasp = grasp.q_array(hand)
     own = grasp.extra.get("pregrasp_q")
     if own is not None:
@@ -105,7 +120,25 @@ def plan_pregrasp(
         if _min_distance(kin, hand, obj) >= clearance:
             up = grasp.extra.get("table_up")
             face = None if up is None else np.asarray(up, dtype=float)
-            return GraspPlan(grasp.id, grasp.oMb.copy(), q_grasp, oMb, q, float(s), face)
+            if style is None:
+                return GraspPlan(grasp.id, grasp.oMb.copy(), q_grasp, oMb, q, float(s), face)
+            closing = style_arrays(hand, style)[1]
+            if not closing.any():  # a style for the optimiser only: the model's directions
+                closing = style_arrays(
+                    hand, dataclasses.replace(style, close_torque=derived_close_torque(hand))
+                )[1]
+            return GraspPlan(
+                grasp.id,
+                grasp.oMb.copy(),
+                q_grasp,
+                oMb,
+                q,
+                float(s),
+                face,
+                style.name,
+                tuple(style.fingers),
+                closing,
+            )
     return None
 
 

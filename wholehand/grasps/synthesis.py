@@ -101,12 +101,6 @@ class SynthesisParams:
     """Gap between the palm and the object's support at the start [m]."""
     joint_jitter: float = 0.15
     """Standard deviation of the start's joint angles around the pre-shape [rad]."""
-    fingertip_start: bool = False
-    """The start centres the contact fingers' tips (not the palm) on the object, half its
-    support above its centre along the approach."""
-    start_flex: float = 0.0
-    """The start's joints this fraction of the way from the pre-shape to their limits in the
-    closing direction [-]."""
     table_margin: float = HAND_MARGIN + 0.002
     """Least height of a hand sample above the table top [m]: a little above the margin the
     validation and the reacher keep (:data:`~wholehand.backends.table.HAND_MARGIN`)."""
@@ -209,13 +203,8 @@ class GraspSynthesizer:
         self.act = hand.actuated_dofs.copy() if hand.coupled else np.ones(hand.nq, dtype=bool)
         self.a_lower = hand.q_lower[self.act]
         self.a_upper = hand.q_upper[self.act]
-        close = np.sign(tau_close)[self.act]  # revolute and prismatic joints: q and v align
-        self.a_closed = np.where(close > 0, self.a_upper, np.where(close < 0, self.a_lower, 0.0))
-        self.a_closes = close != 0
         self.candidates = self._contact_candidates(tau_close)
         self.self_samples, self.self_finger = self._finger_samples()
-        tips = [hand.link_index(hand.config.fingers[f][-1]) for f in self.contact_fingers if f]
-        self.tip_samples = np.flatnonzero(np.isin(self.samples.link, tips))
 
     # --------------------------------------------------------------------------------------------
     def _contact_candidates(self, tau_close: FloatArray) -> list[IntArray]:
@@ -307,24 +296,14 @@ class GraspSynthesizer:
         R0 = Rotation.align_vectors([-u], [x_p])[0].as_matrix()
         spin = Rotation.from_rotvec(rng.uniform(0.0, 2.0 * np.pi) * u).as_matrix()
         R = spin @ R0
-        a = self.q_start[self.act].copy()
-        a[self.a_closes] += p.start_flex * (self.a_closed - a)[self.a_closes]
-        a += rng.normal(scale=p.joint_jitter, size=a.size)
-        a = np.clip(a, self.a_lower, self.a_upper)
-        if p.fingertip_start:
-            self.kin.update(self.q_of(a), np.eye(4))
-            tips = self.kin.transform_points(
-                self.samples.p_joint[self.tip_samples], self.samples.joint[self.tip_samples]
-            )
-            anchor = tips.mean(axis=0)
-            target = self.com + u * 0.5 * support
-        else:
-            anchor = self.palm.bRp @ np.array(
-                [self.palm.face, self.palm.centre[1], 0.5 * (self.palm.centre[2] + self.palm.top)]
-            )
+        palm_point = self.palm.bRp @ np.array(
+            [self.palm.face, self.palm.centre[1], 0.5 * (self.palm.centre[2] + self.palm.top)]
+        )
         oMb = np.eye(4)
         oMb[:3, :3] = R
-        oMb[:3, 3] = target - R @ anchor
+        oMb[:3, 3] = target - R @ palm_point
+        a = self.q_start[self.act] + rng.normal(scale=p.joint_jitter, size=int(self.act.sum()))
+        a = np.clip(a, self.a_lower, self.a_upper)
         contacts = np.array([rng.choice(c) for c in self.candidates], dtype=np.intp)
         return SynthesisState(oMb, a, contacts)
 

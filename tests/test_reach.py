@@ -267,6 +267,25 @@ def test_the_planner_tells_a_failed_pinch_from_the_power_grasp_of_its_id(allegro
     assert planner.choose(np.eye(4), pinch.oMb_grasp) is not chosen  # the other, same id
 
 
+def test_table_plans_take_every_styles_table_top_grasps(allegro) -> None:
+    """The Duplo brick has table-top grasps in the pinch style only: from the table they are
+    its plans, each with the pinch's fingers and closing joints; in the air, its power grasps."""
+    from wholehand.models.object_catalogue import load_object
+    from wholehand.reaching.pipeline import grasp_plans
+
+    duplo = load_object("073-f_lego_duplo")
+    table = grasp_plans(allegro, duplo, on_table=True)
+    stored = load_grasps("allegro_right", duplo.name, "pinch", on_table=True)
+    assert 0 < len(table) <= len(stored)
+    pinch = _pinch(allegro, table[0])
+    for plan in table:
+        assert plan.style == "pinch" and plan.fingers == ("thumb", "index")
+        assert plan.table_up is not None
+        assert np.array_equal(plan.closing, pinch.closing)
+    air = grasp_plans(allegro, duplo)
+    assert air and {p.style for p in air} == {"power"} and all(p.closing is None for p in air)
+
+
 def test_grasp_times_out_back_to_pregrasp_and_fails_the_plan(allegro, plans) -> None:
     plan = plans[0]
     planner = ReachPlanner([plan], usable=lambda p, w: True)
@@ -404,10 +423,14 @@ def test_reach_table_study_runs_from_the_table_on_the_objects_with_table_top_gra
 
     study = get_study("reach-table")
     jobs = study.jobs("quick", 0, "allegro_right")
+    styles = ("power", "precision", "pinch")
     with_grasps = [
-        o for o in PAPER_OBJECTS if grasp_file("allegro_right", o, on_table=True).is_file()
+        o
+        for o in PAPER_OBJECTS
+        if any(grasp_file("allegro_right", o, s, on_table=True).is_file() for s in styles)
     ]
-    assert with_grasps and sorted({j.spec.object for j in jobs}) == sorted(with_grasps)
+    assert sorted({j.spec.object for j in jobs}) == sorted(with_grasps)
+    assert "073-f_lego_duplo" in with_grasps  # its table-top grasps are pinches only
     assert {j.labels["start"] for j in jobs} == {"table"}
     with pytest.raises(ConfigError, match="no table-top grasps.*--on-table --method optimize"):
         study.jobs("quick", 0, str(write_toy_hand(tmp_path / "toy")))

@@ -190,7 +190,8 @@ class ReachStudy(Study):
 
 class ReachTableStudy(ReachStudy):
     """The reach study with the object resting on the table (``wholehand reach --start
-    table``), on those of the study's objects the hand has table-top grasps of."""
+    table``), on those of the study's objects the hand has table-top grasps of (in any grasp
+    style)."""
 
     name = "reach-table"
     description = (
@@ -201,8 +202,15 @@ class ReachTableStudy(ReachStudy):
 
     def objects(self, cfg: ReachConfig, hand: str) -> tuple[str, ...]:
         from wholehand.grasps.store import grasp_file
+        from wholehand.reaching.pipeline import grasp_hand_of
+        from wholehand.studies.models import model
 
-        found = tuple(o for o in cfg.objects if grasp_file(hand, o, on_table=True).is_file())
+        styles = grasp_hand_of(model("hand", hand)).config.grasp_styles
+        found = tuple(
+            o
+            for o in cfg.objects
+            if any(grasp_file(hand, o, style, on_table=True).is_file() for style in styles)
+        )
         if not found:
             raise ConfigError(
                 f"hand {hand!r} has no table-top grasps of {list(cfg.objects)}; make some with "

@@ -9,7 +9,6 @@ contact point into the object along its normal (:func:`closing_torques`).
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
@@ -24,7 +23,7 @@ from wholehand.grasps.generate import (
     named_style,
 )
 from wholehand.grasps.store import Grasp
-from wholehand.grasps.styles import derived_close_torque
+from wholehand.grasps.styles import with_close_torque
 from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisParams, SynthesisResult
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
@@ -174,9 +173,7 @@ def synthesize_grasps(
     from tqdm import tqdm
 
     started = time.perf_counter()
-    chosen = named_style(hand, style)
-    if not chosen.close_torque:  # nothing in hand.toml: the closing directions of the model
-        chosen = dataclasses.replace(chosen, close_torque=derived_close_torque(hand))
+    chosen = with_close_torque(hand, named_style(hand, style))
     generator = GraspGenerator(hand, obj, style=chosen, on_table=on_table)
     peak = max((abs(v) for v in chosen.close_torque.values()), default=DEFAULT_CLOSE_TORQUE)
     rng = np.random.default_rng(seed)

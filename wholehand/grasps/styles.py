@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import numpy.typing as npt
 
@@ -33,6 +35,14 @@ CLOSING_SLOPE = 1e-3
 this [m/rad]."""
 DERIVED_CLOSE_TORQUE = 0.1
 """Closing torque of a joint in a style derived from the model [N*m] (at most its limit)."""
+
+
+def with_close_torque(hand: HandModel, style: GraspStyle) -> GraspStyle:
+    """``style``, or for a style that names no closing torques (one for the optimiser only)
+    the style with those of :func:`derived_close_torque`."""
+    if style.close_torque:
+        return style
+    return dataclasses.replace(style, close_torque=derived_close_torque(hand))
 
 
 def derived_close_torque(hand: HandModel, step: float = 1e-4) -> dict[str, float]:

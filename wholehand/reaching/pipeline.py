@@ -59,18 +59,18 @@ def grasp_plans(hand: HandModel, obj: ObjectModel, on_table: bool = False) -> li
     styles = list(hand.config.grasp_styles) if on_table else ["power"]
     styles = ["power", *(s for s in styles if s != "power")]
     found: list[GraspPlan] = []
-    missing: ConfigError | None = None
+    missing: list[ConfigError] = []
     for name in styles:
         try:
             grasps = load_grasps(hand.name, obj.name, name, on_table=on_table)
         except ConfigError as err:
-            missing = missing or err
+            missing.append(err)
             continue
         style = None if name == "power" else hand.config.grasp_styles[name]
         plans = [plan_pregrasp(hand, obj, g, q_open, style=style) for g in grasps]
         found += [p for p in plans if p is not None]
-    if not found and missing is not None:
-        raise missing
+    if len(missing) == len(styles):  # no grasp file at all: the power style's message
+        raise missing[0]
     if not found:
         raise ConfigError(f"no stored grasp of {obj.name!r} for {hand.name!r} has a pre-grasp")
     return found

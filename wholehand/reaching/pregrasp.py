@@ -14,7 +14,6 @@ pre-grasp palm is nearest the current palm (:func:`nearest_plan`).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,7 +22,7 @@ import numpy.typing as npt
 from wholehand import defaults
 from wholehand.backends.table import Table
 from wholehand.grasps.store import Grasp
-from wholehand.grasps.styles import derived_close_torque, style_arrays
+from wholehand.grasps.styles import style_arrays, with_close_torque
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
 from wholehand.models.kinematics import HandKinematics
@@ -122,11 +121,7 @@ def plan_pregrasp(
             face = None if up is None else np.asarray(up, dtype=float)
             if style is None:
                 return GraspPlan(grasp.id, grasp.oMb.copy(), q_grasp, oMb, q, float(s), face)
-            closing = style_arrays(hand, style)[1]
-            if not closing.any():  # a style for the optimiser only: the model's directions
-                closing = style_arrays(
-                    hand, dataclasses.replace(style, close_torque=derived_close_torque(hand))
-                )[1]
+            closing = style_arrays(hand, with_close_torque(hand, style))[1]
             return GraspPlan(
                 grasp.id,
                 grasp.oMb.copy(),

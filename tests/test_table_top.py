@@ -9,13 +9,14 @@ from scipy.spatial import Delaunay
 from wholehand import registry
 from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
-from wholehand.grasps.generate import GENERATOR_TABLE, MAX_TILT, GraspGenerator
+from wholehand.grasps.generate import GENERATOR_TABLE, MAX_TILT, FaceSchedule, GraspGenerator
 from wholehand.grasps.store import grasp_file, hand_grasps_dir, load_grasps
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.resting import (
     MIN_PROBABILITY,
     ROUND_FACES,
+    RestingFace,
     resting_faces,
     resting_pose,
     up_rotation,
@@ -78,13 +79,12 @@ def test_resting_pose_puts_up_to_z_and_the_lowest_point_on_the_plane(box):
 
 def test_a_table_candidate_rests_the_object_and_brings_the_palm_from_above(allegro, box):
     generator = GraspGenerator(allegro, box, on_table=True)
-    ups = [f.up for f in generator.faces]
     for index in range(20):
-        wMo, wMb, face = generator.table_candidate(np.random.default_rng([3, index]))
+        face = generator.faces[index % len(generator.faces)]
+        wMo, wMb = generator.table_candidate(np.random.default_rng([3, index]), face)
         world = np.asarray(box.mesh.vertices) @ wMo[:3, :3].T + wMo[:3, 3]
         assert world[:, 2].min() == pytest.approx(GENERATOR_TABLE.top, abs=1e-9)
         assert wMo[:3, :3] @ face.up == pytest.approx([0, 0, 1])
-        assert any(np.allclose(face.up, u) for u in ups)
         normal = wMb[:3, :3] @ generator.palm.bRp[:, 0]  # palm normal, toward the object
         assert normal @ [0.0, 0.0, -1.0] >= np.cos(MAX_TILT) - 1e-9
         # The object lies on the palm's side: its centre is ahead of the palm face.
@@ -92,11 +92,49 @@ def test_a_table_candidate_rests_the_object_and_brings_the_palm_from_above(alleg
         assert (centre - wMb[:3, 3]) @ normal > generator.palm.face
 
 
+def test_the_face_schedule_gives_each_face_its_share_of_the_grasps():
+    faces = [RestingFace(np.eye(3)[i % 3], p) for i, p in enumerate([0.5, 0.3, 0.2])]
+    schedule = FaceSchedule(faces, count=4)  # a share of 2 grasps per face
+    assert schedule.share == 2
+    # Fewest candidates first, the likelier face on a tie.
+    assert schedule.next() == 0
+    schedule.record(0, 16, 2)  # face 0 has its share
+    assert schedule.next() == 1
+    schedule.record(1, 16, 0)
+    assert schedule.next() == 2
+    schedule.record(2, 16, 1)
+    # Faces 1 and 2 are short, face 0 no longer gets candidates although it has fewest ...
+    schedule.record(1, 16, 2)
+    assert schedule.next() == 2
+    schedule.record(2, 32, 1)
+    # ... and once every face has its share, all take turns again.
+    assert schedule.found == [2, 2, 2]
+    assert schedule.next() == 0
+    with pytest.raises(ValueError, match="at least one"):
+        FaceSchedule([], 3)
+
+
+def test_table_top_candidates_take_the_faces_in_turn(allegro, box):
+    generator = GraspGenerator(allegro, box, on_table=True)
+    seen = []
+    original = generator.try_candidate
+
+    def spy(index, seed, face=None):
+        seen.append(next(i for i, f in enumerate(generator.faces) if f is face))
+        return original(index, seed, face)
+
+    generator.try_candidate = spy
+    generator.generate(count=len(generator.faces), seed=0, max_candidates=len(generator.faces))
+    assert seen == list(range(len(generator.faces)))
+
+
 def test_table_top_grasps_hold_without_the_table_and_clear_it(allegro, box):
     generator = GraspGenerator(allegro, box, on_table=True)
-    grasps = generator.generate(count=2, seed=0, max_candidates=60)
+    grasps = generator.generate(count=2, seed=0, max_candidates=200)
     assert len(grasps) == 2, generator.rejections
     assert generator.rejections["the pre-shape reaches into the table"] > 0
+    # One grasp asked for per face until every face has one: the two are on two faces.
+    assert grasps[0].extra["table_up"] != grasps[1].extra["table_up"]
     for grasp in grasps:
         up = np.asarray(grasp.extra["table_up"])
         assert any(np.allclose(up, f.up) for f in generator.faces)
@@ -108,7 +146,7 @@ def test_table_top_grasps_hold_without_the_table_and_clear_it(allegro, box):
             kin.update(grasp.q_array(allegro), wMo @ grasp.oMb)
             points = kin.transform_points(allegro.samples.p_joint, allegro.samples.joint)
             assert points[:, 2].min() >= 0.4 + HAND_MARGIN
-    again = GraspGenerator(allegro, box, on_table=True).generate(2, 0, 60)
+    again = GraspGenerator(allegro, box, on_table=True).generate(2, 0, 200)
     assert [g.oMb.tolist() for g in again] == [g.oMb.tolist() for g in grasps]
 
 

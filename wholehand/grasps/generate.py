@@ -22,9 +22,10 @@ seeded candidate:
 The hand base pose in the object frame and the joint angles after settling are stored.
 
 On a table (``on_table``) the object instead rests on one of its stable faces
-(:mod:`wholehand.models.resting`, drawn by probability) at a random yaw, and the hand comes from
-above: the palm normal points down, tilted by up to ``MAX_TILT`` from the vertical, turned at
-random about itself, with the object placed in front of the palm as in step 1. The table is
+(:mod:`wholehand.models.resting`; the faces take turns, :class:`FaceSchedule`) at a random yaw,
+and the hand comes from above: the palm normal points down, tilted by up to ``MAX_TILT`` from
+the vertical, turned at random about itself, with the object placed in front of the palm as in
+step 1. The table is
 there while the fingers close, so they cannot reach under the object, and is taken away for the
 settling, so that only a grasp that holds the object by itself is kept. A candidate whose
 pre-shape or settled grasp (with the object back on its face) comes within ``HAND_MARGIN`` of
@@ -93,6 +94,39 @@ TABLE_CLEAR = GENERATOR_TABLE.top + HAND_MARGIN
 Closing = tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]
 """How a hand closes (:class:`ClosingStage`): the pose the other joints hold (n_q,) [rad], the
 closing torques (n_v,) [N*m] and which joints close (n_v,) bool."""
+
+
+class FaceSchedule:
+    """Which resting face the next table-top candidates use, so that the grasps cover the faces.
+
+    An object lands on any of its faces, and a reacher can only use grasps made on the face it
+    lies on, so each face gets an equal share of the ``count`` grasps asked for (rounded up):
+    the next candidates go to the face that has fewest candidates tried among those short of
+    their share (ties: the likelier face), or among all faces once every face has its share.
+
+    Args:
+        faces: The object's resting faces, most probable first.
+        count: Grasps asked for in all.
+    """
+
+    def __init__(self, faces: list[RestingFace], count: int) -> None:
+        if not faces:
+            raise ValueError("a face schedule needs at least one resting face")
+        self.faces = faces
+        self.share = -(-max(count, 1) // len(faces))
+        self.tried = [0] * len(faces)
+        self.found = [0] * len(faces)
+
+    def next(self) -> int:
+        """Index into ``faces`` of the face of the next candidates."""
+        short = [i for i, n in enumerate(self.found) if n < self.share]
+        pool = short or list(range(len(self.faces)))
+        return min(pool, key=lambda i: (self.tried[i], i))
+
+    def record(self, face: int, tried: int, found: int) -> None:
+        """Count ``tried`` candidates on ``face`` that gave ``found`` grasps."""
+        self.tried[face] += tried
+        self.found[face] += found
 
 
 def named_style(hand: HandModel, name: str) -> GraspStyle:
@@ -223,13 +257,11 @@ class GraspGenerator:
         return self.hand.wMb @ self.place(R, rng)
 
     def table_candidate(
-        self, rng: np.random.Generator
-    ) -> tuple[FloatArray, FloatArray, RestingFace]:
-        """A seeded table-top candidate: the object's world pose (4, 4) resting on
-        :data:`GENERATOR_TABLE`, the hand base's (4, 4) above it and the resting face (see the
-        module docstring)."""
-        weights = np.array([f.probability for f in self.faces])
-        face = self.faces[int(rng.choice(len(self.faces), p=weights / weights.sum()))]
+        self, rng: np.random.Generator, face: RestingFace
+    ) -> tuple[FloatArray, FloatArray]:
+        """A seeded table-top candidate on ``face``: the object's world pose (4, 4) resting on
+        :data:`GENERATOR_TABLE` and the hand base's (4, 4) above it (see the module
+        docstring)."""
         yaw = rng.uniform(0.0, 2.0 * np.pi)
         tilt, azimuth, spin = rng.uniform(0.0, MAX_TILT), *rng.uniform(0.0, 2.0 * np.pi, 2)
         down = np.array(
@@ -239,7 +271,7 @@ class GraspGenerator:
         wRp = Rotation.from_rotvec(spin * down).as_matrix() @ up_rotation(down).T[:, [2, 0, 1]]
         wMo = resting_pose(self.obj, face.up, yaw, (0.0, 0.0), GENERATOR_TABLE.top)
         bMo = self.place(wRp.T @ wMo[:3, :3], rng)
-        return wMo, wMo @ inverse(bMo), face
+        return wMo, wMo @ inverse(bMo)
 
     def place(self, R: FloatArray, rng: np.random.Generator) -> FloatArray:
         """(4, 4) object pose in the hand base frame for the object turned by ``R`` (3, 3) in
@@ -302,13 +334,14 @@ class GraspGenerator:
         self.rejections[reason] += 1
         return None
 
-    def try_candidate(self, index: int, seed: int) -> Grasp | None:
-        """One candidate; the grasp, or None when it is rejected (the reason is counted in
-        :attr:`rejections`)."""
+    def try_candidate(self, index: int, seed: int, face: RestingFace | None = None) -> Grasp | None:
+        """One candidate (on a table, resting on ``face``, by default the likeliest); the
+        grasp, or None when it is rejected (the reason is counted in :attr:`rejections`)."""
         rng = np.random.default_rng([seed, index])
-        b, face = self.backend, None
+        b = self.backend
         if self.on_table:
-            wMo, wMb, face = self.table_candidate(rng)
+            face = face or self.faces[0]
+            wMo, wMb = self.table_candidate(rng, face)
             b.reset(self.q_pre, wMo, wMb)
             b.set_table_contact(True)
             if lowest_point(self.hand, self.q_pre, wMb, self.kin) < TABLE_CLEAR:
@@ -402,9 +435,13 @@ class GraspGenerator:
         self.candidates_tried = 0
         self.rejections.clear()
         self.deepest.clear()
+        schedule = FaceSchedule(self.faces, count) if self.on_table else None
         for index in range(max_candidates):
             self.candidates_tried = index + 1
-            grasp = self.try_candidate(index, seed)
+            on = schedule.next() if schedule else 0
+            grasp = self.try_candidate(index, seed, self.faces[on] if schedule else None)
+            if schedule:
+                schedule.record(on, 1, grasp is not None)
             if grasp is not None:
                 grasps.append(
                     Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)

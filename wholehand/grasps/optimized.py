@@ -18,6 +18,7 @@ from wholehand.grasps.generate import (
     GENERATOR_TABLE,
     MAX_CANDIDATES,
     TABLE_CLEAR,
+    FaceSchedule,
     GraspGenerator,
     generate_command,
     named_style,
@@ -181,11 +182,11 @@ def synthesize_grasps(
     tried = 0
     bar = tqdm(total=count, desc=f"grasps {obj.name}", disable=not progress)
     kin = HandKinematics(hand)
+    schedule = FaceSchedule(generator.faces, count) if on_table else None
     while len(grasps) < count and tried < max_candidates:
-        face = None
-        if on_table:
-            weights = np.array([f.probability for f in generator.faces])
-            face = generator.faces[int(rng.choice(len(weights), p=weights / weights.sum()))]
+        on = schedule.next() if schedule else 0
+        face = generator.faces[on] if schedule else None
+        found = len(grasps)
         synthesizer = GraspSynthesizer(
             hand, obj, chosen, table_up=None if face is None else face.up, params=params
         )
@@ -202,6 +203,8 @@ def synthesize_grasps(
             bar.update(1)
             if len(grasps) == count:
                 break
+        if schedule:
+            schedule.record(on, n, len(grasps) - found)
     bar.close()
     info: dict[str, object] = {
         "command": generate_command(

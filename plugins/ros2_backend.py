@@ -8,7 +8,7 @@ and a stop topic (``std_msgs/msg/Bool``); publishes the hand's torque commands a
 ``interface_name: position``, or ``joint_trajectory_controller``).
 
 The hand gets torques throughout: a stage's joint targets on hand joints (the reacher's finger
-servo) become the PD law of :mod:`wholehand.loop.command` evaluated here on the newest joint
+servo) become the PD law of :mod:`wholehand.backends.command` evaluated here on the newest joint
 state, within the torque limits. With ``[topics] hand_position_command`` set, a command with
 hand targets (reaching) instead sends the targets, within the joint limits, on that topic in the
 torque command's joint order, for hand drivers that switch to a position interface on it, and
@@ -48,6 +48,8 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.backends.base import Backend
+from wholehand.backends.command import Command
+from wholehand.backends.observation import HISTORY_SAMPLES, JointHistory, Observation
 from wholehand.hardware.arm_guard import ArmGuard
 from wholehand.hardware.config import HardwareConfig
 from wholehand.hardware.config_file import load_hardware_config
@@ -59,10 +61,8 @@ from wholehand.hardware.messages import (
     encode_array,
     encode_joint_trajectory,
 )
+from wholehand.hardware.node import open_transport
 from wholehand.hardware.streams import Latest, RobotStreams
-from wholehand.hardware.transport import open_transport
-from wholehand.loop.command import Command
-from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
 
 if TYPE_CHECKING:
     from wholehand.models.hand import HandModel
@@ -296,7 +296,7 @@ class Ros2Backend(Backend):
         self, command: Command, joint: JointSample | None, previous: JointSample | None
     ) -> FloatArray:
         """(n_v,) the command's torques with each target group's PD law on the hand's joints,
-        evaluated on the newest joint state (:mod:`wholehand.loop.command`); zero on an arm's
+        evaluated on the newest joint state (:mod:`wholehand.backends.command`); zero on an arm's
         joints."""
         tau = command.tau.copy()
         tau[self.hand.arm_dofs] = 0.0  # the arm's own controller holds it; not sent

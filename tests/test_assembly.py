@@ -12,11 +12,11 @@ import pinocchio as pin
 import pytest
 
 from wholehand import registry
+from wholehand.backends.command import Command, JointTargets
 from wholehand.errors import AssetError, ConfigError
-from wholehand.loop.command import Command, JointTargets
 from wholehand.models.gravity import GravityCompensation
 from wholehand.models.hand import load_hand
-from wholehand.models.hand_config import shipped_hands_dir
+from wholehand.models.hand_folders import shipped_hands_dir
 from wholehand.models.objects import ObjectModel
 
 ROBOTS = shipped_hands_dir()
@@ -234,7 +234,8 @@ def test_bad_assembly_tables_are_named(tmp_path, assembly, extra, error, message
 
 
 def test_an_arm_reaches_grasps_loses_and_regrasps() -> None:
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     summary = run_episode(EpisodeSpec(hand="flexiv_rizon4_allegro_right", seed=0), record=True)
     record = summary.pop("record")

@@ -15,8 +15,8 @@ from wholehand.backends import Backend, PushesObject
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
-from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.kinematics import HandKinematics
+from wholehand.trials.trial import TrialSpec, run_trial
 
 OBJECT = "077_rubiks_cube"
 TINY = {"settle_time": 0.1, "load_duration": 0.05, "rotation_time": 0.2}
@@ -243,7 +243,7 @@ class NoGroundTruthBackend(Backend, PushesObject):
 def test_a_baseline_refuses_a_backend_without_ground_truth(allegro):
     """The need is declared (``needs_ground_truth``) and checked when the trial is set up; the
     adaptive controller runs over the same backend."""
-    from wholehand.loop.trial import set_up_trial
+    from wholehand.trials.trial import set_up_trial
 
     assert FeedforwardBaseline.needs_ground_truth and ImpedanceBaseline.needs_ground_truth
     spec = TrialSpec(

@@ -89,7 +89,7 @@ def test_run_finds_a_users_hand_and_its_grasps_by_a_relative_path(tmp_path, monk
     import shutil
 
     from wholehand.grasps.store import grasp_file
-    from wholehand.models.hand_config import shipped_hands_dir
+    from wholehand.models.hand_folders import shipped_hands_dir
 
     folder = tmp_path / "hands" / "mine"
     folder.mkdir(parents=True)

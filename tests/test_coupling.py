@@ -11,8 +11,8 @@ from toy_hand import MIMIC, write_toy_hand
 from wholehand_plugins.mujoco.backend import MujocoBackend
 
 from wholehand.allocation.base import hand_keywords
+from wholehand.backends.command import Command
 from wholehand.errors import ConfigError
-from wholehand.loop.command import Command
 from wholehand.models.coupling import Mimic, resolve_chains
 from wholehand.models.hand import load_hand
 from wholehand.models.kinematics import HandKinematics

@@ -8,10 +8,13 @@ import pinocchio as pin
 import pytest
 from wholehand_plugins.mujoco.backend import MujocoBackend
 
+from wholehand.backends.command import Command
 from wholehand.errors import ConfigError
-from wholehand.loop.command import Command
 from wholehand.loop.control_loop import ControlLoop
-from wholehand.loop.dexgraspbench import (
+from wholehand.loop.stage import Stage, StageOutput
+from wholehand.models.object_catalogue import load_object
+from wholehand.models.objects import ObjectModel
+from wholehand.trials.dexgraspbench import (
     ACCELERATION,
     MASS,
     MAX_ROTATION_DEG,
@@ -21,10 +24,7 @@ from wholehand.loop.dexgraspbench import (
     pose_change,
     run_load_test,
 )
-from wholehand.loop.stage import Stage, StageOutput
-from wholehand.loop.trial import TrialSpec
-from wholehand.models.object_catalogue import load_object
-from wholehand.models.objects import ObjectModel
+from wholehand.trials.trial import TrialSpec
 
 
 def test_pose_change_is_the_translation_and_the_rotation_angle() -> None:
@@ -105,7 +105,7 @@ def test_dexgraspbench_study_rows_and_summary(tmp_path) -> None:
 
 
 def test_a_row_names_a_diverged_simulation_by_its_warnings() -> None:
-    from wholehand.loop.outcome import DIVERGED_PREFIX, sim_warnings_error
+    from wholehand.trials.outcome import DIVERGED_PREFIX, sim_warnings_error
 
     assert sim_warnings_error({"bad_qacc": 0, "bad_qpos": 0, "step_retries": 3}) == ""
     for key in ("bad_qacc", "bad_qpos"):

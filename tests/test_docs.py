@@ -9,7 +9,7 @@ import shutil
 from pathlib import Path
 
 from wholehand.cli.main import main
-from wholehand.models.hand_config import shipped_hands_dir
+from wholehand.models.hand_folders import shipped_hands_dir
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "adding_a_hand.md"
 

@@ -18,9 +18,9 @@ from wholehand import registry
 from wholehand.allocation.base import AllocationStatus
 from wholehand.allocation.problem import AllocationParams, build_allocation_qp
 from wholehand.allocation.reference import direct_problem, solved_problem
+from wholehand.backends.command import Command
 from wholehand.bench.allocate import synthetic_grasp
 from wholehand.errors import ConfigError
-from wholehand.loop.command import Command
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.models.gravity import GravityCompensation
 from wholehand.models.hand import HandModel, load_hand

@@ -10,7 +10,8 @@ import pytest
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models import hand_samples
 from wholehand.models.hand import load_hand
-from wholehand.models.hand_config import parse_hand_config, shipped_hands_dir
+from wholehand.models.hand_config import parse_hand_config
+from wholehand.models.hand_folders import shipped_hands_dir
 
 
 def test_allegro_loads_with_expected_structure(allegro):

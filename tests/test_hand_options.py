@@ -8,8 +8,8 @@ import pytest
 from toy_hand import KNUCKLE, toy_urdf, write_toy_hand
 from wholehand_plugins.mujoco.backend import MujocoBackend
 
+from wholehand.backends.command import Command
 from wholehand.errors import ConfigError
-from wholehand.loop.command import Command
 from wholehand.models.hand import load_hand
 from wholehand.models.objects import ObjectModel
 

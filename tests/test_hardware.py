@@ -19,13 +19,13 @@ from wholehand.hardware.config import HardwareConfig, QoS, SafetyLimits
 from wholehand.hardware.config_file import load_hardware_config, parse_hardware_config
 from wholehand.hardware.guard import TorqueGuard
 from wholehand.hardware.inputs import JointStateReader, RejectedMessage, read_pose
+from wholehand.hardware.node import open_transport
 from wholehand.hardware.rmw_zenoh import (
     Attachment,
     loopback_endpoint,
     open_session,
     topic_key,
 )
-from wholehand.hardware.transport import open_transport
 
 ALLEGRO_ORDER = tuple(f"joint_{i}.0" for i in range(16))
 """The Allegro's joints in its URDF's order (Pinocchio's model order differs)."""
@@ -427,7 +427,7 @@ def test_samples_without_rmw_zenohs_attachment_are_dropped_and_counted(allegro, 
 def test_poses_stamped_far_behind_the_joint_states_get_the_stale_pose_rule(
     allegro, robot_and_backend
 ):
-    from wholehand.loop.command import Command
+    from wholehand.backends.command import Command
 
     robot, backend = robot_and_backend
     names, q = list(allegro.joint_names), allegro.neutral()
@@ -464,7 +464,7 @@ def _until_connected(robot, backend, names, q, stamp_age=0.0):
 def test_backend_starts_from_the_measured_effort_and_ramps_when_the_pose_stops(
     allegro, robot_and_backend
 ):
-    from wholehand.loop.command import Command
+    from wholehand.backends.command import Command
 
     robot, backend = robot_and_backend
     names, q = list(allegro.joint_names), allegro.neutral()
@@ -486,7 +486,7 @@ def test_backend_starts_from_the_measured_effort_and_ramps_when_the_pose_stops(
 
 
 def test_backend_watchdog_ramps_down_when_the_loop_stops(allegro, robot_and_backend):
-    from wholehand.loop.command import Command
+    from wholehand.backends.command import Command
 
     robot, backend = robot_and_backend
     names, q = list(allegro.joint_names), allegro.neutral()
@@ -540,7 +540,7 @@ def test_a_cycle_starts_on_a_fresh_joint_state_waiting_briefly_for_one(allegro):
 def test_backend_with_no_joint_state_sends_zero_and_wait_names_the_topic(allegro):
     from wholehand_plugins.ros2_backend import Ros2Backend
 
-    from wholehand.loop.command import Command
+    from wholehand.backends.command import Command
 
     endpoint = loopback_endpoint()
     config = HardwareConfig(connect=(endpoint,), command_joints=ALLEGRO_ORDER)

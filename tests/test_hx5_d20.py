@@ -11,16 +11,16 @@ import pytest
 import trimesh
 from wholehand_plugins.mujoco.backend import MujocoBackend
 
+from wholehand.backends.command import Command
 from wholehand.grasps.generate import generate_grasps
 from wholehand.grasps.store import load_grasps
-from wholehand.loop.command import Command
-from wholehand.loop.outcome import outcome_of
-from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
-from wholehand.models.hand_config import shipped_hands_dir
+from wholehand.models.hand_folders import shipped_hands_dir
 from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import pose_from_xyz_rpy
+from wholehand.trials.outcome import outcome_of
+from wholehand.trials.trial import TrialSpec, run_trial
 
 FOLDER = shipped_hands_dir() / "robotis_hx5_d20_right"
 UPSTREAM = Path(__file__).resolve().parents[2] / "shared/assets/robotis_hx5_d20"

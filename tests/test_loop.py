@@ -13,20 +13,20 @@ from kernels_loaded import kernel_versions, loaded_since
 from wholehand import registry
 from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
 from wholehand.backends import Backend
+from wholehand.backends.command import Command, JointTargets
+from wholehand.backends.observation import Observation
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
-from wholehand.loop.command import Command, JointTargets
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.observation import Observation
-from wholehand.loop.outcome import outcome_of
-from wholehand.loop.protocol import PerturbationProtocol
 from wholehand.loop.record import RunRecord
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import CycleContext, LoopStatus, Stage, StageOutput
-from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.object_catalogue import load_object
 from wholehand.studies.rows import record_row
+from wholehand.trials.outcome import outcome_of
+from wholehand.trials.protocol import PerturbationProtocol
+from wholehand.trials.trial import TrialSpec, run_trial
 
 OBJECT = "077_rubiks_cube"
 THREE_FINGER_GRASP = 4  # middle, ring and thumb (and the palm) touch the cube
@@ -537,7 +537,7 @@ class MinimalAllocator(Allocator):
 
 
 def test_an_allocator_gets_only_the_hand_keywords_it_accepts(allegro):
-    from wholehand.loop.trial import load_allocator
+    from wholehand.trials.trial import load_allocator
 
     assert isinstance(load_allocator(MinimalAllocator, allegro, {}), MinimalAllocator)
     qp = load_allocator("qp", allegro, {"mu": 0.5})

@@ -14,9 +14,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from wholehand.errors import ConfigError
-from wholehand.loop.mcap_recording import ARROW_SCALE, TOPICS, McapRecorder
-from wholehand.loop.mcap_replay import read_mcap_record
-from wholehand.loop.trial import TrialSpec, run_trial
+from wholehand.hardware.mcap_recording import ARROW_SCALE, TOPICS, McapRecorder
+from wholehand.hardware.mcap_replay import read_mcap_record
+from wholehand.trials.trial import TrialSpec, run_trial
 
 QUICK = {"settle_time": 0.3, "load_duration": 0.1}
 
@@ -130,7 +130,7 @@ def test_reading_names_a_missing_or_foreign_file(tmp_path):
 
 
 def test_a_failing_recording_stops_itself_not_the_run(tmp_path, monkeypatch):
-    from wholehand.loop import mcap_recording
+    from wholehand.hardware import mcap_recording
 
     calls = {"n": 0}
     write = mcap_recording.McapWriter.write

@@ -9,7 +9,7 @@ import pytest
 from toy_hand import MIMIC, write_toy_hand
 from wholehand_plugins.mujoco.backend import MujocoBackend
 
-from wholehand.loop.command import Command
+from wholehand.backends.command import Command
 from wholehand.models.coupling import Mimic
 from wholehand.models.hand import load_hand
 from wholehand.models.objects import ObjectModel

@@ -16,9 +16,9 @@ from wholehand_plugins.mujoco.backend import MujocoBackend
 from wholehand_plugins.mujoco.scene import build_scene
 from wholehand_plugins.mujoco.scene_options import HAND_BIT, OBJECT_BIT, SceneOptions
 
+from wholehand.backends.command import Command
 from wholehand.errors import AssetError, ConfigError, WholehandError
 from wholehand.grasps.store import objects_with_grasps
-from wholehand.loop.command import Command
 from wholehand.models.convex import convex_decomposition, shipped_decomposition_file
 from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
 from wholehand.models.objects import ObjectModel

@@ -7,13 +7,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from wholehand.backends.observation import JointHistory, Observation, check_observation
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError, ObservationError
 from wholehand.loop.control_loop import Observer
 from wholehand.loop.filters import ConstantPoseError, PoseDropout, PoseNoise, PoseTracker
-from wholehand.loop.observation import JointHistory, Observation, check_observation
-from wholehand.loop.trial import TrialSpec, run_trial, tracking_filters
 from wholehand.models.kinematics import HandKinematics
+from wholehand.trials.trial import TrialSpec, run_trial, tracking_filters
 
 TINY = {"settle_time": 0.1, "load_duration": 0.05, "rotation_time": 0.2}
 

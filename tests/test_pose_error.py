@@ -10,10 +10,10 @@ import pinocchio as pin
 import pytest
 
 from wholehand.errors import ConfigError
-from wholehand.loop.trial import TrialSpec, pose_error_offset, run_trial
 from wholehand.models.object_catalogue import load_object
 from wholehand.studies import get_study, run_study
 from wholehand.studies.base import TINY_PROTOCOL
+from wholehand.trials.trial import TrialSpec, pose_error_offset, run_trial
 
 ERROR = {"rot_deg": 30.0, "trans_mm": 5.0, "seed": 3}
 

@@ -10,15 +10,20 @@ import numpy as np
 import pytest
 
 from wholehand import registry
+from wholehand.backends.command import Command
+from wholehand.backends.observation import JointHistory, Observation
 from wholehand.backends.table import Table
 from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
 from wholehand.grasps.generate import style_arrays
 from wholehand.grasps.store import load_grasps
-from wholehand.loop.command import Command
 from wholehand.loop.grasp_loss import GraspLossCheck
-from wholehand.loop.observation import JointHistory, Observation
-from wholehand.loop.reach import (
+from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.models.kinematics import HandKinematics, lowest_point
+from wholehand.models.resting import resting_pose
+from wholehand.reaching.base import Reacher, ReachTargets
+from wholehand.reaching.pregrasp import GraspPlan, nearest_plan, plan_pregrasp
+from wholehand.reaching.stages import (
     GRASP,
     PREGRASP,
     REGULATE,
@@ -26,11 +31,6 @@ from wholehand.loop.reach import (
     ReachPlanner,
     ReachStage,
 )
-from wholehand.loop.stage import CycleContext, Stage, StageOutput
-from wholehand.models.kinematics import HandKinematics
-from wholehand.models.resting import resting_pose
-from wholehand.reaching.base import Reacher, ReachTargets
-from wholehand.reaching.pregrasp import GraspPlan, lowest_point, nearest_plan, plan_pregrasp
 
 OBJECT = "077_rubiks_cube"
 
@@ -236,7 +236,7 @@ def test_a_pinch_squeezes_its_own_closing_joints(allegro, plans) -> None:
     """At the grasp pose the servo aims SQUEEZE past the grasp on the closing joints of the
     plan's style: the pinch's (derived from the model), not the power style's."""
     from wholehand.grasps.styles import style_arrays
-    from wholehand.loop.reach import SQUEEZE
+    from wholehand.reaching.stages import SQUEEZE
 
     power = plans[0]
     pinch = _pinch(allegro, power)
@@ -355,7 +355,8 @@ def test_object_comes_to_rest_on_the_table_and_the_wrist_follows_commands(allegr
 
 def test_a_seeded_episode_grasps_loses_and_regrasps() -> None:
     from wholehand.cli.reach import format_summary
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     summary = run_episode(EpisodeSpec(seed=0), record=True)
     record = summary.pop("record")
@@ -377,7 +378,8 @@ def test_a_seeded_episode_grasps_loses_and_regrasps() -> None:
 def test_the_paper_balance_drops_the_cube_that_balancing_its_weight_holds() -> None:
     # Same seed, same grasp: without the weight in the QP the 252 g cube slips out once the
     # person lets go (the quasi-static allocation resists gravity only by the squeeze).
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     # The fingers' own weight is left to the grip here (the paper's tau = J^T f), as in the
     # paper; with it compensated the paper's balance holds this cube too (next test).
@@ -392,7 +394,8 @@ def test_the_paper_balance_drops_the_cube_that_balancing_its_weight_holds() -> N
 
 
 def test_compensating_the_fingers_weight_keeps_the_cube_the_paper_balance_dropped() -> None:
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     held = run_episode(EpisodeSpec(seed=0, balance_weight=False, duration=3.0))
     assert held["spec"]["gravity_compensation"]  # the episode's default
@@ -686,7 +689,7 @@ def test_pushes_and_twists_spare_an_object_the_hand_has_dropped() -> None:
     # A twist of 0.1 N*m on a dropped Lego brick (a few 1e-5 kg*m^2) spun it at 1000 rad/s.
     from types import SimpleNamespace
 
-    from wholehand.reaching.episode import EpisodeSpec
+    from wholehand.reaching.episode_spec import EpisodeSpec
     from wholehand.reaching.person import GAP, Person
 
     class Pushes:
@@ -730,7 +733,7 @@ def test_a_dropped_object_is_carried_back_at_a_persons_pace() -> None:
     # 300 m/s. The grip's target now starts at the object and moves at PICKUP_SPEED.
     from types import SimpleNamespace
 
-    from wholehand.reaching.episode import EpisodeSpec
+    from wholehand.reaching.episode_spec import EpisodeSpec
     from wholehand.reaching.person import GAP, PICKUP_SPEED, Person
 
     class Grips:
@@ -768,7 +771,8 @@ def test_a_dropped_object_is_carried_back_at_a_persons_pace() -> None:
 
 
 def test_the_self_collision_method_reaches_and_grasps_with_the_fingers_kept_apart() -> None:
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
     from wholehand.studies.reach import METHODS
 
     assert METHODS["qp+weight+self"].self_collision and METHODS["qp+weight+self"].balance_weight
@@ -796,7 +800,8 @@ def test_an_episode_from_the_table_regrasps_the_object_where_it_lies(allegro) ->
     import pinocchio as pin
 
     from wholehand.models.object_catalogue import load_object
-    from wholehand.reaching.episode import EpisodeSpec, episode_table, run_episode
+    from wholehand.reaching.episode import episode_table, run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     spec = EpisodeSpec(seed=0, object="003_cracker_box", start="table")
     summary = run_episode(spec, record=True)

@@ -13,17 +13,17 @@ import pytest
 from toy_hand import write_toy_hand
 from wholehand_plugins.mujoco.backend import MujocoBackend
 
+from wholehand.backends.command import Command
 from wholehand.errors import ConfigError
 from wholehand.grasps.generate import generate_grasps
 from wholehand.grasps.store import save_grasps
-from wholehand.loop.command import Command
-from wholehand.loop.outcome import outcome_of
-from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
 from wholehand.models.mjcf_file import mjcf_for_parsers
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.studies.base import TINY_PROTOCOL
+from wholehand.trials.outcome import outcome_of
+from wholehand.trials.trial import TrialSpec, run_trial
 
 SHADOW = Path(__file__).resolve().parents[1] / "examples" / "hands" / "shadow_hand_gymnasium"
 

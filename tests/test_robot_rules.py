@@ -8,16 +8,16 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from wholehand.backends.observation import JointHistory, Observation
 from wholehand.errors import ConfigError
 from wholehand.hardware.arm_guard import ArmGuard
 from wholehand.hardware.config_file import parse_hardware_config
-from wholehand.loop.home import HOME_DWELL, HOME_SPEED, HomeStage
-from wholehand.loop.observation import JointHistory, Observation
-from wholehand.loop.reach import HOME, PREGRASP, ReachPlanner, ReachStage
 from wholehand.loop.stage import CycleContext
 from wholehand.models.kinematics import HandKinematics
 from wholehand.reaching.base import Reacher, ReachTargets
+from wholehand.reaching.home import HOME_DWELL, HOME_SPEED, HomeStage
 from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, home_configuration
+from wholehand.reaching.stages import HOME, PREGRASP, ReachPlanner, ReachStage
 from wholehand.reaching.workspace import Box, Workspace
 
 RIG = "flexiv_rizon4_hx5_d20_right"

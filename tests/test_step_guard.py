@@ -12,7 +12,7 @@ from wholehand_plugins.mujoco.backend import MujocoBackend
 from wholehand_plugins.mujoco.scene_options import HAND_BIT
 from wholehand_plugins.mujoco.step_guard import MAX_SPEED
 
-from wholehand.loop.command import Command
+from wholehand.backends.command import Command
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 

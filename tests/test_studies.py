@@ -539,7 +539,7 @@ def test_cli_resume_and_limit_reach_run_study(tmp_path, monkeypatch, capsys):
 _ORPHAN_SCRIPT = """
 import os, sys, time
 from wholehand.studies.base import TrialJob
-from wholehand.loop.trial import TrialSpec
+from wholehand.trials.trial import TrialSpec
 from wholehand.studies.executors import execute
 
 def slow(job):
@@ -681,7 +681,7 @@ def test_a_study_runs_a_users_hand_and_a_third_party_allocator(tmp_path, monkeyp
 
     from wholehand import registry
     from wholehand.grasps.store import grasp_file
-    from wholehand.models.hand_config import shipped_hands_dir
+    from wholehand.models.hand_folders import shipped_hands_dir
 
     site = _make_distribution(
         tmp_path,
@@ -743,7 +743,7 @@ def test_gravity_study_pairs_its_trials_with_the_perturbation_study():
 
 
 def test_balancing_the_weight_needs_gravity(allegro):
-    from wholehand.loop.trial import TrialSpec, set_up_trial
+    from wholehand.trials.trial import TrialSpec, set_up_trial
 
     with pytest.raises(ConfigError, match="balance_weight=True needs gravity=True"):
         set_up_trial(TrialSpec(balance_weight=True), allegro)

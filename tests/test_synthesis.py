@@ -253,7 +253,7 @@ def test_closing_directions_derived_from_the_model_are_the_shipped_ones(name):
 def test_a_hand_without_grasping_tables_gets_optimised_grasps(tmp_path, capsys):
     """The Allegro's hand.toml without its [grasping] tables: the pre-shape generator has
     nothing to close, the optimiser needs nothing more."""
-    from wholehand.models.hand_config import shipped_hands_dir
+    from wholehand.models.hand_folders import shipped_hands_dir
 
     text = (shipped_hands_dir() / "allegro_right" / "hand.toml").read_text()
     folder = tmp_path / "bare"

@@ -6,10 +6,10 @@ import dataclasses
 
 import pytest
 
-from wholehand.loop.protocol import PerturbationProtocol
 from wholehand.studies import get_study, run_study
 from wholehand.studies.base import protocol_for
 from wholehand.studies.tracking import CONDITIONS, FACTORS, PAPER_POINT, pull_start
+from wholehand.trials.protocol import PerturbationProtocol
 
 
 def test_each_condition_moves_one_factor_from_the_papers_point():

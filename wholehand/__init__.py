@@ -29,16 +29,14 @@ if TYPE_CHECKING:
     from wholehand import registry
     from wholehand.allocation.base import Allocation, Allocator
     from wholehand.backends.base import Backend
+    from wholehand.backends.command import Command, JointTargets
     from wholehand.contacts.base import ContactEstimator, ContactSet
-    from wholehand.loop.command import Command, JointTargets
+    from wholehand.hardware.mcap_recording import McapRecorder
+    from wholehand.hardware.mcap_replay import read_mcap_record
     from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-    from wholehand.loop.mcap_recording import McapRecorder
-    from wholehand.loop.mcap_replay import read_mcap_record
-    from wholehand.loop.outcome import RunOutcome, outcome_of
     from wholehand.loop.record import Recorder, RunRecord
     from wholehand.loop.regulation import ForceRegulation
     from wholehand.loop.stage import Stage
-    from wholehand.loop.trial import TrialSpec, run_trial
     from wholehand.models.hand import HandModel, load_hand
     from wholehand.models.kinematics import HandKinematics
     from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
@@ -46,6 +44,8 @@ if TYPE_CHECKING:
     from wholehand.studies.base import derive_seed, protocol_for, success_stats
     from wholehand.studies.rows import record_row
     from wholehand.studies.runner import run_trials
+    from wholehand.trials.outcome import RunOutcome, outcome_of
+    from wholehand.trials.trial import TrialSpec, run_trial
     from wholehand.viz.replay import write_html
 
 __version__ = "0.1.0"
@@ -57,21 +57,21 @@ _PUBLIC = {
     "Backend": "wholehand.backends.base",
     "ContactEstimator": "wholehand.contacts.base",
     "ContactSet": "wholehand.contacts.base",
-    "Command": "wholehand.loop.command",
-    "JointTargets": "wholehand.loop.command",
+    "Command": "wholehand.backends.command",
+    "JointTargets": "wholehand.backends.command",
     "ControlLoop": "wholehand.loop.control_loop",
     "Cycle": "wholehand.loop.control_loop",
     "Observer": "wholehand.loop.control_loop",
-    "McapRecorder": "wholehand.loop.mcap_recording",
-    "read_mcap_record": "wholehand.loop.mcap_replay",
-    "RunOutcome": "wholehand.loop.outcome",
-    "outcome_of": "wholehand.loop.outcome",
+    "McapRecorder": "wholehand.hardware.mcap_recording",
+    "read_mcap_record": "wholehand.hardware.mcap_replay",
+    "RunOutcome": "wholehand.trials.outcome",
+    "outcome_of": "wholehand.trials.outcome",
     "Recorder": "wholehand.loop.record",
     "RunRecord": "wholehand.loop.record",
     "ForceRegulation": "wholehand.loop.regulation",
     "Stage": "wholehand.loop.stage",
-    "TrialSpec": "wholehand.loop.trial",
-    "run_trial": "wholehand.loop.trial",
+    "TrialSpec": "wholehand.trials.trial",
+    "run_trial": "wholehand.trials.trial",
     "HandModel": "wholehand.models.hand",
     "load_hand": "wholehand.models.hand",
     "HandKinematics": "wholehand.models.kinematics",

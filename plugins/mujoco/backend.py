@@ -24,11 +24,11 @@ from wholehand.backends.base import (
     ReportsWarnings,
     Resettable,
 )
+from wholehand.backends.command import Command
 from wholehand.backends.ground_truth import SimContacts
+from wholehand.backends.observation import HISTORY_SAMPLES, JointHistory, Observation
 from wholehand.backends.table import TABLE_GEOM
 from wholehand.errors import ConfigError
-from wholehand.loop.command import Command
-from wholehand.loop.observation import HISTORY_SAMPLES, JointHistory, Observation
 from wholehand.models.poses import check_pose
 
 from .contacts import hand_object_contacts, warning_counts
@@ -241,7 +241,7 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
     def apply(self, command: Command) -> None:
         """Send joint torques [N*m] (Pinocchio order) and joint targets, held until the next
         command. Torques are clipped to +-tau_max; entries of joints that are not actuated are
-        ignored. A target group's PD law (:mod:`wholehand.loop.command`) is evaluated before
+        ignored. A target group's PD law (:mod:`wholehand.backends.command`) is evaluated before
         every MuJoCo step on the state of that step."""
         tau = _vector(command.tau, self.hand.nv, "tau")
         if command.base is not None:

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import abc
 import enum
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -15,11 +16,28 @@ from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 
 if TYPE_CHECKING:
-    from wholehand.loop.stage import CycleContext
+    from wholehand.backends.observation import Observation
     from wholehand.models.hand import HandModel
     from wholehand.models.kinematics import HandKinematics
+    from wholehand.models.objects import ObjectModel
 
 FloatArray = npt.NDArray[np.float64]
+
+
+class StartContext(Protocol):
+    """What :meth:`Allocator.start` may read of the first regulated cycle (the loop passes its
+    :class:`~wholehand.loop.stage.CycleContext`)."""
+
+    obs: Observation
+    """The observation of the cycle."""
+    obj: ObjectModel
+    ground_truth: Callable[[], ContactSet] | None
+    """The simulator's contacts in the observed object pose (None without ground truth)."""
+
+    @property
+    def kinematics(self) -> HandKinematics:
+        """The hand at the cycle's joint reading."""
+        ...
 
 
 class AllocationStatus(str, enum.Enum):
@@ -174,7 +192,7 @@ class Allocator(abc.ABC):
     supports_tau_bias: ClassVar[bool] = False
     """True for allocators whose :meth:`allocate` takes ``tau_bias``."""
 
-    def start(self, context: CycleContext) -> None:  # noqa: B027 - an optional hook
+    def start(self, context: StartContext) -> None:  # noqa: B027 - an optional hook
         """Called on the first cycle of force regulation, before the first :meth:`allocate`."""
 
     @abc.abstractmethod

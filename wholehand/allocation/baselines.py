@@ -18,18 +18,15 @@ baseline ignores the estimated contacts and applies its law at the configuration
 from __future__ import annotations
 
 import abc
-from typing import TYPE_CHECKING, ClassVar, cast
+from typing import ClassVar, cast
 
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.allocation.base import Allocation, AllocationStatus, Allocator
+from wholehand.allocation.base import Allocation, AllocationStatus, Allocator, StartContext
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 from wholehand.models.kinematics import HandKinematics
-
-if TYPE_CHECKING:
-    from wholehand.loop.stage import CycleContext
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -58,7 +55,7 @@ class FixedAllocationBaseline(Allocator):
         self.J_gt: FloatArray | None = None
 
     # --------------------------------------------------------------------------------------------
-    def start(self, context: CycleContext) -> None:
+    def start(self, context: StartContext) -> None:
         """Allocate once on the ground-truth contacts at this cycle's configuration.
 
         Raises:
@@ -163,7 +160,7 @@ class FixedAllocationBaseline(Allocator):
             raise ConfigError(
                 f"{type(self).__name__}: allocate() before initialise(); a non-adaptive baseline "
                 "needs the ground-truth contacts at grasp initialisation (run it through "
-                "wholehand.loop.trial.run_trial, or call initialise() yourself)"
+                "wholehand.trials.trial.run_trial, or call initialise() yourself)"
             )
         if kinematics is None:
             raise ConfigError(

@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.loop.command import Command
-from wholehand.loop.observation import Observation
+from wholehand.backends.command import Command
+from wholehand.backends.observation import Observation
 
 if TYPE_CHECKING:
     from wholehand.backends.ground_truth import SimContacts

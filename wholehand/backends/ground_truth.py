@@ -46,7 +46,8 @@ class SimContacts:
     @property
     def f_normal(self) -> FloatArray:
         """(N,) normal force magnitudes on the object [N] (>= 0)."""
-        return -np.einsum("ij,ij->i", self.f_world, self.n_world)
+        f_normal: FloatArray = -np.einsum("ij,ij->i", self.f_world, self.n_world)
+        return f_normal
 
     def to_contact_set(self, hand: HandModel) -> ContactSet:
         """The contacts as a :class:`wholehand.contacts.base.ContactSet` (forces dropped)."""

@@ -6,11 +6,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
 from wholehand.provenance import provenance
 from wholehand.timing import percentiles_us
+from wholehand.trials.trial import TrialSpec, run_trial
 
 
 def run_cycle_benchmark(
@@ -34,7 +34,7 @@ def run_cycle_benchmark(
     timed; the percentiles pool all trials of a K. ``held_commands`` counts the cycles that kept
     the last feasible torque (an allocation past its deadline, say), ``longest_hold_cycles``
     the most of them in a row in one trial. ``protocol_params``: the protocol's
-    parameters (:class:`~wholehand.loop.protocol.PerturbationProtocol`; None: the paper's);
+    parameters (:class:`~wholehand.trials.protocol.PerturbationProtocol`; None: the paper's);
     ``allocator_params``: the allocator's keyword arguments (e.g. ``deadline``,
     ``screen_edges``).
     """

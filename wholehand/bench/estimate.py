@@ -27,12 +27,12 @@ import numpy as np
 
 from wholehand import registry
 from wholehand.bench.worst_case import record_poses
-from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.hand import load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.provenance import provenance
 from wholehand.timing import percentiles_us
+from wholehand.trials.trial import TrialSpec, run_trial
 
 PHASES = ("kinematics", "estimate", "jacobians")
 """Timed phases, in the order of a control step."""

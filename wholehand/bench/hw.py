@@ -191,7 +191,7 @@ def _plain_loop(
 ) -> bool:
     """The same grasp and load test in the simulation loop, with the tracker modelled by the
     loop's filters (30 Hz, the same latency): does it hold?"""
-    from wholehand.loop.trial import TrialSpec, run_trial
+    from wholehand.trials.trial import TrialSpec, run_trial
 
     params = {"settle_time": 0.3, "load_duration": 0.3} if quick else {}
     trial = TrialSpec(

@@ -29,10 +29,10 @@ from wholehand.errors import ConfigError
 from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
 from wholehand.hardware.controller import ControllerSpec, run_controller
 from wholehand.hardware.rmw_zenoh import loopback_endpoint
-from wholehand.loop.reach import HOME, PREGRASP, REGULATE
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
 from wholehand.provenance import provenance
+from wholehand.reaching.stages import HOME, PREGRASP, REGULATE
 from wholehand.studies.base import derive_seed
 from wholehand.timing import percentiles
 
@@ -112,7 +112,8 @@ def over_ros(
 
 def in_process(hand: str, obj: str, seed: int) -> dict[str, Any]:
     """The same episode in process (``wholehand reach``)."""
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     summary = run_episode(EpisodeSpec(hand=hand, object=obj, seed=seed), samples=True)
     row = _outcome(

@@ -29,16 +29,16 @@ import numpy.typing as npt
 
 from wholehand.allocation.base import FRESH_STATUSES, Allocation, AllocationStatus, Allocator
 from wholehand.backends.base import Backend
+from wholehand.backends.command import Command
+from wholehand.backends.observation import Observation
 from wholehand.contacts.base import ContactEstimator, ContactSet
 from wholehand.errors import ConfigError
-from wholehand.loop.command import Command
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.gate import ObservationGate
 from wholehand.loop.grasp_loss import GraspLossMonitor
-from wholehand.loop.observation import Observation
-from wholehand.loop.trial import TrialSpec, set_up_trial
 from wholehand.provenance import provenance
 from wholehand.timing import percentiles_us
+from wholehand.trials.trial import TrialSpec, set_up_trial
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -28,17 +28,17 @@ import numpy as np
 import pinocchio as pin
 
 from wholehand import registry
-from wholehand.loop.observation import JointHistory, Observation
+from wholehand.backends.observation import JointHistory, Observation
 from wholehand.loop.record import RunRecord
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import CycleContext
-from wholehand.loop.trial import TrialSpec, load_allocator, run_trial
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.provenance import provenance
 from wholehand.timing import percentiles_us
+from wholehand.trials.trial import TrialSpec, load_allocator, run_trial
 
 WORST_OBJECTS = ("006_mustard_bottle", "052_extra_large_clamp")
 """Where the paper's method loses most grasps in the perturbation study (theta 90 deg)."""

@@ -102,7 +102,8 @@ def _cmd_soak(args: argparse.Namespace) -> int:
 
 
 def _cmd_reach(args: argparse.Namespace) -> int:
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
     from wholehand.timing import percentiles
 
     cycle: dict[str, list[float]] = {}

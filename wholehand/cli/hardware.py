@@ -32,7 +32,7 @@ def _recorders(args: argparse.Namespace, spec: object) -> list[Any]:
         return []
     from dataclasses import asdict, is_dataclass
 
-    from wholehand.loop.mcap_recording import McapRecorder
+    from wholehand.hardware.mcap_recording import McapRecorder
 
     info: dict[str, Any] = {"hand": args.hand, "object": args.object}
     if is_dataclass(spec) and not isinstance(spec, type):
@@ -112,7 +112,7 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
 
 def _episode_double(args: argparse.Namespace) -> int:
     from wholehand.hardware.episode_double import EpisodeDoubleSpec, run_episode_double
-    from wholehand.reaching.episode import EpisodeSpec
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     episode = EpisodeSpec(
         hand=args.hand,

@@ -40,7 +40,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_hands(args: argparse.Namespace) -> int:
-    from wholehand.models.hand_config import available_hands
+    from wholehand.models.hand_folders import available_hands
 
     print("\n".join(available_hands()))
     return 0

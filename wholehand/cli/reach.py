@@ -70,7 +70,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_reach(args: argparse.Namespace) -> int:
     from wholehand.errors import ConfigError
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed} must be an integer >= 0")
@@ -100,7 +101,7 @@ def _cmd_reach(args: argparse.Namespace) -> int:
     if mcap:
         from dataclasses import asdict
 
-        from wholehand.loop.mcap_recording import McapRecorder
+        from wholehand.hardware.mcap_recording import McapRecorder
         from wholehand.models.hand import load_hand
         from wholehand.reaching.episode import episode_table
 

@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from wholehand.errors import ConfigError
-from wholehand.loop.outcome import outcome_of
 from wholehand.loop.record import RunRecord
+from wholehand.trials.outcome import outcome_of
 
 if TYPE_CHECKING:
     from wholehand.backends.table import Table
@@ -170,7 +170,7 @@ def _object(name: str, sdf_spacing: str | None) -> ObjectModel | None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from wholehand.loop.trial import TrialSpec, run_trial
+    from wholehand.trials.trial import TrialSpec, run_trial
 
     if not (math.isfinite(args.theta) and args.theta >= 0.0):
         raise ConfigError(f"--theta {args.theta} must be a finite angle >= 0 [deg]")
@@ -207,7 +207,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     )
     observers = [live_view(spec, args.view_every)] if args.view else []
     if args.record:
-        from wholehand.loop.mcap_recording import McapRecorder
+        from wholehand.hardware.mcap_recording import McapRecorder
 
         observers.append(McapRecorder(args.record, {"spec": dataclasses.asdict(spec)}))
     if args.protocol == "dexgraspbench":
@@ -247,8 +247,8 @@ def _load_test(args: argparse.Namespace, spec: Any, observers: list[Observer]) -
     """``--protocol dexgraspbench``: run DexGraspBench's load test and print it."""
     import dataclasses
 
-    from wholehand.loop.dexgraspbench import FRICTION, run_load_test
     from wholehand.models.hand import load_hand
+    from wholehand.trials.dexgraspbench import FRICTION, run_load_test
 
     for flag in ("save", "record_html", "plot", "record"):
         if getattr(args, flag):

@@ -149,9 +149,9 @@ def _view_one(args: argparse.Namespace, size: str) -> int:
     """Run one trial of the study in this process with the live viewer."""
     from wholehand.cli.run import live_view, print_summary, summarise
     from wholehand.errors import ConfigError
-    from wholehand.loop.trial import run_trial
     from wholehand.studies import get_study
     from wholehand.studies.runner import study_jobs
+    from wholehand.trials.trial import run_trial
 
     study = get_study(args.name)
     jobs = study_jobs(study, size, args.seed, args.hand, _methods(args), args.grasps, _only(args))

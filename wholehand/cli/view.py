@@ -41,7 +41,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
             "or `--record run.mcap`"
         )
     if path.suffix == ".mcap":
-        from wholehand.loop.mcap_replay import read_mcap_record
+        from wholehand.hardware.mcap_replay import read_mcap_record
 
         record = read_mcap_record(path)
     else:

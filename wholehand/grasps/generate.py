@@ -43,22 +43,21 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from wholehand import registry
+from wholehand.backends.command import Command
 from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import style_arrays
-from wholehand.loop.command import Command
 from wholehand.loop.control_loop import ControlLoop
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
-from wholehand.models.kinematics import HandKinematics
+from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
 from wholehand.models.poses import inverse
 from wholehand.models.resting import RestingFace, resting_faces, resting_pose, up_rotation
-from wholehand.reaching.pregrasp import lowest_point
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -27,11 +27,10 @@ from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import with_close_torque
 from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisParams, SynthesisResult
 from wholehand.models.hand import HandModel
-from wholehand.models.kinematics import HandKinematics
+from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import inverse
 from wholehand.models.resting import RestingFace, resting_pose
-from wholehand.reaching.pregrasp import lowest_point
 
 FloatArray = npt.NDArray[np.float64]
 

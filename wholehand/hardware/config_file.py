@@ -389,7 +389,7 @@ def hand_hardware_config(hand: str | Path) -> Path:
     Raises:
         ConfigError: the hand is unknown, or its folder has no hardware config.
     """
-    from wholehand.models.hand_config import resolve_hand_config
+    from wholehand.models.hand_folders import resolve_hand_config
 
     path = resolve_hand_config(hand).parent / HAND_CONFIG_FILE
     if not path.is_file():

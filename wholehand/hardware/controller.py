@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from wholehand import defaults, registry
 from wholehand.allocation.base import Allocator
+from wholehand.backends.observation import check_observation
 from wholehand.backends.table import HAND_MARGIN
 from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
@@ -34,11 +35,8 @@ from wholehand.hardware.config import HardwareConfig
 from wholehand.hardware.inputs import model_joint_name
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.gate import ObservationGate
-from wholehand.loop.observation import check_observation
-from wholehand.loop.reach import PREGRASP, REGULATE, HoldStage, ReachPlanner
 from wholehand.loop.regulation import AllocateEvery, EstimateAt, ForceRegulation
 from wholehand.loop.stage import Stage
-from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
@@ -51,7 +49,9 @@ from wholehand.reaching.pipeline import (
     pipeline_stages,
 )
 from wholehand.reaching.pregrasp import GraspPlan, usable_on_table
+from wholehand.reaching.stages import PREGRASP, REGULATE, HoldStage, ReachPlanner
 from wholehand.timing import percentiles
+from wholehand.trials.trial import load_allocator
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -239,8 +239,6 @@ def run_controller(
         ConfigError: no joint state or object pose within ``wait`` [s]; an assembly without an
             arm topic or workspace in ``config``.
     """
-    from wholehand_plugins.ros2_backend import Ros2Backend
-
     estimator = registry.load(
         "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params
     )
@@ -260,7 +258,9 @@ def run_controller(
             previous[sig] = signal.signal(sig, lambda *_: stopped.set())
     stopper = _StopWhen(stopped, stop)
     try:
-        with Ros2Backend(hand, obj, config, trace=trace) as backend:
+        with registry.load(
+            "backends", "ros2", hand=hand, obj=obj, config=config, trace=trace
+        ) as backend:
             backend.wait_for_streams(wait)
             # wholehand's kernels load when built; a first estimate here also loads a third-party
             # estimator's (~0.1-0.2 s each) and checks the first reading, not in a cycle.

@@ -23,6 +23,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from wholehand import registry
+from wholehand.backends.command import Command
+from wholehand.backends.observation import check_observation
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
 from wholehand.hardware.config import HardwareConfig
@@ -36,19 +39,18 @@ from wholehand.hardware.messages import (
     encode_joint_state,
     encode_pose,
 )
-from wholehand.hardware.transport import SampleMeta, TopicPublisher, open_transport
-from wholehand.loop.command import Command
+from wholehand.hardware.node import open_transport
+from wholehand.hardware.transport import SampleMeta, TopicPublisher
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossMonitor
-from wholehand.loop.observation import check_observation
-from wholehand.loop.protocol import PerturbationProtocol, ProtocolDriver
 from wholehand.loop.record import Recorder, RunRecord
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
-from wholehand.loop.trial import tracking_filters
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
+from wholehand.trials.protocol import PerturbationProtocol, ProtocolDriver
+from wholehand.trials.trial import tracking_filters
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -251,17 +253,17 @@ def run_double(
     Raises:
         ConfigError: no torque command within ``wait_for_controller`` [s], or a bad spec.
     """
-    from wholehand_plugins.mujoco.backend import MujocoBackend
-
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)
     grasps = load_grasps(spec.hand, spec.object, "power")
     if not 0 <= spec.grasp < len(grasps):
         raise ConfigError(f"hw-sim: grasp {spec.grasp} does not exist ({len(grasps)} stored)")
     grasp = grasps[spec.grasp]
-    backend = MujocoBackend(
-        hand,
-        obj,
+    backend = registry.load(
+        "backends",
+        "mujoco",
+        hand=hand,
+        obj=obj,
         q_init=grasp.q_array(hand),
         wMo_init=grasp.object_pose(hand.wMb),
         gravity=spec.gravity,

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.backends.command import Command, JointTargets
 from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig
 from wholehand.hardware.double import (
@@ -44,15 +45,16 @@ from wholehand.hardware.messages import (
     decode_array,
     decode_joint_trajectory,
 )
-from wholehand.hardware.transport import SampleMeta, open_transport
-from wholehand.loop.command import Command, JointTargets
+from wholehand.hardware.node import open_transport
+from wholehand.hardware.transport import SampleMeta
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.reach import FINGER_KD, FINGER_KP, ArmServo
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
-from wholehand.loop.trial import tracking_filters
 from wholehand.models.hand import HandModel
-from wholehand.reaching.episode import EpisodeSpec, episode_scene
+from wholehand.reaching.episode import episode_scene
+from wholehand.reaching.episode_spec import EpisodeSpec
 from wholehand.reaching.person import PERTURBATIONS, Event, Person, grip
+from wholehand.reaching.stages import FINGER_KD, FINGER_KP, ArmServo
+from wholehand.trials.trial import tracking_filters
 
 FloatArray = npt.NDArray[np.float64]
 

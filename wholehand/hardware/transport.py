@@ -15,8 +15,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from wholehand.hardware.config import HardwareConfig
-
 
 @dataclass(frozen=True)
 class SampleMeta:
@@ -81,14 +79,3 @@ class Transport(Protocol):
     def close(self) -> None:
         """Leave the network: every publisher and subscriber of the node closes."""
         ...
-
-
-def open_transport(config: HardwareConfig, node_name: str) -> Transport:
-    """The node ``node_name`` on the config's transport (``[ros2] transport``)."""
-    if config.transport == "dds":
-        from wholehand.hardware.ros2_dds import DdsTransport
-
-        return DdsTransport(config, node_name)
-    from wholehand.hardware.rmw_zenoh import ZenohTransport
-
-    return ZenohTransport(config, node_name)

@@ -1,1 +1,1 @@
-"""The control loop: observations, commands, stages, observers and filters, run records."""
+"""The control loop: stages, observers, observation filters, grasp-loss checks and run records."""

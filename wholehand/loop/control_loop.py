@@ -2,7 +2,7 @@
 
 One loop serves simulation, the grasp generator and hardware. Each cycle:
 
-1. reads an :class:`~wholehand.loop.observation.Observation` from the backend and checks it
+1. reads an :class:`~wholehand.backends.observation.Observation` from the backend and checks it
    (well-formed, and plausible if a :class:`~wholehand.loop.gate.ObservationGate` is given);
 2. passes it through the observation filters (what the controller sees: pose error, noise,
    latency and rate, dropouts);
@@ -40,12 +40,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wholehand.backends.base import Backend, HasGroundTruth
+from wholehand.backends.command import Command
+from wholehand.backends.observation import Observation, check_observation, load_observation_check
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError, ObservationError
-from wholehand.loop.command import Command
 from wholehand.loop.filters import ObservationFilter
 from wholehand.loop.gate import ObservationGate
-from wholehand.loop.observation import Observation, check_observation, load_observation_check
 from wholehand.loop.stage import END, CycleContext, LoopStatus, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics

@@ -17,8 +17,8 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
+from wholehand.backends.observation import Observation
 from wholehand.errors import ConfigError
-from wholehand.loop.observation import Observation
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -39,7 +39,7 @@ class ConstantPoseError(ObservationFilter):
 
     Args:
         offset: (4, 4) rigid transform in the object frame (see
-            :func:`wholehand.loop.trial.pose_error_offset`).
+            :func:`wholehand.trials.trial.pose_error_offset`).
     """
 
     def __init__(self, offset: FloatArray) -> None:

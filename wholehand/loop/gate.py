@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.backends.observation import Observation
 from wholehand.errors import ConfigError, ObservationError
-from wholehand.loop.observation import Observation
 from wholehand.models.hand import HandModel
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -19,9 +19,19 @@ from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 
 if TYPE_CHECKING:
     from wholehand.loop.grasp_loss import GraspLossMonitor
-    from wholehand.loop.protocol import ProtocolDriver
 
 FloatArray = npt.NDArray[np.float64]
+
+
+class PhaseSource(Protocol):
+    """What the recorder reads of a perturbation protocol's driver
+    (:class:`~wholehand.trials.protocol.ProtocolDriver`): its phases and the current one."""
+
+    @property
+    def phase_names(self) -> list[str]: ...
+
+    @property
+    def phase_index(self) -> int: ...
 
 
 @dataclass
@@ -232,7 +242,7 @@ class Recorder(Observer):
     def __init__(
         self,
         loss: GraspLossMonitor,
-        protocol: ProtocolDriver | None = None,
+        protocol: PhaseSource | None = None,
         meta: dict[str, Any] | None = None,
     ) -> None:
         self.loss, self.protocol = loss, protocol

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, ClassVar
 
-from wholehand.loop.command import Command
-from wholehand.loop.observation import Observation
+from wholehand.backends.command import Command
+from wholehand.backends.observation import Observation
 
 if TYPE_CHECKING:
     from wholehand.allocation.base import Allocation

@@ -28,18 +28,16 @@ an object. The MuJoCo backend refuses a servo whose ``kd * dt / arm_armature`` e
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from wholehand.errors import AssetError, ConfigError
+from wholehand.models.hand_folders import resolve_hand_config
 from wholehand.models.mesh_files import resolve_mesh_uri
-
-if TYPE_CHECKING:
-    from wholehand.models.hand_config import HandConfig
+from wholehand.models.toml_values import three_numbers
 
 ASSEMBLY_KEYS = {"arm", "hand", "flange", "mount", "arm_gains", "arm_armature", "home"}
 """Keys of the ``[assembly]`` table."""
@@ -69,8 +67,6 @@ class Assembly:
 
 def parse_assembly(table: Any, where: Path) -> Assembly:
     """Validate an ``[assembly]`` table of the hand.toml at ``where``."""
-    from wholehand.models.hand_config import resolve_hand_config, three_numbers
-
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: [assembly] must be a table, got {table!r}")
     unknown = sorted(set(table) - ASSEMBLY_KEYS)
@@ -165,19 +161,21 @@ def _absolute_meshes(root: ET.Element, model_path: Path, package_dirs: tuple[Pat
 
 
 def merged_urdf(
-    assembly: Assembly, hand: HandConfig, name: str
+    assembly: Assembly, hand_urdf: Path, hand_packages: tuple[Path, ...], name: str
 ) -> tuple[str, list[str], list[str]]:
-    """The assembly as one URDF string; the arm's moving joints and the arm's links."""
+    """The assembly as one URDF string, the hand's URDF ``hand_urdf`` (its meshes found in
+    ``hand_packages``) mounted on the arm's flange; the arm's moving joints and the arm's
+    links."""
     arm = _read(assembly.arm_urdf)
-    hand_root = _read(hand.model_path)
+    hand_root = _read(hand_urdf)
     arm_links = [link.get("name", "") for link in arm.iter("link")]
     if assembly.flange not in arm_links:
         raise ConfigError(
-            f"{hand.path.parent}: [assembly] flange {assembly.flange!r} is not a link of "
+            f"{assembly.hand_toml.parent}: [assembly] flange {assembly.flange!r} is not a link of "
             f"{assembly.arm_urdf.name}; its links are {arm_links}"
         )
     _absolute_meshes(arm, assembly.arm_urdf, (assembly.arm_urdf.parent,))
-    _absolute_meshes(hand_root, hand.model_path, hand.package_dirs)
+    _absolute_meshes(hand_root, hand_urdf, hand_packages)
     clash = sorted(set(arm_links) & {link.get("name", "") for link in hand_root.iter("link")})
     if clash:
         raise ConfigError(f"the arm and the hand both have links named {clash}; rename one")
@@ -187,7 +185,7 @@ def merged_urdf(
             out.append(element)
     mount = ET.SubElement(out, "joint", {"name": f"{assembly.flange}_to_hand", "type": "fixed"})
     ET.SubElement(mount, "parent", {"link": assembly.flange})
-    ET.SubElement(mount, "child", {"link": root_link(hand_root, hand.model_path)})
+    ET.SubElement(mount, "child", {"link": root_link(hand_root, hand_urdf)})
     ET.SubElement(
         mount,
         "origin",
@@ -205,55 +203,3 @@ def write_merged(text: str) -> Path:
     from wholehand.models.cache import text_file
 
     return text_file("assemblies", "assembly", text, "urdf")
-
-
-def assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
-    """The config of an arm-hand assembly: the hand.toml ``raw`` (``name``, ``[assembly]``,
-    ``[mount]``) at ``path``, as :func:`~wholehand.models.hand_config.parse_hand_config` returns
-    it for an assembly."""
-    from wholehand.models.hand_config import parse_hand_config, three_numbers
-
-    unknown = sorted(set(raw) - {"name", "assembly", "mount"})
-    if unknown:
-        raise ConfigError(
-            f"{path}: an assembly's hand.toml takes name, [assembly] and [mount]; the hand's own "
-            f"settings belong in the hand's hand.toml, not here: {unknown}"
-        )
-    assembly = parse_assembly(raw["assembly"], path)
-    hand = parse_hand_config(assembly.hand_toml)
-    if hand.model_format != "urdf" or hand.arm_joints:
-        raise ConfigError(f"{path}: [assembly] hand must be a URDF hand, not {hand.path}")
-    name = str(raw.get("name", path.parent.name))
-    text, arm_joints, arm_links = merged_urdf(assembly, hand, name)
-    if assembly.home and len(assembly.home) != len(arm_joints):
-        raise ConfigError(
-            f"{path}: [assembly] home has {len(assembly.home)} angles; the arm has "
-            f"{len(arm_joints)} moving joints {arm_joints}"
-        )
-    model_path = write_merged(text)
-    actuated = hand.actuated_joints
-    if actuated is None:  # "every moving joint" of the hand, not of the arm
-        hand_joints = moving_joints(ET.parse(hand.model_path).getroot())
-        actuated = tuple(
-            j for j in hand_joints if j not in hand.locked_joints and j not in hand.coupled_joints
-        )
-    mount = raw.get("mount", {})
-    if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
-        raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
-    xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
-    return dataclasses.replace(
-        hand,
-        path=path.resolve(),
-        name=name,
-        model_path=model_path,
-        package_dirs=(model_path.parent, *hand.package_dirs),
-        actuated_joints=actuated,
-        excluded_links=(*hand.excluded_links, *arm_links),
-        mount_xyz=xyz,
-        mount_rpy=rpy,
-        arm_joints=tuple(arm_joints),
-        arm_gains=(assembly.kp, assembly.kd),
-        arm_armature=assembly.armature,
-        hand_toml=assembly.hand_toml,
-        arm_home=assembly.home or tuple(0.0 for _ in arm_joints),
-    )

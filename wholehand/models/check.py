@@ -19,7 +19,8 @@ import numpy.typing as npt
 
 from wholehand.errors import WholehandError
 from wholehand.models.hand import HandModel, load_hand
-from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
+from wholehand.models.hand_config import HandConfig, parse_hand_config
+from wholehand.models.hand_folders import resolve_hand_config
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.poses import rotation_angle
 

@@ -26,7 +26,8 @@ from wholehand.models.coupling import (
     resolve_chains,
     urdf_mimics,
 )
-from wholehand.models.hand_config import HandConfig, parse_hand_config, resolve_hand_config
+from wholehand.models.hand_config import HandConfig, parse_hand_config
+from wholehand.models.hand_folders import resolve_hand_config
 from wholehand.models.hand_samples import load_or_sample
 from wholehand.models.mesh_files import check_meshes
 from wholehand.models.mjcf_file import mjcf_for_parsers
@@ -138,7 +139,8 @@ class HandModel:
         self, model: pin.Model, kind: pin.GeometryType, surface: str
     ) -> pin.GeometryModel:
         cfg = self.config
-        check_meshes(cfg, surface)
+        if cfg.model_format == "urdf":
+            check_meshes(cfg.model_path, cfg.package_dirs, surface)
         try:
             if cfg.model_format == "mjcf":  # collision: geoms with contype or conaffinity set
                 geometry = pin.buildGeomFromMJCF(model, str(self.parsed_model_path), kind)

@@ -46,8 +46,10 @@ Names are checked against the URDF when the hand is loaded (:mod:`wholehand.mode
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -55,7 +57,9 @@ from typing import Any, overload
 
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
+from wholehand.models.assembly import merged_urdf, moving_joints, parse_assembly, write_merged
 from wholehand.models.coupling import Mimic
+from wholehand.models.toml_values import three_numbers
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -213,9 +217,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from err
     if "assembly" in raw:
-        from wholehand.models.assembly import assembly_config
-
-        return assembly_config(raw, path)
+        return _assembly_config(raw, path)
 
     known = {
         "name",
@@ -354,21 +356,6 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     )
 
 
-def three_numbers(
-    value: Any, key: str, where: Path, table: str = "[mount]"
-) -> tuple[float, float, float]:
-    ok = isinstance(value, list) and len(value) == 3
-    if ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        x, y, z = (float(v) for v in value)
-        if all(map(math.isfinite, (x, y, z))):
-            return x, y, z
-    raise ConfigError(
-        f"{where}: {table} {key} must be a list of 3 finite numbers "
-        f"({'[m]' if key.endswith('xyz') else '[rad]'}), e.g. {key} = [0.0, 0.0, 0.0]; "
-        f"got {value!r}"
-    )
-
-
 def _joint_numbers(table: Any, what: str, where: Path) -> dict[str, float]:
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: {what} must be a table of joint name -> number")
@@ -462,27 +449,51 @@ def _grasp_styles(
     return styles
 
 
-def shipped_hands_dir() -> Path:
-    """The folder of hands shipped with wholehand (``robots/``)."""
-    import wholehand_robots
-
-    return Path(wholehand_robots.__file__).parent
-
-
-def available_hands() -> list[str]:
-    """Names of the shipped hands."""
-    return sorted(p.parent.name for p in shipped_hands_dir().glob("*/hand.toml"))
-
-
-def resolve_hand_config(name_or_path: str | Path) -> Path:
-    """Path of a hand.toml from a shipped hand name, a hand folder or a hand.toml path."""
-    candidate = Path(name_or_path)
-    if candidate.exists():
-        return candidate / "hand.toml" if candidate.is_dir() else candidate
-    shipped = shipped_hands_dir() / str(name_or_path) / "hand.toml"
-    if shipped.is_file():
-        return shipped
-    raise ConfigError(
-        f"no hand named {str(name_or_path)!r}: shipped hands are {available_hands()}; "
-        "or pass the path of a folder holding hand.toml"
+def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
+    """The config of an arm-hand assembly: the hand.toml ``raw`` (``name``, ``[assembly]``,
+    ``[mount]``) at ``path``, as :func:`~wholehand.models.hand_config.parse_hand_config` returns
+    it for an assembly."""
+    unknown = sorted(set(raw) - {"name", "assembly", "mount"})
+    if unknown:
+        raise ConfigError(
+            f"{path}: an assembly's hand.toml takes name, [assembly] and [mount]; the hand's own "
+            f"settings belong in the hand's hand.toml, not here: {unknown}"
+        )
+    assembly = parse_assembly(raw["assembly"], path)
+    hand = parse_hand_config(assembly.hand_toml)
+    if hand.model_format != "urdf" or hand.arm_joints:
+        raise ConfigError(f"{path}: [assembly] hand must be a URDF hand, not {hand.path}")
+    name = str(raw.get("name", path.parent.name))
+    text, arm_joints, arm_links = merged_urdf(assembly, hand.model_path, hand.package_dirs, name)
+    if assembly.home and len(assembly.home) != len(arm_joints):
+        raise ConfigError(
+            f"{path}: [assembly] home has {len(assembly.home)} angles; the arm has "
+            f"{len(arm_joints)} moving joints {arm_joints}"
+        )
+    model_path = write_merged(text)
+    actuated = hand.actuated_joints
+    if actuated is None:  # "every moving joint" of the hand, not of the arm
+        hand_joints = moving_joints(ET.parse(hand.model_path).getroot())
+        actuated = tuple(
+            j for j in hand_joints if j not in hand.locked_joints and j not in hand.coupled_joints
+        )
+    mount = raw.get("mount", {})
+    if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
+        raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
+    xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
+    return dataclasses.replace(
+        hand,
+        path=path.resolve(),
+        name=name,
+        model_path=model_path,
+        package_dirs=(model_path.parent, *hand.package_dirs),
+        actuated_joints=actuated,
+        excluded_links=(*hand.excluded_links, *arm_links),
+        mount_xyz=xyz,
+        mount_rpy=rpy,
+        arm_joints=tuple(arm_joints),
+        arm_gains=(assembly.kp, assembly.kd),
+        arm_armature=assembly.armature,
+        hand_toml=assembly.hand_toml,
+        arm_home=assembly.home or tuple(0.0 for _ in arm_joints),
     )

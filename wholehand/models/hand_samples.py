@@ -15,7 +15,7 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -25,12 +25,33 @@ from wholehand.models.outer_surface import find_buried_samples
 from wholehand.models.surface import sample_link_surface
 
 if TYPE_CHECKING:
-    from wholehand.models.hand import HandModel
+    import pinocchio as pin
+    import trimesh
+
+    from wholehand.models.hand_config import HandConfig
 
 log = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
+
+
+class SampledHand(Protocol):
+    """What sampling reads of a hand (:class:`~wholehand.models.hand.HandModel`)."""
+
+    config: HandConfig
+    model: pin.Model
+    collision_model: pin.GeometryModel
+    visual_model: pin.GeometryModel
+    link_names: list[str]
+    link_joint: IntArray
+    """(L,) Pinocchio joint id of each link's parent joint."""
+    parsed_model_path: Path
+    sample_params: dict[str, Any]
+
+    def link_mesh(self, link: int | str) -> trimesh.Trimesh:
+        """The link's surface in its parent joint's frame [m]."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -50,7 +71,7 @@ class SurfaceSamples:
         return int(self.p_joint.shape[0])
 
 
-def samples_cache_key(hand: HandModel) -> str:
+def samples_cache_key(hand: SampledHand) -> str:
     """The content hash the hand's samples are cached under."""
     cfg = hand.config
     sampled = hand.collision_model if cfg.sample_surface == "collision" else hand.visual_model
@@ -66,7 +87,7 @@ def samples_cache_key(hand: HandModel) -> str:
     return cache.content_hash(hand.parsed_model_path, *meshes, hand.sample_params, shape)
 
 
-def load_or_sample(hand: HandModel) -> tuple[SurfaceSamples, bool]:
+def load_or_sample(hand: SampledHand) -> tuple[SurfaceSamples, bool]:
     """The hand's samples from the cache, or sampled and cached; and whether they came from the
     cache."""
     key = samples_cache_key(hand)
@@ -88,7 +109,7 @@ def load_or_sample(hand: HandModel) -> tuple[SurfaceSamples, bool]:
     return samples, False
 
 
-def sample_surfaces(hand: HandModel) -> SurfaceSamples:
+def sample_surfaces(hand: SampledHand) -> SurfaceSamples:
     """Sample every link's surface (``hand.sample_params``), seeded per link."""
     params = hand.sample_params
     p, n, link, joint = [], [], [], []

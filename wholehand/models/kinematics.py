@@ -357,3 +357,13 @@ def _from_joint_frames(
             p_out[i, a] = _rotated(R, j, a, x, y, z) + t[j, a]
             n_out[i, a] = _rotated(R, j, a, u, v, w)
     return p_out, n_out
+
+
+def lowest_point(
+    hand: HandModel, q: FloatArray, wMb: FloatArray, kinematics: HandKinematics | None = None
+) -> float:
+    """Lowest world z of the hand's surface samples at ``q``, base at ``wMb`` [m]; updates
+    ``kinematics`` (of ``hand``) if given, else a new one."""
+    kin = HandKinematics(hand) if kinematics is None else kinematics
+    kin.update(q, wMb)
+    return float(kin.transform_points(hand.samples.p_joint, hand.samples.joint)[:, 2].min())

@@ -8,7 +8,6 @@ from pathlib import Path
 from urllib.parse import unquote, urlparse
 
 from wholehand.errors import AssetError
-from wholehand.models.hand_config import HandConfig
 
 
 def _mesh_uris(model_path: Path, surface: str) -> list[str]:
@@ -36,19 +35,17 @@ def resolve_mesh_uri(uri: str, model_path: Path, package_dirs: tuple[Path, ...])
     return path if path.is_file() else None
 
 
-def check_meshes(cfg: HandConfig, surface: str) -> list[Path]:
-    """The mesh files of a URDF's ``surface`` geometry; a missing one raises AssetError naming
-    every folder searched. An MJCF's meshes are found by Pinocchio's parser (see
-    :meth:`wholehand.models.hand.HandModel._build_geometry`)."""
-    if cfg.model_format == "mjcf":
-        return []
+def check_meshes(urdf: Path, package_dirs: tuple[Path, ...], surface: str) -> list[Path]:
+    """The mesh files of the URDF's ``surface`` geometry (``collision`` or ``visual``), found
+    beside it or in ``package_dirs``; a missing one raises AssetError naming every folder
+    searched. (An MJCF's meshes are found by Pinocchio's parser.)"""
     found = []
-    for uri in _mesh_uris(cfg.model_path, surface):
-        path = resolve_mesh_uri(uri, cfg.model_path, cfg.package_dirs)
+    for uri in _mesh_uris(urdf, surface):
+        path = resolve_mesh_uri(uri, urdf, package_dirs)
         if path is None:
-            dirs = "\n  ".join(str(d) for d in cfg.package_dirs)
+            dirs = "\n  ".join(str(d) for d in package_dirs)
             raise AssetError(
-                f"{cfg.model_path}: {surface} mesh {uri!r} not found. Searched relative to the "
+                f"{urdf}: {surface} mesh {uri!r} not found. Searched relative to the "
                 f"URDF and in the package directories:\n  {dirs}\nInstall the package that ships "
                 "it or fix the filename in the URDF."
             )

@@ -15,9 +15,9 @@ spring-damper on the object) holds the object out in the air:
    after ``SNATCH_GIVE_UP`` if the hand kept the object) and the episode is complete once the
    hand has then held it for ``hold_after``; otherwise it ends at ``duration``.
 
-Until table-top grasps exist (the stored grasps wrap around the object, so most would put a
-finger under it on a table), the object is grasped in the air; the table is there to be avoided
-and to catch a dropped object.
+The parameters are an :class:`~wholehand.reaching.episode_spec.EpisodeSpec`. With
+``start="table"`` the object instead rests on the table and the hand picks it up with its
+table-top grasps; otherwise the table is there to be avoided and to catch a dropped object.
 """
 
 from __future__ import annotations
@@ -35,71 +35,22 @@ from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossMonitor
-from wholehand.loop.reach import PREGRASP, REGULATE, ReachPlanner
 from wholehand.loop.record import Recorder
 from wholehand.loop.regulation import ForceRegulation
-from wholehand.loop.trial import load_allocator
 from wholehand.models.hand import HandModel, load_hand
-from wholehand.models.kinematics import HandKinematics
+from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.models.resting import resting_pose
+from wholehand.reaching.episode_spec import EpisodeSpec
 from wholehand.reaching.person import PERTURBATIONS, Person, loss_cause
 from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, pipeline_stages
-from wholehand.reaching.pregrasp import GraspPlan, hand_clearance, lowest_point, usable_on_table
+from wholehand.reaching.pregrasp import GraspPlan, hand_clearance, usable_on_table
+from wholehand.reaching.stages import PREGRASP, REGULATE, ReachPlanner
 from wholehand.timing import percentiles
+from wholehand.trials.trial import load_allocator
 
 FloatArray = npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class EpisodeSpec:
-    """Everything that defines an episode; equal specs give equal episodes."""
-
-    hand: str = "allegro_right"
-    object: str = "077_rubiks_cube"
-    seed: int = 0
-    rate: float = 200.0
-    """Control rate [Hz] (simulated time)."""
-    duration: float = 14.0
-    """Longest episode [s]."""
-    reacher: str = "mink"
-    estimator: str = "mesh_sdf"
-    allocator: str = "qp"
-    start: str = "held"
-    """Where the object starts: ``held`` out by the person, or resting on the ``table`` (needs
-    the hand's table-top grasps, ``wholehand grasps generate --on-table``)."""
-    hold_height: float = 0.25
-    """Height of the object's frame above the table top where the person holds it [m]."""
-    displace: float = 0.04
-    """How far the person moves the object while the hand reaches [m]."""
-    displace_at: float = 0.5
-    """When [s]."""
-    release_after: float = 0.5
-    """Holding time before the person lets go [s]."""
-    push: float = 1.0
-    """Push while held, in the object's weights [-]: a push of ``push * m * g`` [N], horizontal,
-    so that every object is pushed alike per unit of mass."""
-    twist: float = 1.0
-    """Twist while held, in the object's weights at its rim [-]: ``twist * m * g * r`` [N*m]
-    with r half the object's largest side, about a random axis (a push of the same size
-    applied at the rim, tangentially)."""
-    pulse: float = 0.3
-    """Duration of the push and the twist [s]."""
-    snatch: float = 0.15
-    """How far the snatch pulls the object [m]."""
-    hold_after: float = 1.0
-    """Holding time after the regrasp that ends the episode [s]."""
-    balance_weight: bool = True
-    """Force regulation balances the object's known weight (``ForceRegulation(weight=...)``);
-    False: the paper's quasi-static balance of no external wrench. Not applied with
-    ``start="table"``, where the table carries the weight."""
-    self_collision: bool = False
-    """The reacher keeps the fingers apart (the ``mink`` reacher's ``self_collision``)."""
-    gravity_compensation: bool = True
-    """The hand's actuators hold their own links against gravity, while reaching and while
-    regulating (``ForceRegulation(gravity_compensation=True)``); False: the paper's ``tau = J^T
-    f``, the fingers' weight left to the grip."""
 
 
 TABLE_SIZE = (1.5, 1.5)

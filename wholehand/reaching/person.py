@@ -15,10 +15,10 @@ import pinocchio as pin
 
 from wholehand import defaults
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.reach import REGULATE
+from wholehand.reaching.stages import REGULATE
 
 if TYPE_CHECKING:
-    from wholehand.reaching.episode import EpisodeSpec
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
 FloatArray = npt.NDArray[np.float64]
 

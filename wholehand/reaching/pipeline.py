@@ -1,8 +1,8 @@
 """The stage machine of the autonomous pipeline, built once for simulation and for a robot.
 
 :func:`pipeline_stages` gives ``reach_pregrasp``, ``reach_grasp`` and ``regulate``
-(:mod:`wholehand.loop.reach`), and, for a robot's arm with a workspace, ``home``
-(:mod:`wholehand.loop.home`). ``wholehand reach`` (:mod:`wholehand.reaching.episode`) and
+(:mod:`wholehand.reaching.stages`), and, for a robot's arm with a workspace, ``home``
+(:mod:`wholehand.reaching.home`). ``wholehand reach`` (:mod:`wholehand.reaching.episode`) and
 ``wholehand control`` on an arm-hand (:mod:`wholehand.hardware.controller`) both run it.
 """
 
@@ -18,8 +18,14 @@ from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
 from wholehand.grasps.styles import style_arrays
 from wholehand.loop.grasp_loss import GraspLossCheck
-from wholehand.loop.home import HomeStage
-from wholehand.loop.reach import (
+from wholehand.loop.regulation import ForceRegulation
+from wholehand.loop.stage import Stage
+from wholehand.models.hand import HandModel
+from wholehand.models.objects import ObjectModel
+from wholehand.reaching.base import Reacher
+from wholehand.reaching.home import HomeStage
+from wholehand.reaching.pregrasp import GraspPlan, plan_pregrasp
+from wholehand.reaching.stages import (
     GRASP,
     HOME,
     PREGRASP,
@@ -28,12 +34,6 @@ from wholehand.loop.reach import (
     ReachPlanner,
     ReachStage,
 )
-from wholehand.loop.regulation import ForceRegulation
-from wholehand.loop.stage import Stage
-from wholehand.models.hand import HandModel
-from wholehand.models.objects import ObjectModel
-from wholehand.reaching.base import Reacher
-from wholehand.reaching.pregrasp import GraspPlan, plan_pregrasp
 from wholehand.reaching.workspace import Workspace
 
 FloatArray = npt.NDArray[np.float64]
@@ -95,7 +95,7 @@ def home_configuration(
 
 @dataclass(frozen=True)
 class RobotRules:
-    """What a robot adds to the stage machine (:mod:`wholehand.loop.reach`)."""
+    """What a robot adds to the stage machine (:mod:`wholehand.reaching.stages`)."""
 
     workspace: Workspace
     pose_timeout: float

@@ -25,7 +25,7 @@ from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import style_arrays, with_close_torque
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
-from wholehand.models.kinematics import HandKinematics
+from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import rotation_angle
 
@@ -135,16 +135,6 @@ def plan_pregrasp(
                 closing,
             )
     return None
-
-
-def lowest_point(
-    hand: HandModel, q: FloatArray, wMb: FloatArray, kinematics: HandKinematics | None = None
-) -> float:
-    """Lowest world z of the hand's surface samples at ``q``, base at ``wMb`` [m]; updates
-    ``kinematics`` (of ``hand``) if given, else a new one."""
-    kin = HandKinematics(hand) if kinematics is None else kinematics
-    kin.update(q, wMb)
-    return float(kin.transform_points(hand.samples.p_joint, hand.samples.joint)[:, 2].min())
 
 
 def usable_on_table(

@@ -13,8 +13,8 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.errors import ConfigError
-from wholehand.loop.outcome import DIVERGED_PREFIX
-from wholehand.loop.trial import TrialSpec
+from wholehand.trials.outcome import DIVERGED_PREFIX
+from wholehand.trials.trial import TrialSpec
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -60,7 +60,7 @@ class TrialJob:
     labels: dict[str, Any] = field(default_factory=dict)
     """Study-specific columns, e.g. ``{"method": "qp"}`` or ``{"k": 5}``."""
     kind: str = "trial"
-    """What to run: ``"trial"`` (:func:`wholehand.loop.trial.run_trial`) or a measurement
+    """What to run: ``"trial"`` (:func:`wholehand.trials.trial.run_trial`) or a measurement
     registered in :data:`wholehand.studies.runner.JOB_KINDS`."""
 
 

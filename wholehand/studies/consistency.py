@@ -28,7 +28,6 @@ from wholehand.backends.base import HasGroundTruth
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import stored_grasp_indices
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -40,6 +39,7 @@ from wholehand.studies.base import (
 )
 from wholehand.studies.models import model
 from wholehand.studies.rows import record_row
+from wholehand.trials.trial import TrialSpec, run_trial
 
 if TYPE_CHECKING:
     from wholehand.backends.ground_truth import SimContacts

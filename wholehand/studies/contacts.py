@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from wholehand.grasps.store import objects_with_grasps, stored_grasp_indices
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -25,6 +24,7 @@ from wholehand.studies.base import (
     protocol_for,
     save_success_figure,
 )
+from wholehand.trials.trial import TrialSpec
 
 OPEN_BIN = 10
 """Contact counts at or above this share one bin (the paper's ">= 10")."""

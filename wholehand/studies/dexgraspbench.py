@@ -1,4 +1,4 @@
-"""Every method under DexGraspBench's load test (:mod:`wholehand.loop.dexgraspbench`).
+"""Every method under DexGraspBench's load test (:mod:`wholehand.trials.dexgraspbench`).
 
 Per stored power grasp of the paper's five objects and method: one test of six directions, the
 object at DexGraspBench's 0.1 kg and friction 0.6 (the controllers are told ``mu`` = 0.6 too).
@@ -15,9 +15,6 @@ from typing import Any
 import numpy as np
 
 from wholehand.grasps.store import stored_grasp_indices
-from wholehand.loop.dexgraspbench import FRICTION, run_load_test
-from wholehand.loop.outcome import sim_warnings_error
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -29,6 +26,9 @@ from wholehand.studies.base import (
     success_stats,
 )
 from wholehand.studies.models import model
+from wholehand.trials.dexgraspbench import FRICTION, run_load_test
+from wholehand.trials.outcome import sim_warnings_error
+from wholehand.trials.trial import TrialSpec
 
 CONFIGS: dict[str, tuple[tuple[str, ...], tuple[int, ...], tuple[str, ...]]] = {
     "full": (PAPER_OBJECTS, tuple(range(10)), METHODS),

@@ -22,10 +22,10 @@ from typing import Any, cast
 
 import numpy as np
 
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, derive_seed, group_rows
 from wholehand.studies.models import model
+from wholehand.trials.trial import TrialSpec
 
 GENERATORS = ("preshape", "optimize")
 """The grasp generators compared: ``wholehand grasps generate --method ...``."""

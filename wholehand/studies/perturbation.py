@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from wholehand.grasps.store import stored_grasp_indices
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -28,6 +27,7 @@ from wholehand.studies.base import (
     success_stats,
     trials_label,
 )
+from wholehand.trials.trial import TrialSpec
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 The object pose given to the controller carries a constant error ``wMo_true @ T``: a rotation
 by ``rot_deg`` about a random axis through the object's centre of mass and a translation by
 ``trans_mm`` along a random direction, both in the object frame (``TrialSpec.pose_error``,
-:func:`~wholehand.loop.trial.pose_error_offset`). The simulation and the grasp-loss check keep
+:func:`~wholehand.trials.trial.pose_error_offset`). The simulation and the grasp-loss check keep
 the true pose. Methods: ``qp`` at three contact thresholds ``d_thresh`` (0.5, 1, 2 cm) and the
 ``feedforward`` baseline, whose one-off allocation uses ground-truth contacts mapped to the world
 with the perturbed pose. Only the six-direction load test runs (theta = 0). Per grasp and level
@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 from wholehand.grasps.store import stored_grasp_indices
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -32,6 +31,7 @@ from wholehand.studies.base import (
     success_stats,
     trials_label,
 )
+from wholehand.trials.trial import TrialSpec
 
 LEVELS: tuple[tuple[float, float], ...] = ((0.0, 0.0), (10.0, 5 / 3), (20.0, 10 / 3), (30.0, 5.0))
 """(rot_deg, trans_mm) pose-error levels: 0-30 deg and 0-5 mm in equal steps (paper)."""

@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from wholehand.errors import ConfigError
-from wholehand.loop.outcome import sim_warnings_error
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob, derive_seed, group_rows
+from wholehand.trials.outcome import sim_warnings_error
+from wholehand.trials.trial import TrialSpec
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,8 @@ CONFIGS = {
 
 def episode_row(job: TrialJob) -> dict[str, Any]:
     """Run the job's episode; its outcome columns."""
-    from wholehand.reaching.episode import EpisodeSpec, run_episode
+    from wholehand.reaching.episode import run_episode
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
     s = job.spec
     # --methods puts plain allocator names in the label: those run the paper's balance

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from wholehand.loop.trial import TrialSpec
 from wholehand.studies.base import DEFAULT_HAND, Study, TrialJob
 from wholehand.studies.rows import SPEC_COLUMNS, spec_columns
 from wholehand.studies.study_files import TIMING_COLUMNS, json_default
+from wholehand.trials.trial import TrialSpec
 
 
 def _key(kind: Any, labels: dict[str, Any], spec: Iterable[Any]) -> str:

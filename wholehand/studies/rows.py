@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 
 from wholehand.allocation.base import AllocationStatus
-from wholehand.loop.outcome import outcome_of
 from wholehand.loop.record import RunRecord
-from wholehand.loop.trial import TrialSpec
+from wholehand.trials.outcome import outcome_of
+from wholehand.trials.trial import TrialSpec
 
 SPEC_COLUMNS = tuple(TrialSpec.__dataclass_fields__)
 """TrialSpec fields, one column each (parameter dicts as JSON)."""
@@ -30,7 +30,7 @@ def spec_columns(spec: TrialSpec) -> dict[str, Any]:
 
 
 def record_row(record: RunRecord) -> dict[str, Any]:
-    """Outcome and timing columns of one run record (:func:`~wholehand.loop.outcome.outcome_of`).
+    """Outcome and timing columns of one run record (:func:`~wholehand.trials.outcome.outcome_of`).
 
     The columns keep their names of earlier versions (``stages_total``, ``failure_stage``: the
     protocol's phases), so committed study rows and ``--resume`` stay valid. A run in which a

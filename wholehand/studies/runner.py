@@ -1,7 +1,7 @@
 """Run a study: expand its jobs, execute them, write ``trials.csv``, ``summary.json`` and a PNG.
 
 Every row of ``trials.csv`` is one trial, sorted by its index in the study. Its columns are the
-study's labels, every :class:`~wholehand.loop.trial.TrialSpec` field, the outcome (held, stages
+study's labels, every :class:`~wholehand.trials.trial.TrialSpec` field, the outcome (held, stages
 reached, failure stage, contact counts, final object displacement) and, last, the wall-clock
 timings (``TIMING_COLUMNS`` of :mod:`wholehand.studies.study_files`). Everything but the timings
 is a function of the study, its size and its seed: the same seed gives the same rows whatever
@@ -30,7 +30,6 @@ from typing import Any
 
 from wholehand import registry
 from wholehand.errors import ConfigError
-from wholehand.loop.trial import TrialSpec, run_trial
 from wholehand.provenance import provenance
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -63,6 +62,7 @@ from wholehand.studies.study_files import (
     open_journal,
     write_csv,
 )
+from wholehand.trials.trial import TrialSpec, run_trial
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from typing import IO, Any
 import numpy as np
 
 from wholehand.errors import ConfigError
-from wholehand.loop.trial import TrialSpec
+from wholehand.trials.trial import TrialSpec
 
 log = logging.getLogger(__name__)
 

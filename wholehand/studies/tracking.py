@@ -4,7 +4,7 @@ The paper's simulations give the controller the exact pose every cycle; its robo
 tracker at 30 Hz with about 33 ms latency, and the paper leaves rate, latency, noise and tracking
 loss unevaluated. Here the 50 paper grasps go through the perturbation protocol (one pull of
 ``theta`` about a seeded axis per grasp) with the pose delivered through the observation filters
-of :attr:`~wholehand.loop.trial.TrialSpec.tracking`, one factor at a time around the paper's
+of :attr:`~wholehand.trials.trial.TrialSpec.tracking`, one factor at a time around the paper's
 point (30 Hz, 33 ms), plus the exact pose and the worst corner:
 
 - rate 15 / 30 / 60 / 200 Hz at 33 ms;
@@ -27,8 +27,6 @@ from pathlib import Path
 from typing import Any
 
 from wholehand.grasps.store import stored_grasp_indices
-from wholehand.loop.protocol import PerturbationProtocol
-from wholehand.loop.trial import TrialSpec
 from wholehand.models.object_catalogue import PAPER_OBJECTS
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -41,6 +39,8 @@ from wholehand.studies.base import (
     success_stats,
     trials_label,
 )
+from wholehand.trials.protocol import PerturbationProtocol
+from wholehand.trials.trial import TrialSpec
 
 
 @dataclass(frozen=True)

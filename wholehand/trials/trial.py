@@ -26,12 +26,12 @@ from wholehand.loop.filters import (
     PoseTracker,
 )
 from wholehand.loop.grasp_loss import GraspLossMonitor
-from wholehand.loop.protocol import PerturbationProtocol, ProtocolDriver
 from wholehand.loop.record import Recorder, RunRecord
 from wholehand.loop.regulation import EstimateAt, ForceRegulation
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
+from wholehand.trials.protocol import PerturbationProtocol, ProtocolDriver
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -37,9 +37,9 @@ import pinocchio as pin
 from wholehand.backends.base import PushesObject, ReportsWarnings
 from wholehand.errors import ConfigError
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.protocol import DIRECTIONS, object_pusher
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
+from wholehand.trials.protocol import DIRECTIONS, object_pusher
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -143,7 +143,7 @@ def run_load_test(
     observers: Sequence[Observer] = (),
 ) -> dict[str, Any]:
     """DexGraspBench's load test of ``spec``'s grasp and method (a
-    :class:`~wholehand.loop.trial.TrialSpec`; its ``theta_deg`` is not used): the six
+    :class:`~wholehand.trials.trial.TrialSpec`; its ``theta_deg`` is not used): the six
     directions in order, each from a fresh scene at the stored grasp, until one fails.
 
     Returns ``held`` (every direction passed), ``directions`` (a :class:`DirectionResult` per
@@ -151,7 +151,7 @@ def run_load_test(
     ``translation_m`` and ``rotation_deg`` over the directions run, ``sim_warnings`` (summed)
     and ``wall_time_s``.
     """
-    from wholehand.loop.trial import set_up_trial
+    from wholehand.trials.trial import set_up_trial
 
     if spec.gravity:
         raise ConfigError(f"the {NAME} protocol runs with gravity off; drop gravity=True")

@@ -14,12 +14,12 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.backends.command import Command, JointTargets
 from wholehand.errors import ConfigError
-from wholehand.loop.command import Command, JointTargets
-from wholehand.loop.reach import FINGER_KD, FINGER_KP, HOME, PREGRASP, ArmServo
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.models.gravity import GravityCompensation
 from wholehand.models.hand import HandModel
+from wholehand.reaching.stages import FINGER_KD, FINGER_KP, HOME, PREGRASP, ArmServo
 from wholehand.reaching.workspace import Workspace
 
 FloatArray = npt.NDArray[np.float64]

@@ -44,7 +44,7 @@ Topics (frames: ``world``, every link of the model by its name, and ``object``):
 The contacts are two markers: their points (a SPHERE_LIST) and their forces (a LINE_LIST from
 each point to ``point + ARROW_SCALE * force``), coloured by the force's magnitude from blue to
 red; contacts without an allocated force are grey, with short lines along the object normal.
-:func:`~wholehand.loop.mcap_replay.read_mcap_record` turns a recording back into a run record
+:func:`~wholehand.hardware.mcap_replay.read_mcap_record` turns a recording back into a run record
 for ``wholehand view``.
 """
 

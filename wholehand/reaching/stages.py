@@ -8,7 +8,7 @@
 
 On a robot, with a :class:`~wholehand.reaching.workspace.Workspace`, two more rules (paper Sec.
 V-D): the palm's targets are kept in the workspace's palm box, and an object outside its object
-box sends the reaching stages to ``home`` (:mod:`wholehand.loop.home`), which returns once the
+box sends the reaching stages to ``home`` (:mod:`wholehand.reaching.home`), which returns once the
 object is back. With a ``pose_timeout``, a reaching stage whose object pose has grown older than
 it holds the arm and fingers where they are (status ``pose_lost``) until a fresh pose arrives.
 
@@ -37,11 +37,11 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand import defaults
+from wholehand.backends.command import Command, JointTargets
+from wholehand.backends.observation import Observation
 from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
-from wholehand.loop.command import Command, JointTargets
 from wholehand.loop.grasp_loss import GraspLossCheck
-from wholehand.loop.observation import Observation
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.loop.tracking import TRACKING_HOLD, TRACKING_RAMP
@@ -55,7 +55,7 @@ from wholehand.reaching.workspace import Workspace
 FloatArray = npt.NDArray[np.float64]
 
 PREGRASP, GRASP, REGULATE, HOME = "reach_pregrasp", "reach_grasp", "regulate", "home"
-"""Stage names (``home`` on a robot only: :mod:`wholehand.loop.home`)."""
+"""Stage names (``home`` on a robot only: :mod:`wholehand.reaching.home`)."""
 
 TOUCH_DISTANCE: float = 0.002
 """A finger touches the object when a sample of it is within this signed distance [m]."""

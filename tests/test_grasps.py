@@ -172,6 +172,8 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
         found = [Grasp(0, np.eye(4), dict.fromkeys(hand.joint_names, 0.0))]
         rejected = {"the pre-shape penetrates the object": 2 if obj.name == names[0] else 3}
         info = {"candidates_tried": 3, "seed": seed, "rejected": rejected}
+        if on_table:
+            info["grasps_per_face"] = [1, 0, 0]
         return (found if obj.name == names[0] else []), info
 
     monkeypatch.setattr(generate, "generate_grasps", fake)
@@ -184,6 +186,9 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
     assert tables == [False, False]
     args = ["grasps", "generate", "--object", names[0], "--on-table", "--out", str(tmp_path)]
     assert main(args) == 0 and tables[-1] is True
+    out = capsys.readouterr().out
+    assert "1 grasps from 3 candidates (fewer than --count 10" in out
+    assert "on 1 of its 3 resting faces (grasps per face, likeliest first: [1, 0, 0])" in out
 
 
 def test_a_users_hand_keeps_its_grasps_in_its_own_folder(tmp_path, monkeypatch):

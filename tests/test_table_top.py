@@ -135,6 +135,7 @@ def test_table_top_grasps_hold_without_the_table_and_clear_it(allegro, box):
     assert generator.rejections["the pre-shape reaches into the table"] > 0
     # One grasp asked for per face until every face has one: the two are on two faces.
     assert grasps[0].extra["table_up"] != grasps[1].extra["table_up"]
+    assert sorted(generator.grasps_per_face, reverse=True)[:3] == [1, 1, 0]
     for grasp in grasps:
         up = np.asarray(grasp.extra["table_up"])
         assert any(np.allclose(up, f.up) for f in generator.faces)

@@ -137,6 +137,12 @@ def _cmd_generate(args: argparse.Namespace) -> int:
                 f" (fewer than --count {args.count}: the limit of --max-candidates "
                 f"{args.max_candidates} was reached)"
             )
+        faces = cast(list[int], info.get("grasps_per_face", []))
+        if faces:
+            short += (
+                f" on {sum(n > 0 for n in faces)} of its {len(faces)} resting faces "
+                f"(grasps per face, likeliest first: {faces})"
+            )
         print(
             f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates"
             f"{short} -> {path}"

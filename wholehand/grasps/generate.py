@@ -229,6 +229,8 @@ class GraspGenerator:
         )
         self.candidates_tried = 0
         """Candidates tried by the last :meth:`generate`."""
+        self.grasps_per_face: list[int] = []
+        """On a table: grasps the last :meth:`generate` made on each of :attr:`faces`."""
         self.deepest: dict[str, float] = {}
         """Per link, the deepest penetration of a pre-shape rejected for it [m] (last
         :meth:`generate`)."""
@@ -435,6 +437,7 @@ class GraspGenerator:
         self.rejections.clear()
         self.deepest.clear()
         schedule = FaceSchedule(self.faces, count) if self.on_table else None
+        self.grasps_per_face = schedule.found if schedule else []
         for index in range(max_candidates):
             self.candidates_tried = index + 1
             on = schedule.next() if schedule else 0
@@ -494,6 +497,7 @@ def generate_grasps(
         "method": f"{style} pre-shape, {where}closing torques with the object held, settle "
         "released (wholehand/grasps/generate.py)",
         "candidates_tried": generator.candidates_tried,
+        **({"grasps_per_face": generator.grasps_per_face} if on_table else {}),
         "rejected": dict(generator.rejections.most_common()),
         "preshape_depth_mm": {
             link: round(1e3 * depth, 2) for link, depth in sorted(generator.deepest.items())

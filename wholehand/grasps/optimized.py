@@ -213,6 +213,7 @@ def synthesize_grasps(
         "method": "optimised contacts, force closure and penetration from random starts, "
         "validated by closing, release and settle in MuJoCo (wholehand/grasps/synthesis.py)",
         "candidates_tried": tried,
+        **({"grasps_per_face": schedule.found} if schedule else {}),
         "rejected": dict(generator.rejections.most_common()),
         "wall_time_s": round(time.perf_counter() - started, 1),
     }

@@ -166,7 +166,8 @@ def test_generate_all_visits_every_ycb_mesh_and_reports_those_without_grasps(
     seen: list[str] = []
     tables: list[bool] = []
 
-    def fake(hand, obj, count, seed, max_candidates, progress, style, on_table):
+    def fake(hand, obj, count, seed, max_candidates, progress, style, on_table, check):
+        assert check is None  # no --require-hold
         seen.append(obj.name)
         tables.append(on_table)
         found = [Grasp(0, np.eye(4), dict.fromkeys(hand.joint_names, 0.0))]

@@ -41,6 +41,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-candidates", type=int, default=400, help="give up after this many")
     p.add_argument(
+        "--require-hold",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="keep only grasps that force regulation holds through the perturbation protocol "
+        "with this rotational pull [deg], as `wholehand run --theta DEG` runs it (in the air "
+        "only)",
+    )
+    p.add_argument(
         "--out",
         default=None,
         help="folder for <object>.json; default: the hand's grasp folder (grasps/ beside a "
@@ -85,13 +94,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
+    from wholehand.errors import ConfigError
     from wholehand.grasps.generate import generate_grasps
     from wholehand.grasps.optimized import synthesize_grasps
     from wholehand.grasps.store import grasp_file, grasps_dir, hand_grasps_dir, save_grasps
     from wholehand.models.convex import ship_decompositions
     from wholehand.models.hand import load_hand
     from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects, load_object
+    from wholehand.trials.hold_check import protocol_check
 
+    if args.require_hold is not None and args.on_table:
+        raise ConfigError(
+            "--require-hold runs the perturbation protocol in the air; it cannot check table-top "
+            "grasps (leave out --on-table or --require-hold)"
+        )
     hand = load_hand(args.hand)
     shipped_hand = hand_grasps_dir(args.hand).is_relative_to(grasps_dir())
     ycb = available_objects()
@@ -102,6 +118,9 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     for name in names:
         obj = load_object(name)
         make = synthesize_grasps if args.method == "optimize" else generate_grasps
+        check = None
+        if args.require_hold is not None:
+            check = protocol_check(hand, obj, args.require_hold)
         grasps, info = make(
             hand,
             obj,
@@ -111,7 +130,10 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             progress=True,
             style=args.type,
             on_table=args.on_table,
+            check=check,
         )
+        if args.require_hold is not None:
+            info["command"] = f"{info['command']} --require-hold {args.require_hold:g}"
         rejected = cast(dict[str, int], info["rejected"])
         depths = cast(dict[str, float], info.get("preshape_depth_mm", {}))
         if not grasps:

@@ -90,6 +90,11 @@ TABLE_CLEAR = GENERATOR_TABLE.top + HAND_MARGIN
 """Lowest height a table-top candidate's hand may reach [m]."""
 
 
+GraspCheck = Callable[[Grasp], "str | None"]
+"""A further test of a grasp that passed validation (e.g.
+:func:`~wholehand.trials.hold_check.protocol_check`): None to keep it, or the reason it fails,
+counted among the rejections."""
+
 Closing = tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]
 """How a hand closes (:class:`ClosingStage`): the pose the other joints hold (n_q,) [rad], the
 closing torques (n_v,) [N*m] and which joints close (n_v,) bool."""
@@ -427,8 +432,10 @@ class GraspGenerator:
         seed: int = 0,
         max_candidates: int = MAX_CANDIDATES,
         progress: bool = False,
+        check: GraspCheck | None = None,
     ) -> list[Grasp]:
-        """Up to ``count`` grasps from at most ``max_candidates`` seeded candidates, in order."""
+        """Up to ``count`` grasps from at most ``max_candidates`` seeded candidates, in order;
+        with ``check``, only the grasps that also pass it."""
         from tqdm import tqdm
 
         grasps: list[Grasp] = []
@@ -442,6 +449,7 @@ class GraspGenerator:
             self.candidates_tried = index + 1
             on = schedule.next() if schedule else 0
             grasp = self.try_candidate(index, seed, self.faces[on] if schedule else None)
+            grasp = grasp and passes(grasp, check, self.rejections)
             if schedule:
                 schedule.record(on, 1, grasp is not None)
             if grasp is not None:
@@ -453,6 +461,16 @@ class GraspGenerator:
                     break
         bar.close()
         return grasps
+
+
+def passes(grasp: Grasp, check: GraspCheck | None, rejections: Counter[str]) -> Grasp | None:
+    """``grasp`` if it passes ``check`` (or there is none), else None with the reason counted
+    in ``rejections``."""
+    reason = check(grasp) if check is not None else None
+    if reason is not None:
+        rejections[reason] += 1
+        return None
+    return grasp
 
 
 def generate_command(
@@ -485,11 +503,13 @@ def generate_grasps(
     progress: bool = False,
     style: str = "power",
     on_table: bool = False,
+    check: GraspCheck | None = None,
 ) -> tuple[list[Grasp], dict[str, object]]:
-    """Grasps and a description of how they were made (for the file's ``generator`` field)."""
+    """Grasps (with ``check``: only those that pass it) and a description of how they were
+    made (for the file's ``generator`` field)."""
     started = time.perf_counter()
     generator = GraspGenerator(hand, obj, style=style, on_table=on_table)
-    grasps = generator.generate(count, seed, max_candidates, progress)
+    grasps = generator.generate(count, seed, max_candidates, progress, check)
     where = "resting on a table, hand from above, " if on_table else ""
     info = {
         "command": generate_command("", hand, obj, count, seed, max_candidates, style, on_table),

@@ -19,9 +19,11 @@ from wholehand.grasps.generate import (
     MAX_CANDIDATES,
     TABLE_CLEAR,
     FaceSchedule,
+    GraspCheck,
     GraspGenerator,
     generate_command,
     named_style,
+    passes,
 )
 from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import with_close_torque
@@ -164,12 +166,14 @@ def synthesize_grasps(
     style: str = "power",
     on_table: bool = False,
     params: SynthesisParams | None = None,
+    check: GraspCheck | None = None,
 ) -> tuple[list[Grasp], dict[str, object]]:
     """Up to ``count`` grasps: batches of :data:`BATCH` starts optimised
     (:class:`GraspSynthesizer`), each result close enough to the surface validated in MuJoCo as
     the generator validates its candidates (:meth:`GraspGenerator.close_and_settle`, closing
-    torques from :func:`closing_torques`), until ``count`` grasps or ``max_candidates`` starts.
-    Returns the grasps and a description for the file's ``generator`` field."""
+    torques from :func:`closing_torques`) and, with ``check``, kept only if it passes that too,
+    until ``count`` grasps or ``max_candidates`` starts. Returns the grasps and a description
+    for the file's ``generator`` field."""
     from tqdm import tqdm
 
     started = time.perf_counter()
@@ -194,6 +198,7 @@ def synthesize_grasps(
         for result in results:
             tried += 1
             grasp = _validate(generator, synthesizer, result, face, kin, peak, tried - 1)
+            grasp = grasp and passes(grasp, check, generator.rejections)
             if grasp is None:
                 continue
             grasps.append(

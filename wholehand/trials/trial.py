@@ -205,9 +205,13 @@ class TrialSetup:
 
 
 def set_up_trial(
-    spec: TrialSpec, hand: HandModel | None = None, obj: ObjectModel | None = None
+    spec: TrialSpec,
+    hand: HandModel | None = None,
+    obj: ObjectModel | None = None,
+    grasp: Grasp | None = None,
 ) -> TrialSetup:
-    """Backend at the stored grasp and the spec's plug-ins in a force-regulation stage.
+    """Backend at the stored grasp (or at ``grasp``, if given) and the spec's plug-ins in a
+    force-regulation stage.
 
     Raises:
         ConfigError: a grasp index past the stored grasps, bad filter parameters, or an
@@ -215,17 +219,7 @@ def set_up_trial(
     """
     hand = hand or load_hand(spec.hand)
     obj = obj or load_object(spec.object)
-    if spec.grasp_file:
-        grasps, source = load_grasps(spec.grasp_file), spec.grasp_file
-    else:
-        grasps = load_grasps(spec.hand, spec.object, spec.grasp_type)
-        source = f"the stored {spec.grasp_type} grasps of {spec.object!r} for {spec.hand!r}"
-    if not 0 <= spec.grasp < len(grasps):
-        raise ConfigError(
-            f"grasp {spec.grasp} does not exist: {source} holds {len(grasps)} grasps "
-            f"(0..{len(grasps) - 1})"
-        )
-    grasp = grasps[spec.grasp]
+    grasp = grasp or stored_grasp(spec)
     if spec.balance_weight and not spec.gravity:
         raise ConfigError(
             "balance_weight=True needs gravity=True: without gravity the object has no weight "
@@ -274,6 +268,26 @@ def set_up_trial(
     return TrialSetup(hand, obj, backend, regulation, grasp, filters, n_gt)
 
 
+def stored_grasp(spec: TrialSpec) -> Grasp:
+    """The spec's grasp: number ``grasp`` of its grasp file, or of the hand's stored grasps of
+    the object and style.
+
+    Raises:
+        ConfigError: no grasp of that number.
+    """
+    if spec.grasp_file:
+        grasps, source = load_grasps(spec.grasp_file), spec.grasp_file
+    else:
+        grasps = load_grasps(spec.hand, spec.object, spec.grasp_type)
+        source = f"the stored {spec.grasp_type} grasps of {spec.object!r} for {spec.hand!r}"
+    if not 0 <= spec.grasp < len(grasps):
+        raise ConfigError(
+            f"grasp {spec.grasp} does not exist: {source} holds {len(grasps)} grasps "
+            f"(0..{len(grasps) - 1})"
+        )
+    return grasps[spec.grasp]
+
+
 def load_allocator(name: str | type, hand: HandModel, params: dict[str, Any]) -> Any:
     """An allocator plug-in built with the user's ``params`` and those of the hand's keywords
     (:func:`~wholehand.allocation.base.hand_keywords`) that its constructor accepts."""
@@ -292,9 +306,11 @@ def run_trial(
     obj: ObjectModel | None = None,
     stop_on_loss: bool = True,
     observers: Sequence[Observer] = (),
+    grasp: Grasp | None = None,
 ) -> RunRecord:
-    """Run the perturbation protocol on one stored grasp; the record's meta holds the spec and
-    the loop's report (``meta["loop"]``: statuses, faults, stage errors with tracebacks).
+    """Run the perturbation protocol on one stored grasp (or on ``grasp``, if given); the
+    record's meta holds the spec and the loop's report (``meta["loop"]``: statuses, faults,
+    stage errors with tracebacks).
 
     ``observers`` see every cycle after the protocol, the grasp-loss check and the recorder
     (e.g. a live viewer).
@@ -304,7 +320,7 @@ def run_trial(
         theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params
     )
     protocol.check_rate(spec.control_rate)
-    trial = set_up_trial(spec, hand, obj)
+    trial = set_up_trial(spec, hand, obj, grasp)
     driver = ProtocolDriver(protocol, trial.obj)
     loss = GraspLossMonitor(trial.hand, trial.obj, stop_on_loss)
     recorder = Recorder(

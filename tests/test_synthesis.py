@@ -268,3 +268,6 @@ def test_a_hand_without_grasping_tables_gets_optimised_grasps(tmp_path, capsys):
     assert main([*args, "--method", "optimize"]) == 0
     (grasp,) = load_grasps(tmp_path / "out" / "077_rubiks_cube.json")
     assert "thumb" in grasp.extra["fingers"]
+    # The file says how to make it again: a user's hand by its folder, not its name.
+    generator = json.loads((tmp_path / "out" / "077_rubiks_cube.json").read_text())["generator"]
+    assert f"--hand {folder} --object 077_rubiks_cube" in generator["command"]

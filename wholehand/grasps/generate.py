@@ -53,6 +53,7 @@ from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
+from wholehand.models.hand_folders import shipped_hands_dir
 from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
@@ -486,7 +487,10 @@ def generate_command(
     """The ``wholehand grasps generate`` command line that makes these grasps again
     (``method`` "" for the default)."""
     command = "wholehand grasps generate" + (f" --method {method}" if method else "")
-    command += f" --hand {hand.name} --object {obj.name} --count {count} --seed {seed}"
+    folder = hand.config.path.parent
+    shipped = folder.is_relative_to(shipped_hands_dir())
+    command += f" --hand {hand.name if shipped else folder}"
+    command += f" --object {obj.name} --count {count} --seed {seed}"
     if max_candidates != MAX_CANDIDATES:
         command += f" --max-candidates {max_candidates}"
     if style != "power":

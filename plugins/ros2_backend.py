@@ -41,6 +41,7 @@ import logging
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -102,6 +103,8 @@ class Ros2Backend(Backend):
         q_init, wMo_init, gravity: ignored: a robot is where it is.
         history: joint samples kept for q at the pose's stamp.
         trace: keep the timing of every torque message (:attr:`trace`).
+        clock: the clock of every timeout, ramp and message age [s]; a robot runs on
+            ``time.monotonic``, a test may run it ahead instead of sleeping.
 
     Attributes:
         received: accepted messages per stream (``joint_states``, ``object_pose``).
@@ -127,10 +130,12 @@ class Ros2Backend(Backend):
         gravity: bool = False,
         history: int = HISTORY_SAMPLES,
         trace: bool = False,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if not isinstance(config, HardwareConfig):
             config = load_hardware_config(config)
         self.config, self.hand = config, hand
+        self._clock = clock
         self.reader = JointStateReader(hand, config)
         self.command_dofs = command_dofs(hand, config)
         """(m,) velocity indices of the torque command's joints, in its order."""
@@ -182,7 +187,7 @@ class Ros2Backend(Backend):
                 if config.topic("hand_position_command")
                 else None
             )
-            self.streams = RobotStreams(config, self.reader, transport)
+            self.streams = RobotStreams(config, self.reader, transport, clock)
         except Exception:
             transport.close()
             raise
@@ -245,7 +250,7 @@ class Ros2Backend(Backend):
         latest = self.streams.latest()
         stop = latest.stop_requested
         with self._lock:
-            now, stamp_ns = time.monotonic(), time.time_ns()
+            now, stamp_ns = self._clock(), time.time_ns()
             joint, joint_age = latest.joint, now - latest.joint_received
             pose_age = self._pose_age(now, latest)
             self._last_apply = now
@@ -377,15 +382,15 @@ class Ros2Backend(Backend):
 
     @property
     def time(self) -> float:
-        """This process's monotonic clock [s]."""
-        return time.monotonic()
+        """The backend's clock [s] (``clock``: this process's monotonic clock)."""
+        return self._clock()
 
     # --- the watchdog ---------------------------------------------------------------------------
     def _watch(self) -> None:
         limit = self.config.safety.watchdog
         while not self._closed.wait(limit / 4.0):
             with self._lock:
-                now, stamp_ns = time.monotonic(), time.time_ns()
+                now, stamp_ns = self._clock(), time.time_ns()
                 if np.isfinite(self._last_apply) and now - self._last_apply > limit:
                     self._publish(self.guard.watchdog(now), stamp_ns)
 
@@ -439,7 +444,7 @@ class Ros2Backend(Backend):
         with self._lock:
             arm = None
             if self.arm_guard is not None and joint is not None:
-                arm = self.arm_guard.hold(joint.q, time.monotonic())
+                arm = self.arm_guard.hold(joint.q, self._clock())
         if arm is not None:
             self._publish_arm(arm)
         if self._hand_in_position:
@@ -448,9 +453,9 @@ class Ros2Backend(Backend):
                 self._hand_position.put(encode_array(held))
                 self.hand_position_messages += 1
             return
-        start = time.monotonic()
+        start = self._clock()
         while True:
-            now = time.monotonic()
+            now = self._clock()
             with self._lock:
                 tau = self.guard.ramp_down(now, duration, "exit")
                 self._publish(tau, time.time_ns())

@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pinocchio as pin
 import pytest
+from clocks import RunAheadClock
 
 from wholehand.errors import ConfigError
 from wholehand.hardware import messages as msgs
@@ -512,10 +513,11 @@ def test_a_cycle_starts_on_a_fresh_joint_state_waiting_briefly_for_one(allegro):
         connect=(endpoint,), joint_state_rate=10.0, control_rate=2.0, command_joints=ALLEGRO_ORDER
     )
     names, q = list(allegro.joint_names), allegro.neutral()
+    clock = RunAheadClock()
     try:
-        with Ros2Backend(allegro, None, config) as backend:
+        with Ros2Backend(allegro, None, config, clock=clock) as backend:
             _until_connected(robot, backend, names, q)
-            time.sleep(0.1)  # the newest joint state is stale now
+            clock.advance(0.1)  # the newest joint state is stale now
             stamp = time.time()
             later = msgs.encode_joint_state(stamp, names, q + 0.01)
             threading.Timer(0.02, lambda: robot.joints.put(later)).start()
@@ -524,7 +526,7 @@ def test_a_cycle_starts_on_a_fresh_joint_state_waiting_briefly_for_one(allegro):
             np.testing.assert_allclose(backend.observe().q, q + 0.01)  # this cycle's sample
             backend.step(0.0)
             assert backend.sync["fresh"] == 1
-            time.sleep(0.1)
+            clock.advance(0.1)
             backend.step(0.0)  # nothing comes
             assert backend.sync["timed_out"] == 1
             assert backend.stats()["sync"] == {"waited": 1, "fresh": 1, "timed_out": 1}
@@ -700,7 +702,6 @@ def test_the_controller_declares_rmw_zenohs_liveliness_tokens(allegro):
         data_key = topic_key(5, "/hand_effort_controller/commands", msgs.FLOAT64_ARRAY)
         assert data_key.split("/")[-2:] == [torque["type"], torque["hash"]]
         # Closed: the node has left the graph.
-        time.sleep(0.2)
-        assert not [r for r in watcher.liveliness().get("@ros2_lv/**") if r.ok]
+        _until(lambda: not [r for r in watcher.liveliness().get("@ros2_lv/**") if r.ok])
     finally:
         watcher.close()

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 import pytest
+from clocks import RunAheadClock
 
 from wholehand.backends.command import Command, JointTargets
 from wholehand.hardware import messages as msgs
@@ -137,12 +138,12 @@ def setup(rig):
 
     made = []
 
-    def make(positions=False, **arm):
+    def make(positions=False, clock=time.monotonic, **arm):
         endpoint = loopback_endpoint()
         q = home_configuration(rig, grasp_hand_of(rig))
         dq = np.where(rig.arm_dofs, 0.0, 0.1 * np.arange(rig.nv))
         robot = ArmHandRobot(rig, _config(endpoint, False, positions, **arm), q, dq)
-        backend = Ros2Backend(rig, None, _config(endpoint, True, positions, **arm))
+        backend = Ros2Backend(rig, None, _config(endpoint, True, positions, **arm), clock=clock)
         made.append((robot, backend))
         _until(lambda: backend.observe().stamp_q > 0.0)
         return robot, backend, q, dq
@@ -276,13 +277,14 @@ def test_every_exit_holds_the_arm_and_ramps_the_hand_torques_to_zero(rig, setup)
 
 
 def test_a_joint_state_without_an_arm_joint_stops_the_hand_and_holds_the_arm(rig, setup):
-    robot, backend, q, _ = setup()
+    clock = RunAheadClock()
+    robot, backend, q, _ = setup(clock=clock)
     command = _holding_and_moving(rig, q, 0.1)
     _send(backend, command, 5)
     last_target = backend.arm_guard.last.copy()
     robot.leave_out = "joint3"
     _until(lambda: backend.rejected["missing_joint"] > 0)
-    time.sleep(0.15)  # past joint_timeout
+    clock.advance(0.15)  # the last good joint state is now past joint_timeout (0.1 s)
     n_torque, n_arm = len(robot.torques), len(robot.arm)
     backend.apply(command)
     _until(lambda: len(robot.torques) > n_torque and len(robot.arm) > n_arm)

@@ -2,7 +2,7 @@
 
 Each message is decoded and checked when it arrives, on the transport's thread
 (:mod:`wholehand.hardware.inputs`); the newest good one of each stream is kept with its receipt
-time on ``time.monotonic``, and a message that fails a check, or is older than the newest, is
+time on the streams' clock (``time.monotonic`` unless a test gives its own), and a message that fails a check, or is older than the newest, is
 counted by reason (:attr:`RobotStreams.rejected`) while the last good one stays.
 """
 
@@ -45,7 +45,7 @@ class Latest:
     previous: JointSample | None
     """The joint state before :attr:`joint` (velocities of states sent without them)."""
     joint_received: float
-    """Receipt of :attr:`joint` [s, monotonic]; -inf before the first."""
+    """Receipt of :attr:`joint` [s, the streams' clock]; -inf before the first."""
     pose: tuple[FloatArray, float] | None
     """(4, 4) object pose in the world and its stamp [s]."""
     pose_received: float
@@ -54,7 +54,8 @@ class Latest:
 
 class RobotStreams:
     """Subscribes the config's ``joint_states``, ``object_pose`` and ``stop`` topics on
-    ``transport`` and keeps the newest good sample of each (module docstring).
+    ``transport`` and keeps the newest good sample of each (module docstring), stamped on
+    arrival by ``clock`` [s].
 
     Attributes:
         received: accepted messages per stream (``joint_states``, ``object_pose``).
@@ -64,8 +65,14 @@ class RobotStreams:
         stops: stop requests received (each true after a false or none).
     """
 
-    def __init__(self, config: HardwareConfig, reader: JointStateReader, transport: Transport):
-        self.config, self.reader = config, reader
+    def __init__(
+        self,
+        config: HardwareConfig,
+        reader: JointStateReader,
+        transport: Transport,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.config, self.reader, self.clock = config, reader, clock
         self.received: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
         self.last_rejection = ""
@@ -98,7 +105,8 @@ class RobotStreams:
         if first:
             log.warning("rejected a message (%s): %s", reason, detail)
 
-    def _on_joints(self, payload: bytes, meta: SampleMeta, received: float) -> None:
+    def _on_joints(self, payload: bytes, meta: SampleMeta, _: float) -> None:
+        received = self.clock()
         try:
             sample = self.reader.read(decode_joint_state(payload), time.time())
         except MessageError as err:
@@ -117,7 +125,8 @@ class RobotStreams:
             self._pending.append(sample)
             self.received["joint_states"] += 1
 
-    def _on_pose(self, payload: bytes, meta: SampleMeta, received: float) -> None:
+    def _on_pose(self, payload: bytes, meta: SampleMeta, _: float) -> None:
+        received = self.clock()
         config = self.config
         try:
             msg = decode_pose(payload)
@@ -216,7 +225,7 @@ class RobotStreams:
         a first joint state) and the time waited [s]."""
         with self._changed:
             received = self._joint_received
-            started = time.monotonic()
+            started = self.clock()
             if self._joint is None:
                 return "none", 0.0
             if started - received < fresh_age:
@@ -224,7 +233,7 @@ class RobotStreams:
             arrived = self._changed.wait_for(
                 lambda: self._joint_received != received, timeout=max_wait
             )
-            return ("waited" if arrived else "timed_out"), time.monotonic() - started
+            return ("waited" if arrived else "timed_out"), self.clock() - started
 
     def close(self) -> None:
         for sub in self._subs:

@@ -35,6 +35,7 @@ from wholehand.allocation.base import (
 )
 from wholehand.allocation.kernel_loading import load_kernels
 from wholehand.allocation.kernels import finite_inputs
+from wholehand.allocation.options import SolveOptions
 from wholehand.allocation.problem import (
     N_EDGES,
     REG,
@@ -43,21 +44,17 @@ from wholehand.allocation.problem import (
     build_allocation_qp,
 )
 from wholehand.allocation.solve import (
-    FEAS_TOL,
-    SCREEN_TOL,
     AllocationSolution,
     binding_rows,
     solve_allocation,
 )
-from wholehand.allocation.solvers import DEFAULT_SOLVER, make_solver
+from wholehand.allocation.solvers import make_solver
 from wholehand.allocation.warm_start import (
-    MATCH_RADIUS,
     WarmStart,
     rows_of_joints,
     warm_edge_weights,
 )
 from wholehand.contacts.base import ContactSet
-from wholehand.errors import ConfigError
 
 if TYPE_CHECKING:
     from wholehand.models.kinematics import HandKinematics
@@ -66,7 +63,8 @@ FloatArray = npt.NDArray[np.float64]
 
 
 SOLVE_SHARE: float = 0.75
-"""Share of :attr:`QPAllocator.deadline` the solving may use. The rest is for what follows the
+"""Share of the deadline (:attr:`~wholehand.allocation.options.SolveOptions.deadline`) the
+solving may use. The rest is for what follows the
 solver's stop: up to 32 more DAQP iterations between its clock checks (about 200 us near a
 loss on the development machine) and the allocator's finishing work (docs/results.md)."""
 
@@ -89,16 +87,7 @@ class QPAllocator(Allocator):
         reg: float = REG,
         consistency: bool | None = None,
         actuated_dofs: npt.ArrayLike | None = None,
-        solver: str = DEFAULT_SOLVER,
-        solver_settings: Mapping[str, Any] | None = None,
-        warm_start: bool = True,
-        screening: bool = True,
-        feas_tol: float = FEAS_TOL,
-        screen_tol: float = SCREEN_TOL,
-        match_radius: float = MATCH_RADIUS,
-        deadline: float | None = None,
-        deadline_after_miss: float | None = None,
-        screen_edges: bool = False,
+        options: SolveOptions | Mapping[str, Any] | None = None,
     ) -> None:
         """Args:
         mu: Friction coefficient of the 4-sided pyramid [-], >= 0.
@@ -111,39 +100,9 @@ class QPAllocator(Allocator):
             :mod:`wholehand.allocation.problem`), > 0.
         consistency: Impose the actuation-consistency rows; None: the class default.
         actuated_dofs: Commanded joints: an (n_v,) boolean mask or joint indices; None: all.
-        solver: QP solver name, see :func:`wholehand.allocation.solvers.available_solvers`.
-        solver_settings: Solver settings on top of the adapter's tight defaults.
-        warm_start: Start each solve from the previous cycle's matched solution.
-        screening: Solve with a working subset of torque/consistency rows (exact).
-        feas_tol: Largest relative constraint violation of an accepted solution [-]: a
-            torque's excess over its joint's limit as a fraction of the limit, a force
-            constraint's as a fraction of the allocation's force scale (see
-            :attr:`~wholehand.allocation.solve.AllocationSolution.relative_violation`); beyond
-            it the allocation is ``INACCURATE``.
-        screen_tol: Violation above which a left-out row joins the working set.
-        match_radius: Contacts on one link closer than this across cycles are the same [m].
-        deadline: Time budget of one allocation, from its start [s]. The solving stops at
-            :data:`SOLVE_SHARE` of it: DAQP and OSQP stop themselves there (they check the
-            clock every few dozen iterations), other solvers finish the solve under way, and no
-            screening round starts past it; the rest of the budget covers the solver's last
-            iterations and the allocator's own finishing work. An allocation not exact by then
-            ends as ``DEADLINE`` (no torque: the loop keeps the last feasible one), counted in
-            ``counts``. None (default): no deadline, so simulation results do not depend on the
-            machine's speed.
-        deadline_after_miss: Time budget of an allocation that follows a ``DEADLINE`` one [s],
-            at least ``deadline`` (None: ``deadline``). The missed allocation hands its progress
-            to the next, which with a little more time usually finishes: near a loss the misses
-            then come singly instead of in runs of tens of cycles (docs/results.md).
-        screen_edges: Screen the pyramid-edge weights too, as the rows are (exact; with solvers
-            that report multipliers, DAQP): each cycle starts with the edges that carried
-            force last cycle plus every edge of a new contact, adds any left-out edge whose
-            multiplier shows it would lower the objective, and starts each screening round from
-            the last round's active set. Near a loss most edge weights are zero, so the
-            problems stay small: a bounded worst case (docs/results.md). Off by default: the
-            solver then takes another path to the same optimum, which moves the torques by up
-            to about 1e-4 N*m (the 1e-6 ridge that fixes the optimum magnifies the solver's
-            tolerances), enough to change simulated trajectories near a loss, and the
-            committed study rows were made without it. The hardware controller turns it on.
+        options: How the QP is solved (:class:`~wholehand.allocation.options.SolveOptions`:
+            the solver, warm start, screening, tolerances, deadline), or a mapping of its
+            fields; None: the defaults.
 
         Raises:
             ConfigError: A value is out of range or the solver is not installed.
@@ -160,48 +119,11 @@ class QPAllocator(Allocator):
             consistency=self.consistency_default if consistency is None else consistency,
             actuated_dofs=actuated_dofs,
         )
-        if deadline is not None and not (isinstance(deadline, int | float) and deadline > 0):
-            raise ConfigError(
-                f"{owner}: parameter deadline={deadline!r} is invalid; it must be a time > 0 "
-                "[s] or None"
-            )
-        self.deadline = None if deadline is None else float(deadline)
-        if deadline_after_miss is not None and not (
-            isinstance(deadline_after_miss, int | float)
-            and self.deadline is not None
-            and self.deadline <= deadline_after_miss < np.inf
-        ):
-            raise ConfigError(
-                f"{owner}: parameter deadline_after_miss={deadline_after_miss!r} is invalid; it "
-                f"must be a time [s] at least deadline={deadline!r}, which must be set, or None"
-            )
-        self.deadline_after_miss = (
-            self.deadline if deadline_after_miss is None else float(deadline_after_miss)
-        )
+        self.options = SolveOptions.of(options, owner)
+        """The checked solve options (``deadline_after_miss`` resolved)."""
         self._missed = False  # the last allocation ran out of time
-        for name, value in (
-            ("feas_tol", feas_tol),
-            ("screen_tol", screen_tol),
-            ("match_radius", match_radius),
-        ):
-            if not (isinstance(value, int | float) and 0.0 <= value < np.inf):
-                raise ConfigError(
-                    f"{owner}: parameter {name}={value!r} is invalid; it must be a finite "
-                    "number >= 0"
-                )
-        if solver_settings is not None and not isinstance(solver_settings, Mapping):
-            raise ConfigError(
-                f"{owner}: parameter solver_settings={solver_settings!r} is invalid; it must be "
-                "a mapping of setting names to values"
-            )
-        self.qp_solver = make_solver(solver, solver_settings, owner)
-        self.solver = solver
-        self.warm_start = bool(warm_start)
-        self.screening = bool(screening)
-        self.screen_edges = bool(screen_edges)
-        self.feas_tol = float(feas_tol)
-        self.screen_tol = float(screen_tol)
-        self._warm = WarmStart(match_radius=float(match_radius))
+        self.qp_solver = make_solver(self.options.solver, self.options.solver_settings, owner)
+        self._warm = WarmStart(match_radius=self.options.match_radius)
         self.counts: Counter[AllocationStatus] = Counter()
         """Allocations per status since construction (or :meth:`reset`)."""
         self.last_solution: AllocationSolution | None = None
@@ -240,7 +162,7 @@ class QPAllocator(Allocator):
             status=status,
             solve_time=solve_time,
             solver_time=solver_time,
-            solver=self.solver,
+            solver=self.options.solver,
         )
 
     # --------------------------------------------------------------------------------------------
@@ -304,14 +226,14 @@ class QPAllocator(Allocator):
         qp = build_allocation_qp(
             contacts, J_world, p_com, self.params, owner, external_wrench, tau_bias
         )
-        kwargs = self._warm_kwargs(qp, contacts) if self.warm_start else {}
-        budget = self.deadline_after_miss if self._missed else self.deadline
+        kwargs = self._warm_kwargs(qp, contacts) if self.options.warm_start else {}
+        budget = self.options.deadline_after_miss if self._missed else self.options.deadline
         deadline_ns = None if budget is None else t0 + int(budget * SOLVE_SHARE * 1e9)
         sol = solve_allocation(
             qp,
             self.qp_solver,
-            screening=self.screening,
-            screen_tol=self.screen_tol,
+            screening=self.options.screening,
+            screen_tol=self.options.screen_tol,
             deadline_ns=deadline_ns,
             **kwargs,
         )
@@ -323,7 +245,7 @@ class QPAllocator(Allocator):
             return self._result(
                 AllocationStatus.DEADLINE, n, n_v, solve_time=dt, solver_time=sol.solver_time
             )
-        if sol.x is None or sol.relative_violation > self.feas_tol:
+        if sol.x is None or sol.relative_violation > self.options.feas_tol:
             self._warm.clear()
             status = AllocationStatus.SOLVER_FAILED
             if sol.x is not None:
@@ -356,7 +278,7 @@ class QPAllocator(Allocator):
         torque_sel = rows_of_joints(warm.torque_dofs, qp.n_v, qp.dofs, qp.torque_rows)
         null_sel = warm.null_rows if warm.same_links(contacts.link) else None
         out: dict[str, Any] = {"warm": True, "torque_sel": torque_sel, "null_sel": null_sel}
-        use_edges = self.screen_edges and self.qp_solver.reports_duals
+        use_edges = self.options.screen_edges and self.qp_solver.reports_duals
         if not (self.qp_solver.primal_warm_start or use_edges):
             return out
         # Each contact's edge weights last cycle (inf for a new contact: every edge), and the

@@ -20,6 +20,7 @@ from wholehand.allocation.base import Allocation, AllocationStatus, hand_keyword
 from wholehand.allocation.kernel_loading import load_kernels
 from wholehand.allocation.kernels import sigma_min_lower_bound
 from wholehand.allocation.null_space import ActuationNullSpace
+from wholehand.allocation.options import SolveOptions
 from wholehand.allocation.problem import (
     N_EDGES,
     AllocationParams,
@@ -177,7 +178,9 @@ def test_reference_solutions_satisfy_kkt_for_every_solver(case: tuple[int, int, 
 def test_allocator_optimum_and_constraints(solver: str, case: tuple[int, int, float]) -> None:
     n, seed, tmax = case
     cs, J, com = synthetic_grasp(seed, n).cycle()
-    alloc = QPAllocator(tau_max=tmax, solver=solver, solver_settings=settings_for(solver))
+    alloc = QPAllocator(
+        tau_max=tmax, options=SolveOptions(solver=solver, solver_settings=settings_for(solver))
+    )
     out = alloc.allocate(cs, J, com)
     check_allocation(out, cs, J, com, alloc.params)
     assert out.solver == solver and 0.0 < out.solver_time < out.solve_time
@@ -259,7 +262,7 @@ def test_a_built_allocator_loads_no_kernel_while_allocating(params: dict[str, An
     """Every kernel version a cycle uses is loaded when the allocator is built, including those
     of several consistency rows at once (LAPACK returns their columns in Fortran order)."""
     cs, J, com = near_loss()
-    alloc = QPAllocator(**params)
+    alloc = QPAllocator(options=params)
     before = kernel_versions()
     out = alloc.allocate(cs, J, com)
     sol = alloc.last_solution
@@ -303,7 +306,7 @@ class _DeadlineOnSecondSolve:
 
 def test_a_deadline_cycle_hands_its_progress_to_the_next() -> None:
     cs, J, com = near_loss()
-    alloc = QPAllocator(screen_edges=True, deadline=60.0)
+    alloc = QPAllocator(options=SolveOptions(screen_edges=True, deadline=60.0))
     alloc.qp_solver = _DeadlineOnSecondSolve()  # type: ignore[assignment]
     first = alloc.allocate(cs, J, com)
     assert first.status is AllocationStatus.DEADLINE and first.tau is None
@@ -314,7 +317,7 @@ def test_a_deadline_cycle_hands_its_progress_to_the_next() -> None:
     assert warm.lam is not None
     np.testing.assert_array_equal(warm.lam.ravel(), sol.x_relaxed[: 4 * len(cs)])
     assert warm.torque_dofs.size + warm.null_rows.size > 0
-    exact = QPAllocator(screen_edges=True).allocate(cs, J, com)
+    exact = QPAllocator(options=SolveOptions(screen_edges=True)).allocate(cs, J, com)
     alloc.qp_solver = make_solver("daqp")
     again = alloc.allocate(cs, J, com)
     assert again.fresh
@@ -325,7 +328,7 @@ def test_a_deadline_solution_carries_the_row_values_of_its_last_round() -> None:
     """The rows the next cycle starts with come from the values at the last finished round's
     solution, handed over rather than computed again: they must be exactly those values."""
     cs, J, com = near_loss()
-    alloc = QPAllocator(screen_edges=True)
+    alloc = QPAllocator(options=SolveOptions(screen_edges=True))
     qp = build_allocation_qp(cs, J, com, alloc.params)
     every_edge = np.arange(qp.n_lambda, dtype=np.intp)
     sol = solve_allocation(qp, _DeadlineOnSecondSolve(), edge_sel=every_edge)  # type: ignore[arg-type]
@@ -356,7 +359,7 @@ class _TimeLimits:
 
 def test_the_solver_gets_its_share_of_the_deadline() -> None:
     cs, J, com = near_loss()
-    alloc = QPAllocator(deadline=10.0)
+    alloc = QPAllocator(options=SolveOptions(deadline=10.0))
     alloc.qp_solver = solver = _TimeLimits()  # type: ignore[assignment]
     assert alloc.allocate(cs, J, com).fresh
     # Each round's limit is what is left of SOLVE_SHARE of the budget once it is built.
@@ -382,7 +385,7 @@ class _MissFirst(_TimeLimits):
 
 def test_the_allocation_after_a_missed_deadline_gets_the_longer_budget() -> None:
     cs, J, com = near_loss()
-    alloc = QPAllocator(deadline=10.0, deadline_after_miss=30.0)
+    alloc = QPAllocator(options=SolveOptions(deadline=10.0, deadline_after_miss=30.0))
     alloc.qp_solver = solver = _MissFirst()  # type: ignore[assignment]
     assert alloc.allocate(cs, J, com).status is AllocationStatus.DEADLINE
     assert 10.0 * SOLVE_SHARE - 0.5 < solver.limits[0] <= 10.0 * SOLVE_SHARE
@@ -392,7 +395,9 @@ def test_the_allocation_after_a_missed_deadline_gets_the_longer_budget() -> None
     solver.limits.clear()
     assert alloc.allocate(cs, J, com).fresh  # back to the deadline
     assert 10.0 * SOLVE_SHARE - 0.5 < solver.limits[0] <= 10.0 * SOLVE_SHARE
-    assert QPAllocator(deadline=10.0).deadline_after_miss == 10.0  # None: the same budget
+    assert (
+        QPAllocator(options=SolveOptions(deadline=10.0)).options.deadline_after_miss == 10.0
+    )  # None: the same budget
 
 
 @pytest.mark.parametrize(
@@ -402,13 +407,13 @@ def test_the_budget_after_a_miss_needs_a_deadline_it_does_not_undercut(
     deadline: float | None, after_miss: float
 ) -> None:
     with pytest.raises(ConfigError, match="deadline_after_miss=.* at least deadline"):
-        QPAllocator(deadline=deadline, deadline_after_miss=after_miss)
+        QPAllocator(options=SolveOptions(deadline=deadline, deadline_after_miss=after_miss))
 
 
 def test_warm_start_matches_cold_over_a_control_sequence() -> None:
     grasp = synthetic_grasp(2, 14)
     rng = np.random.default_rng(5)
-    warm, cold = QPAllocator(), QPAllocator(warm_start=False)
+    warm, cold = QPAllocator(), QPAllocator(options=SolveOptions(warm_start=False))
     for _ in range(15):
         cs, J, com = grasp.cycle(rng, 2e-4)
         a, b = warm.allocate(cs, J, com), cold.allocate(cs, J, com)
@@ -429,7 +434,7 @@ def test_warm_start_matches_cold_over_a_control_sequence() -> None:
 def test_warm_start_survives_contact_changes(warm: dict[str, Any], ref: dict[str, Any]) -> None:
     grasp = synthetic_grasp(0, 30)
     rng = np.random.default_rng(1)
-    alloc, reference = QPAllocator(**warm), QPAllocator(**ref)
+    alloc, reference = QPAllocator(options=warm), QPAllocator(options=ref)
     for k in range(12):
         cs, J, com = grasp.cycle(rng, 1e-4)
         keep = rng.random(len(cs)) > 0.2 if k % 3 else np.ones(len(cs), bool)
@@ -449,7 +454,7 @@ def test_warm_start_survives_contact_changes(warm: dict[str, Any], ref: dict[str
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_symmetric_antipodal_pair(solver: str) -> None:
     cs, J, com = antipodal()
-    alloc = QPAllocator(solver=solver, solver_settings=settings_for(solver))
+    alloc = QPAllocator(options=SolveOptions(solver=solver, solver_settings=settings_for(solver)))
     out = alloc.allocate(cs, J, com)
     check_allocation(out, cs, J, com, alloc.params)
     np.testing.assert_allclose(out.residual_wrench, 0.0, atol=1e-7)
@@ -688,7 +693,7 @@ def test_infeasible_gives_no_torque() -> None:
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_infeasible_for_every_solver_never_raises(solver: str) -> None:
     cs, J, com = antipodal(lever=1.0)
-    out = QPAllocator(solver=solver).allocate(cs, J, com)
+    out = QPAllocator(options=SolveOptions(solver=solver)).allocate(cs, J, com)
     assert out.status in (AllocationStatus.INFEASIBLE, AllocationStatus.SOLVER_FAILED)
     assert out.tau is None
 
@@ -710,7 +715,7 @@ def test_solver_failure_and_nan_input_give_no_torque() -> None:
     p_nan[0, 2] = np.nan
     out = alloc.allocate(dataclasses.replace(cs, p_world=p_nan), J, com)
     assert out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
-    starved = QPAllocator(solver_settings={"iter_limit": 1})
+    starved = QPAllocator(options=SolveOptions(solver_settings={"iter_limit": 1}))
     out = starved.allocate(cs, J, com)
     assert out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
     assert alloc.allocate(cs, J, com).ok
@@ -750,7 +755,7 @@ def test_the_feasibility_tolerance_is_relative_to_each_limit(scale: float) -> No
     lever, scaled): an answer 0.1 % over the limits is inaccurate at every scale, one 0.001 %
     over is accepted at every scale (an absolute tolerance gets one end wrong)."""
     cs, J, com = antipodal(lever=0.01)
-    params = {"f_n_min": 10.0 * scale, "tau_max": 0.05 * scale, "warm_start": False}
+    params = {"f_n_min": 10.0 * scale, "tau_max": 0.05 * scale, "options": {"warm_start": False}}
     for excess, status in ((1e-3, AllocationStatus.INACCURATE), (1e-5, AllocationStatus.OK)):
         alloc = QPAllocator(**params)
         alloc.qp_solver = Inflated(alloc.qp_solver, excess)  # type: ignore[assignment]
@@ -834,9 +839,11 @@ def test_plugin_docstrings_have_one_line_descriptions() -> None:
         ({"actuated_dofs": [0, 0]}, "actuated_dofs"),
         ({"actuated_dofs": [-1]}, "actuated_dofs"),
         ({"actuated_dofs": [0.5]}, "actuated_dofs"),
-        ({"feas_tol": -1.0}, "feas_tol"),
-        ({"solver": "no_such_solver"}, "solver"),
-        ({"solver_settings": 3}, "solver_settings"),
+        ({"options": {"feas_tol": -1.0}}, "feas_tol"),
+        ({"options": {"solver": "no_such_solver"}}, "solver"),
+        ({"options": {"solver_settings": 3}}, "solver_settings"),
+        ({"options": {"no_such_option": 1}}, "no_such_option"),
+        ({"options": 3}, "options"),
     ],
 )
 @pytest.mark.parametrize("cls", [QPAllocator, QPNoConsistencyAllocator, FingertipOnlyAllocator])
@@ -849,7 +856,7 @@ def test_bad_configuration_raises(kwargs: dict[str, Any], name: str, cls: type) 
 @pytest.mark.parametrize("solver", [*NATIVE_SOLVERS, "qpsolvers:daqp"])
 def test_bad_solver_settings_raise_at_construction(solver: str) -> None:
     with pytest.raises(ConfigError, match="solver_settings"):
-        QPAllocator(solver=solver, solver_settings={"no_such_setting_xyz": 1})
+        QPAllocator(options=SolveOptions(solver=solver, solver_settings={"no_such_setting_xyz": 1}))
 
 
 def test_solver_exception_in_the_loop_becomes_a_status() -> None:
@@ -867,7 +874,7 @@ def test_solver_exception_in_the_loop_becomes_a_status() -> None:
 
 def test_unknown_solver_lists_installed_ones() -> None:
     with pytest.raises(ConfigError, match="daqp"):
-        QPAllocator(solver="gurobi_but_not_installed")
+        QPAllocator(options=SolveOptions(solver="gurobi_but_not_installed"))
     assert set(NATIVE_SOLVERS) <= set(available_solvers())
 
 
@@ -927,7 +934,9 @@ def test_weight_is_carried_by_friction_and_squeeze_grows_when_needed(
     # per contact, since the pyramid allows |f_z| <= mu f_n. These fingers move along x only,
     # so actuation consistency would cap their z forces at eps_margin: it is off here.
     cs, J, com = antipodal()
-    alloc = QPAllocator(solver="daqp", solver_settings=settings_for("daqp"), consistency=False)
+    alloc = QPAllocator(
+        consistency=False, options=SolveOptions(solver="daqp", solver_settings=settings_for("daqp"))
+    )
     w_ext = np.array([0.0, 0.0, -weight, 0.0, 0.0, 0.0])
     out = alloc.allocate(cs, J, com, external_wrench=w_ext)
     assert out.status is AllocationStatus.OK
@@ -982,12 +991,12 @@ def test_a_passed_deadline_stops_screening_and_gives_no_torque(
     assert solve_allocation(qp, solver, screening=True).rounds > 1  # rows bind in every case
     late = solve_allocation(qp, solver, screening=True, deadline_ns=0)  # always passed
     assert late.status == "deadline" and late.x is None and late.rounds == 0
-    allocator = QPAllocator(tau_max=tmax, warm_start=False, deadline=1e-9)
+    allocator = QPAllocator(tau_max=tmax, options=SolveOptions(warm_start=False, deadline=1e-9))
     allocation = allocator.allocate(cs, J, com)
     assert allocation.status == AllocationStatus.DEADLINE and allocation.tau is None
     assert allocator.counts[AllocationStatus.DEADLINE] == 1
     # Without a deadline the same allocator is exact (the deadline changes nothing else).
-    exact = QPAllocator(tau_max=tmax, warm_start=False).allocate(cs, J, com)
+    exact = QPAllocator(tau_max=tmax, options=SolveOptions(warm_start=False)).allocate(cs, J, com)
     assert exact.fresh
 
 
@@ -1123,7 +1132,7 @@ def test_daqp_keeps_one_model_per_shape_and_notices_a_new_hessian_or_limit() -> 
 
 def test_deadline_must_be_positive() -> None:
     with pytest.raises(ConfigError, match="deadline=0"):
-        QPAllocator(deadline=0)
+        QPAllocator(options=SolveOptions(deadline=0))
 
 
 @pytest.mark.parametrize("solver", ["daqp", "osqp"])

@@ -61,7 +61,9 @@ def test_the_allocator_never_raises_respects_limits_and_reports_its_residual(pro
     assert (out.tau is None) == (out.status in NO_TORQUE)
     if out.tau is not None:
         assert out.tau.shape == (n_v,)
-        assert np.all(np.abs(out.tau) <= np.asarray(params["tau_max"]) * (1.0 + alloc.feas_tol))
+        assert np.all(
+            np.abs(out.tau) <= np.asarray(params["tau_max"]) * (1.0 + alloc.options.feas_tol)
+        )
     if out.fresh:
         assert (out.status is AllocationStatus.OK) == out.balanced
         # The residual is the net wrench of the forces about the centre of mass (hand-computed).

@@ -16,6 +16,7 @@ from wholehand_plugins.qp import QPAllocator
 
 from wholehand import registry
 from wholehand.allocation.base import AllocationStatus
+from wholehand.allocation.options import SolveOptions
 from wholehand.allocation.problem import AllocationParams, build_allocation_qp
 from wholehand.allocation.reference import direct_problem, solved_problem
 from wholehand.backends.command import Command
@@ -74,7 +75,9 @@ def test_the_limits_bind_bias_plus_contact_torques() -> None:
     cs, J, com = antipodal()
     bias = np.array([-0.02, 0.0])
     alloc = QPAllocator(
-        solver="daqp", solver_settings=settings_for("daqp"), consistency=False, tau_max=0.06
+        consistency=False,
+        tau_max=0.06,
+        options=SolveOptions(solver="daqp", solver_settings=settings_for("daqp")),
     )
     free = alloc.allocate(cs, J, com)
     np.testing.assert_allclose(free.f_local[:, 0], [5.0, 5.0], rtol=1e-4)
@@ -84,7 +87,9 @@ def test_the_limits_bind_bias_plus_contact_torques() -> None:
     np.testing.assert_allclose(out.tau, [-0.04, -0.06], rtol=1e-4)  # the contact part alone
     np.testing.assert_allclose(np.abs(out.residual_wrench[0]), 2.0, rtol=1e-4)
     # The fingertip-only ablation passes the bias on.
-    tips = FingertipOnlyAllocator(solver="daqp", consistency=False, tau_max=0.06)
+    tips = FingertipOnlyAllocator(
+        consistency=False, tau_max=0.06, options=SolveOptions(solver="daqp")
+    )
     np.testing.assert_allclose(tips.allocate(cs, J, com, tau_bias=bias).tau, out.tau, rtol=1e-4)
 
 
@@ -94,11 +99,13 @@ def test_a_biased_allocation_is_the_reference_optimum(case: tuple[int, int, floa
     cs, J, com = synthetic_grasp(seed, n).cycle()
     # On every joint, a bias in the direction the unbiased allocation turns it, leaving room
     # for only 90 % of that torque: the unbiased allocation would now exceed every limit.
-    unbiased = QPAllocator(tau_max=tmax, solver="daqp").allocate(cs, J, com)
+    unbiased = QPAllocator(tau_max=tmax, options=SolveOptions(solver="daqp")).allocate(cs, J, com)
     bias = np.sign(unbiased.tau) * (tmax - 0.9 * np.abs(unbiased.tau))
     moved = np.abs(unbiased.tau) > 1e-6
     assert (np.abs(bias + unbiased.tau)[moved] > tmax).all()
-    alloc = QPAllocator(tau_max=tmax, solver="daqp", solver_settings=settings_for("daqp"))
+    alloc = QPAllocator(
+        tau_max=tmax, options=SolveOptions(solver="daqp", solver_settings=settings_for("daqp"))
+    )
     out = alloc.allocate(cs, J, com, tau_bias=bias)
     assert out.fresh
     assert (np.abs(bias + out.tau) <= tmax + 1e-6).all()
@@ -117,7 +124,7 @@ def test_a_biased_allocation_is_the_reference_optimum(case: tuple[int, int, floa
 
 def test_bad_biases_are_named_or_refused_without_raising() -> None:
     cs, J, com = antipodal()
-    alloc = QPAllocator(solver="daqp", consistency=False)
+    alloc = QPAllocator(consistency=False, options=SolveOptions(solver="daqp"))
     with pytest.raises(ConfigError, match="tau_bias must be 2 finite joint torques"):
         alloc.allocate(cs, J, com, tau_bias=np.zeros(3))
     nan = alloc.allocate(cs, J, com, tau_bias=np.array([np.nan, 0.0]))

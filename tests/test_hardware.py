@@ -14,6 +14,7 @@ import pinocchio as pin
 import pytest
 from clocks import RunAheadClock
 
+from wholehand.allocation.options import SolveOptions
 from wholehand.errors import ConfigError
 from wholehand.hardware import messages as msgs
 from wholehand.hardware.config import HardwareConfig, QoS, SafetyLimits
@@ -629,19 +630,25 @@ def test_the_controller_allocator_gets_the_deadline_and_edge_screening(allegro):
         controller_allocator,
     )
 
-    qp = controller_allocator(ControllerSpec(), allegro)
+    qp = controller_allocator(ControllerSpec(), allegro).options
     assert qp.deadline == QP_DEADLINE and qp.screen_edges
     assert qp.deadline_after_miss == pytest.approx(AFTER_MISS * QP_DEADLINE)
-    qp = controller_allocator(ControllerSpec(qp_deadline_after_miss=0.0025), allegro)
+    qp = controller_allocator(ControllerSpec(qp_deadline_after_miss=0.0025), allegro).options
     assert qp.deadline_after_miss == 0.0025
-    mine = ControllerSpec(allocator_params={"screen_edges": False, "deadline": 0.004})
-    qp = controller_allocator(mine, allegro)
-    assert qp.deadline == 0.004 and not qp.screen_edges  # the user's parameters win
+    mine = ControllerSpec(allocator_params={"options": {"screen_edges": False, "deadline": 0.004}})
+    qp = controller_allocator(mine, allegro).options
+    assert qp.deadline == 0.004 and not qp.screen_edges  # the user's options win
     assert qp.deadline_after_miss == 0.004  # and the controller's budget after a miss with it
+    mine = ControllerSpec(allocator_params={"options": {"solver": "osqp"}})
+    qp = controller_allocator(mine, allegro).options
+    assert qp.solver == "osqp" and qp.screen_edges and qp.deadline == QP_DEADLINE  # merged
+    mine = ControllerSpec(allocator_params={"options": SolveOptions(solver="osqp")})
+    qp = controller_allocator(mine, allegro).options
+    assert qp == SolveOptions(solver="osqp")  # options given whole are taken as they are
     tips = controller_allocator(ControllerSpec(allocator="fingertip_only"), allegro)
-    assert tips.screen_edges  # a QP allocator too
+    assert tips.options.screen_edges  # a QP allocator too
     feedforward = controller_allocator(ControllerSpec(allocator="feedforward"), allegro)
-    assert not hasattr(feedforward, "screen_edges")  # parameters it does not take: not passed
+    assert not hasattr(feedforward, "options")  # parameters it does not take: not passed
 
 
 def _parse_token(key: str) -> dict:

@@ -175,7 +175,7 @@ def test_no_cycle_loads_a_kernel(allegro):
     for one (edge screening included: the hardware controller's setting). The bottle's grasp 1
     pulled by 90 deg binds dozens of consistency rows."""
     bottle = load_object("006_mustard_bottle")
-    for params in ({}, {"screen_edges": True}):
+    for params in ({}, {"options": {"screen_edges": True}}):
         watch = KernelWatch()
         spec = TrialSpec(
             object=bottle.name,
@@ -929,7 +929,7 @@ def test_cycle_benchmark_pools_every_cycle_until_each_trials_loss():
         ks=(1,),
         grasps=(0,),
         protocol_params=TINY,
-        allocator_params={"deadline": 1e-9},
+        allocator_params={"options": {"deadline": 1e-9}},
     )["results"]
     assert late["held_commands"] == late["longest_hold_cycles"] == late["cycle"]["n"] > 0
 

@@ -44,6 +44,7 @@ import numpy.typing as npt
 
 from wholehand import registry
 from wholehand.allocation.base import Allocator
+from wholehand.allocation.options import SolveOptions
 from wholehand.contacts.base import ContactSet
 from wholehand.provenance import provenance
 
@@ -314,7 +315,7 @@ def run_allocation_benchmark(
     for n in contact_counts:
         grasp = synthetic_grasp(seed, int(n))
         for solver, screening, edges in configs:
-            qp_allocator(solver=solver, **extra)  # fail early on a bad name
+            qp_allocator(options={"solver": solver}, **extra)  # fail early on a bad name
 
             def make(
                 warm_start: bool,
@@ -322,14 +323,10 @@ def run_allocation_benchmark(
                 screening: bool = screening,
                 edges: bool = edges,
             ) -> Allocator:
-                allocator = qp_allocator(
-                    solver=solver,
-                    screening=screening,
-                    screen_edges=edges,
-                    warm_start=warm_start,
-                    **extra,
+                options = SolveOptions(
+                    solver=solver, screening=screening, screen_edges=edges, warm_start=warm_start
                 )
-                return cast(Allocator, allocator)
+                return cast(Allocator, qp_allocator(options=options, **extra))
 
             for mode in MODES:
                 stats = _time_mode(grasp, make, cycles, warmup, seed, mode)

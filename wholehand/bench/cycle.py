@@ -35,8 +35,8 @@ def run_cycle_benchmark(
     the last feasible torque (an allocation past its deadline, say), ``longest_hold_cycles``
     the most of them in a row in one trial. ``protocol_params``: the protocol's
     parameters (:class:`~wholehand.trials.protocol.PerturbationProtocol`; None: the paper's);
-    ``allocator_params``: the allocator's keyword arguments (e.g. ``deadline``,
-    ``screen_edges``).
+    ``allocator_params``: the allocator's keyword arguments (e.g. ``{"options": {"deadline":
+    0.002, "screen_edges": True}}``).
     """
     hand_model = load_hand(hand)
     models = {name: load_object(name) for name in objects}

@@ -52,13 +52,14 @@ def _cmd_allocate(args: argparse.Namespace) -> int:
 def _cmd_cycle(args: argparse.Namespace) -> int:
     from wholehand.bench.cycle import run_cycle_benchmark
 
-    params: dict[str, object] = {}
+    options: dict[str, object] = {}
     if args.qp_deadline is not None:
-        params["deadline"] = args.qp_deadline
+        options["deadline"] = args.qp_deadline
     if args.qp_deadline_after_miss is not None:
-        params["deadline_after_miss"] = args.qp_deadline_after_miss
+        options["deadline_after_miss"] = args.qp_deadline_after_miss
     if args.screen_edges:
-        params["screen_edges"] = True
+        options["screen_edges"] = True
+    params: dict[str, object] = {"options": options} if options else {}
     if args.worst:
         from wholehand.bench.worst_case import WORST_OBJECTS, run_worst_case_benchmark
 

@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from wholehand import defaults, registry
 from wholehand.allocation.base import Allocator
+from wholehand.allocation.options import SolveOptions
 from wholehand.backends.observation import check_observation
 from wholehand.backends.table import HAND_MARGIN
 from wholehand.contacts.base import ContactEstimator
@@ -79,14 +80,14 @@ class ControllerSpec:
     estimator_params: dict[str, Any] = field(default_factory=dict)
     allocator_params: dict[str, Any] = field(default_factory=dict)
     qp_deadline: float | None = QP_DEADLINE
-    """Time budget of one allocation [s], for allocators that take a ``deadline`` (the ``qp``
+    """Time budget of one allocation [s], for allocators that take solve options (the ``qp``
     family): past it the loop keeps the last feasible torque and counts a ``deadline`` cycle."""
     qp_deadline_after_miss: float | None = None
     """Time budget of an allocation right after a ``deadline`` cycle [s], at least
     ``qp_deadline`` (None: :data:`AFTER_MISS` times ``qp_deadline``)."""
     screen_edges: bool = True
-    """Screen the pyramid-edge weights too, for allocators that take ``screen_edges`` (the
-    ``qp`` family): smaller problems near a loss, so fewer deadline cycles."""
+    """Screen the pyramid-edge weights too, for allocators that take solve options (the ``qp``
+    family): smaller problems near a loss, so fewer deadline cycles."""
     reacher: str = "mink"
     """The reacher plug-in of the pipeline (an arm-hand assembly only)."""
     balance_weight: bool = True
@@ -99,20 +100,22 @@ class ControllerSpec:
 
 def controller_allocator(spec: ControllerSpec, hand: HandModel) -> Allocator:
     """The spec's allocator, with the controller's ``qp_deadline`` (and the budget after a
-    miss) and ``screen_edges`` for allocators that take them (the user's ``allocator_params``
-    win)."""
+    miss) and ``screen_edges`` in the solve options of allocators that take them (the ``qp``
+    family). The user's ``allocator_params["options"]`` win: a mapping's keys over the
+    controller's, a :class:`~wholehand.allocation.options.SolveOptions` as it is."""
     params = dict(spec.allocator_params)
     takes = inspect.signature(registry.get_class("allocators", spec.allocator)).parameters
-    if spec.qp_deadline is not None and "deadline" in takes:
-        params.setdefault("deadline", spec.qp_deadline)
-        after_miss = spec.qp_deadline_after_miss
-        if "deadline_after_miss" in takes and params["deadline"] == spec.qp_deadline:
-            params.setdefault(
-                "deadline_after_miss",
-                AFTER_MISS * spec.qp_deadline if after_miss is None else after_miss,
-            )
-    if "screen_edges" in takes:
-        params.setdefault("screen_edges", spec.screen_edges)
+    if "options" in takes and not isinstance(params.get("options"), SolveOptions):
+        options = {"screen_edges": spec.screen_edges, **(params.get("options") or {})}
+        if spec.qp_deadline is not None:
+            options.setdefault("deadline", spec.qp_deadline)
+            after_miss = spec.qp_deadline_after_miss
+            if options["deadline"] == spec.qp_deadline:
+                options.setdefault(
+                    "deadline_after_miss",
+                    AFTER_MISS * spec.qp_deadline if after_miss is None else after_miss,
+                )
+        params["options"] = options
     return cast(Allocator, load_allocator(spec.allocator, hand, params))
 
 

@@ -2,8 +2,9 @@
 
 Each message is decoded and checked when it arrives, on the transport's thread
 (:mod:`wholehand.hardware.inputs`); the newest good one of each stream is kept with its receipt
-time on the streams' clock (``time.monotonic`` unless a test gives its own), and a message that fails a check, or is older than the newest, is
-counted by reason (:attr:`RobotStreams.rejected`) while the last good one stays.
+time on the streams' clock (``time.monotonic`` unless a test gives its own), and a message that
+fails a check, or is older than the newest, is counted by reason (:attr:`RobotStreams.rejected`)
+while the last good one stays.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ def test_adding_a_hand_from_its_urdf_to_a_held_grasp_and_a_study(tmp_path, monke
     (folder / "hand.toml").write_text(_blocks("toml")[0])  # the page's hand.toml, as written
     monkeypatch.chdir(tmp_path)
     commands = [line for block in _blocks("bash") for line in block.splitlines() if line]
-    assert len(commands) == 5
+    assert len(commands) == 6
     for command in commands:
         words = shlex.split(command)
         assert words[0] == "wholehand"
@@ -42,6 +42,8 @@ def test_adding_a_hand_from_its_urdf_to_a_held_grasp_and_a_study(tmp_path, monke
     assert (
         len(optimized["grasps"]) == 2 and "--method optimize" in optimized["generator"]["command"]
     )
+    held = json.loads((folder / "held" / "077_rubiks_cube.json").read_text())
+    assert len(held["grasps"]) == 1 and "--require-hold 60" in held["generator"]["command"]
     summary = json.loads((folder / "study" / "summary.json").read_text())
     assert {g["method"] for g in summary["groups"]} == {"qp", "feedforward"}
     assert summary["n_trials"] == 4

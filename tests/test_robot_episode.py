@@ -8,7 +8,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import time
 
 import pytest
 from processes import wait_for_line, wholehand
@@ -109,7 +108,8 @@ def test_sigterm_mid_reach_ends_on_the_last_commands_and_sigkill_leaves_it_to_th
 ):
     sim, control, endpoint = _pair(tmp_path, "--duration", "15")
     wait_for_line(control, "streams up")
-    time.sleep(0.5)  # mid-reach: the grasp comes after about a second
+    # Mid-reach: the fingers close for about half a second before the hand regulates.
+    wait_for_line(control, "stage reach_pregrasp -> reach_grasp")
     control.send_signal(signal.SIGTERM)
     _, err = control.communicate(timeout=30)
     assert control.returncode == 0, err[-3000:]
@@ -120,7 +120,7 @@ def test_sigterm_mid_reach_ends_on_the_last_commands_and_sigkill_leaves_it_to_th
     # A second controller, killed: nothing is sent after it, the hand's drives time out.
     control = wholehand("control", "--hand", RIG, "--connect", endpoint, "--listen")
     wait_for_line(control, "streams up")
-    time.sleep(0.5)
+    wait_for_line(control, "stage reach_pregrasp -> reach_grasp")
     control.send_signal(signal.SIGKILL)
     control.wait()
     _, sim_err = sim.communicate(timeout=120)

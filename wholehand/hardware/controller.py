@@ -215,6 +215,27 @@ class _StopWhen(Observer):
         return None
 
 
+class _AnnounceTransitions(Observer):
+    """Calls ``announce`` with a line for each switch between stages as the run goes (an
+    operator watches the pipeline's progress; a test waits for a stage instead of a time)."""
+
+    def __init__(self, announce: Callable[[str], None]) -> None:
+        self.announce = announce
+        self._said = 0
+        self._loop: ControlLoop | None = None
+
+    def on_start(self, loop: ControlLoop) -> None:
+        self._loop, self._said = loop, 0
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        assert self._loop is not None
+        transitions = self._loop.report.transitions
+        for t in transitions[self._said :]:
+            self.announce(f"stage {t.source} -> {t.target} at {t.t:.3f} s: {t.reason}")
+        self._said = len(transitions)
+        return None
+
+
 STREAM_TIMEOUT = 30.0
 """How long the controller waits for the first joint state and object pose [s]."""
 
@@ -235,7 +256,8 @@ def run_controller(
     regulation (a hand alone) against it; returns a JSON-ready report (``mode``, ``loop`` with
     the stage transitions, ``backend`` counts, ``cycle_time_ms`` percentiles; with ``trace``,
     the ``trace`` of published torques and every kept cycle's time in ``cycle_times_s``).
-    ``announce`` is called with a line once the streams are up; the run also ends on the first
+    ``announce`` is called with a line once the streams are up and at each switch between
+    stages (``stage <from> -> <to> at <t> s: <reason>``); the run also ends on the first
     cycle ``stop()`` returns something other than None.
 
     Raises:
@@ -286,7 +308,11 @@ def run_controller(
                 stages,
                 first=first_stage,
                 rate=config.control_rate,
-                observers=[stopper, *observers],
+                observers=[
+                    stopper,
+                    *([_AnnounceTransitions(announce)] if announce is not None else []),
+                    *observers,
+                ],
                 gate=gate,
             )
             report = loop.run(duration)

@@ -60,3 +60,49 @@ def test_require_hold_is_refused_on_a_table(capsys):
     code = main(["grasps", "generate", "--on-table", "--require-hold", "60", "--out", "/tmp/x"])
     assert code != 0
     assert "--require-hold runs the perturbation protocol in the air" in capsys.readouterr().err
+
+
+def test_ctrl_c_ends_the_search_with_the_grasps_found_so_far(allegro, monkeypatch):
+    box = ObjectModel.box((0.07, 0.14, 0.168), mass=0.1, name="table_box")
+    calls: list[int] = []
+
+    def interrupt_at_the_second(grasp):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return None
+
+    generator = GraspGenerator(allegro, box, on_table=True)
+    kept = generator.generate(3, 0, 200, check=interrupt_at_the_second)
+    assert len(kept) == 1 and generator.interrupted
+
+    # The optimiser too: interrupted while it optimises its first batch.
+    from wholehand.grasps import optimized
+    from wholehand.models.object_catalogue import load_object
+
+    def interrupted(self, n, seed):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(optimized.GraspSynthesizer, "optimise", interrupted)
+    grasps, info = optimized.synthesize_grasps(allegro, load_object("077_rubiks_cube"), 2)
+    assert grasps == [] and info["interrupted"] is True and info["candidates_tried"] == 0
+
+
+def test_the_cli_writes_an_interrupted_search_and_stops(tmp_path, monkeypatch, capsys):
+    import wholehand.grasps.generate as generate
+    from wholehand.cli.main import main
+    from wholehand.grasps.store import Grasp
+
+    tried: list[str] = []
+
+    def fake(hand, obj, count, seed, max_candidates, progress, style, on_table, check):
+        tried.append(obj.name)
+        found = [Grasp(0, np.eye(4), dict.fromkeys(hand.joint_names, 0.0))]
+        return found, {"candidates_tried": 7, "rejected": {}, "interrupted": True}
+
+    monkeypatch.setattr(generate, "generate_grasps", fake)
+    args = ["grasps", "generate", "--object", "077_rubiks_cube", "--object", "065-f_cups"]
+    assert main([*args, "--out", str(tmp_path)]) == 130
+    assert tried == ["077_rubiks_cube"]  # the next object is not tried
+    assert (tmp_path / "077_rubiks_cube.json").is_file()
+    assert "1 grasps from 7 candidates (interrupted" in capsys.readouterr().out

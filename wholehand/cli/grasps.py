@@ -136,6 +136,10 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             info["command"] = f"{info['command']} --require-hold {args.require_hold:g}"
         rejected = cast(dict[str, int], info["rejected"])
         depths = cast(dict[str, float], info.get("preshape_depth_mm", {}))
+        interrupted = bool(info.get("interrupted"))
+        if not grasps and interrupted:
+            print(f"{obj.name}: interrupted after {info['candidates_tried']} candidates, no grasp")
+            return 130
         if not grasps:
             without.append(obj.name)
             print(
@@ -154,7 +158,9 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             # reproduces the grasp without running CoACD again (cached, so no extra cost here).
             ship_decompositions([obj.name])
         short = ""
-        if len(grasps) < args.count:
+        if interrupted:
+            short = " (interrupted: the grasps found so far are written)"
+        elif len(grasps) < args.count:
             short = (
                 f" (fewer than --count {args.count}: the limit of --max-candidates "
                 f"{args.max_candidates} was reached)"
@@ -169,6 +175,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates"
             f"{short} -> {path}"
         )
+        if interrupted:
+            return 130  # the objects after this one are not tried
     if len(names) > 1:
         print(f"{len(names) - len(without)} of {len(names)} objects yield {args.type} grasps")
         if without:

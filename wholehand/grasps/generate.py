@@ -235,6 +235,8 @@ class GraspGenerator:
         )
         self.candidates_tried = 0
         """Candidates tried by the last :meth:`generate`."""
+        self.interrupted = False
+        """The last :meth:`generate` was ended by Ctrl-C."""
         self.grasps_per_face: list[int] = []
         """On a table: grasps the last :meth:`generate` made on each of :attr:`faces`."""
         self.deepest: dict[str, float] = {}
@@ -436,7 +438,8 @@ class GraspGenerator:
         check: GraspCheck | None = None,
     ) -> list[Grasp]:
         """Up to ``count`` grasps from at most ``max_candidates`` seeded candidates, in order;
-        with ``check``, only the grasps that also pass it."""
+        with ``check``, only the grasps that also pass it. Ctrl-C ends the search with the grasps
+        found so far (:attr:`interrupted`)."""
         from tqdm import tqdm
 
         grasps: list[Grasp] = []
@@ -446,20 +449,26 @@ class GraspGenerator:
         self.deepest.clear()
         schedule = FaceSchedule(self.faces, count) if self.on_table else None
         self.grasps_per_face = schedule.found if schedule else []
-        for index in range(max_candidates):
-            self.candidates_tried = index + 1
-            on = schedule.next() if schedule else 0
-            grasp = self.try_candidate(index, seed, self.faces[on] if schedule else None)
-            grasp = grasp and passes(grasp, check, self.rejections)
-            if schedule:
-                schedule.record(on, 1, grasp is not None)
-            if grasp is not None:
-                grasps.append(
-                    Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
-                )
-                bar.update(1)
-                if len(grasps) == count:
-                    break
+        self.interrupted = False
+        try:
+            for index in range(max_candidates):
+                self.candidates_tried = index + 1
+                on = schedule.next() if schedule else 0
+                grasp = self.try_candidate(index, seed, self.faces[on] if schedule else None)
+                grasp = grasp and passes(grasp, check, self.rejections)
+                if schedule:
+                    schedule.record(on, 1, grasp is not None)
+                if grasp is not None:
+                    grasps.append(
+                        Grasp(
+                            len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra
+                        )
+                    )
+                    bar.update(1)
+                    if len(grasps) == count:
+                        break
+        except KeyboardInterrupt:  # Ctrl-C: keep what was found
+            self.interrupted = True
         bar.close()
         return grasps
 
@@ -522,6 +531,7 @@ def generate_grasps(
         "released (wholehand/grasps/generate.py)",
         "candidates_tried": generator.candidates_tried,
         **({"grasps_per_face": generator.grasps_per_face} if on_table else {}),
+        **({"interrupted": True} if generator.interrupted else {}),
         "rejected": dict(generator.rejections.most_common()),
         "preshape_depth_mm": {
             link: round(1e3 * depth, 2) for link, depth in sorted(generator.deepest.items())

@@ -172,8 +172,8 @@ def synthesize_grasps(
     (:class:`GraspSynthesizer`), each result close enough to the surface validated in MuJoCo as
     the generator validates its candidates (:meth:`GraspGenerator.close_and_settle`, closing
     torques from :func:`closing_torques`) and, with ``check``, kept only if it passes that too,
-    until ``count`` grasps or ``max_candidates`` starts. Returns the grasps and a description
-    for the file's ``generator`` field."""
+    until ``count`` grasps or ``max_candidates`` starts (or Ctrl-C, which keeps the grasps found
+    so far). Returns the grasps and a description for the file's ``generator`` field."""
     from tqdm import tqdm
 
     started = time.perf_counter()
@@ -186,29 +186,33 @@ def synthesize_grasps(
     bar = tqdm(total=count, desc=f"grasps {obj.name}", disable=not progress)
     kin = HandKinematics(hand)
     schedule = FaceSchedule(generator.faces, count) if on_table else None
-    while len(grasps) < count and tried < max_candidates:
-        on = schedule.next() if schedule else 0
-        face = generator.faces[on] if schedule else None
-        found = len(grasps)
-        synthesizer = GraspSynthesizer(
-            hand, obj, chosen, table_up=None if face is None else face.up, params=params
-        )
-        n = min(BATCH, max_candidates - tried)
-        results = synthesizer.optimise(n, seed=int(rng.integers(2**31)))
-        for result in results:
-            tried += 1
-            grasp = _validate(generator, synthesizer, result, face, kin, peak, tried - 1)
-            grasp = grasp and passes(grasp, check, generator.rejections)
-            if grasp is None:
-                continue
-            grasps.append(
-                Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
+    interrupted = False
+    try:
+        while len(grasps) < count and tried < max_candidates:
+            on = schedule.next() if schedule else 0
+            face = generator.faces[on] if schedule else None
+            found = len(grasps)
+            synthesizer = GraspSynthesizer(
+                hand, obj, chosen, table_up=None if face is None else face.up, params=params
             )
-            bar.update(1)
-            if len(grasps) == count:
-                break
-        if schedule:
-            schedule.record(on, n, len(grasps) - found)
+            n = min(BATCH, max_candidates - tried)
+            results = synthesizer.optimise(n, seed=int(rng.integers(2**31)))
+            for result in results:
+                tried += 1
+                grasp = _validate(generator, synthesizer, result, face, kin, peak, tried - 1)
+                grasp = grasp and passes(grasp, check, generator.rejections)
+                if grasp is None:
+                    continue
+                grasps.append(
+                    Grasp(len(grasps), grasp.oMb, grasp.q, grasp.type, grasp.contacts, grasp.extra)
+                )
+                bar.update(1)
+                if len(grasps) == count:
+                    break
+            if schedule:
+                schedule.record(on, n, len(grasps) - found)
+    except KeyboardInterrupt:  # Ctrl-C: keep what was found
+        interrupted = True
     bar.close()
     info: dict[str, object] = {
         "command": generate_command(
@@ -219,6 +223,7 @@ def synthesize_grasps(
         "validated by closing, release and settle in MuJoCo (wholehand/grasps/synthesis.py)",
         "candidates_tried": tried,
         **({"grasps_per_face": schedule.found} if schedule else {}),
+        **({"interrupted": True} if interrupted else {}),
         "rejected": dict(generator.rejections.most_common()),
         "wall_time_s": round(time.perf_counter() - started, 1),
     }

@@ -11,11 +11,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 import pytest
-from wholehand_plugins.mesh_sdf import MeshSDFEstimator
+from wholehand_plugins.mesh_sdf import MeshSDFEstimator, kernels
+from wholehand_plugins.mesh_sdf.reference import sdf_query, top_k_per_link
 
 from wholehand.bench.contacts import grasp_like_states
-from wholehand.contacts import kernels
-from wholehand.contacts.reference import sdf_query, top_k_per_link
 from wholehand.errors import ConfigError
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
@@ -259,7 +258,7 @@ def test_kernel_ties_keep_row_order(k):
 
 
 def test_unit_normals_flags_degenerate_ones() -> None:
-    from wholehand.contacts.kernels import unit_normals
+    from wholehand.contacts.normals import unit_normals
 
     n = np.array([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0], [0.0, 0.0, 0.0], [np.nan, 0.0, 1.0]])
     unit, every = unit_normals(n, 1e-3)

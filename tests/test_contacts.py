@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from wholehand_plugins.mesh_sdf.reference import top_k_per_link
 
 from wholehand import registry
 from wholehand.contacts.base import ContactSet
-from wholehand.contacts.reference import top_k_per_link
 from wholehand.errors import ConfigError
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel

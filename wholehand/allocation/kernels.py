@@ -20,7 +20,8 @@ replaced used, so a seeded trial gives the same rows to the last bit:
   s); ...``, which is what OpenBLAS's x86-64 kernels compute for these inner sizes of 3. A BLAS
   that sums otherwise rounds differently; the results agree to about 1e-16 relative either way.
 
-Compilation as in :mod:`wholehand.contacts.kernels` (``cache=CACHE``, ``error_model="numpy"``).
+Compilation as for the contact kernels (``wholehand_plugins.mesh_sdf.kernels``): ``cache=CACHE``,
+``error_model="numpy"``.
 """
 
 from __future__ import annotations

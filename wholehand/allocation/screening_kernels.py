@@ -10,7 +10,8 @@ price row by row, where a matrix-vector product summed otherwise before. Only a 
 rounding of its threshold could decide differently; pricing serves edge screening only, which no
 committed study uses, and the seeded trials with edge screening gave the same bytes after it.
 
-Compilation as in :mod:`wholehand.contacts.kernels` (``cache=CACHE``, ``error_model="numpy"``).
+Compilation as for the contact kernels (``wholehand_plugins.mesh_sdf.kernels``): ``cache=CACHE``,
+``error_model="numpy"``.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ import numpy.typing as npt
 from wholehand.allocation.base import Allocator
 from wholehand.backends.command import Command
 from wholehand.contacts.base import ContactEstimator
-from wholehand.contacts.kernels import unit_normals
+from wholehand.contacts.normals import unit_normals
 from wholehand.errors import ConfigError
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.loop.tracking import TRACKING_LOST, ReachBound, ramp_scale

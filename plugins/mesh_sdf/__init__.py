@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+from wholehand_plugins.mesh_sdf.kernels import grid_arguments, mesh_sdf_contacts
 
 from wholehand import defaults
 from wholehand.contacts.base import ContactEstimator, ContactSet
-from wholehand.contacts.kernels import grid_arguments, mesh_sdf_contacts
 from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
@@ -37,7 +37,7 @@ class MeshSDFEstimator(ContactEstimator):
     from the surface (the last term covers the interpolation error at both ends) holds no
     candidate; only the points of the remaining clusters are transformed and looked up.
 
-    The whole cycle runs in one compiled kernel (:func:`wholehand.contacts.kernels.
+    The whole cycle runs in one compiled kernel (:func:`wholehand_plugins.mesh_sdf.kernels.
     mesh_sdf_contacts`; ``wholehand bench contacts`` times it); its lookups equal
     :meth:`SignedDistanceGrid.query` and :meth:`~SignedDistanceGrid.query_with_gradient` to the
     last bit. The first call in a fresh

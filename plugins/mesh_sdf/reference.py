@@ -1,14 +1,14 @@
 """Reference forms of the contact estimator's steps, for tests and offline use (never the
-control loop, whose fused kernel :func:`wholehand.contacts.kernels.mesh_sdf_contacts` does the
-same work in one pass)."""
+control loop, whose fused kernel :func:`~wholehand_plugins.mesh_sdf.kernels.mesh_sdf_contacts`
+does the same work in one pass)."""
 
 from __future__ import annotations
 
 import numba
 import numpy as np
 import numpy.typing as npt
+from wholehand_plugins.mesh_sdf.kernels import grid_tuples, sdf_value_and_gradient
 
-from wholehand.contacts.kernels import grid_tuples, sdf_value_and_gradient
 from wholehand.jit import CACHE
 
 FloatArray = npt.NDArray[np.float64]

@@ -1,4 +1,4 @@
-"""Numba kernels of the contact estimators' per-cycle hot path (paper Sec. III-B).
+"""Numba kernels of the ``mesh_sdf`` estimator's per-cycle hot path (paper Sec. III-B).
 
 One fused kernel, :func:`mesh_sdf_contacts`, does all of :class:`MeshSDFEstimator`'s cycle
 (``wholehand_plugins.mesh_sdf``) in one pass without temporaries: joint placements in the object
@@ -357,16 +357,3 @@ def mesh_sdf_contacts(
         link_out[i] = sel_link[i]
         distance[i] = d
     return p_world, n_world, link_out, distance
-
-
-@numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def unit_normals(n_world: FloatArray, tol: float) -> tuple[BoolArray, bool]:  # pragma: no cover
-    """Which of the (N, 3) normals are unit vectors (``| |n|^2 - 1 | < tol``, False for NaN),
-    and whether all are. ``|n|^2`` is summed as numpy's ``einsum`` sums it here (two lanes)."""
-    unit = np.empty(n_world.shape[0], dtype=np.bool_)
-    every = True
-    for i in range(n_world.shape[0]):
-        x, y, z = n_world[i, 0], n_world[i, 1], n_world[i, 2]
-        unit[i] = abs((x * x + z * z) + y * y - 1.0) < tol
-        every = every and unit[i]
-    return unit, every

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import cast
+from typing import TYPE_CHECKING, cast
+
+if TYPE_CHECKING:
+    from wholehand.models.hand import HandModel
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -95,13 +98,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_generate(args: argparse.Namespace) -> int:
     from wholehand.errors import ConfigError
-    from wholehand.grasps.generate import generate_grasps
-    from wholehand.grasps.optimized import synthesize_grasps
-    from wholehand.grasps.store import grasp_file, grasps_dir, hand_grasps_dir, save_grasps
-    from wholehand.models.convex import ship_decompositions
+    from wholehand.grasps.store import grasps_dir, hand_grasps_dir
     from wholehand.models.hand import load_hand
-    from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects, load_object
-    from wholehand.trials.hold_check import protocol_check
+    from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects
 
     if args.require_hold is not None and args.on_table:
         raise ConfigError(
@@ -109,79 +108,97 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             "grasps (leave out --on-table or --require-hold)"
         )
     hand = load_hand(args.hand)
-    shipped_hand = hand_grasps_dir(args.hand).is_relative_to(grasps_dir())
+    shipped = hand_grasps_dir(args.hand).is_relative_to(grasps_dir())
     ycb = available_objects()
     names = args.object or list(PAPER_OBJECTS)
     if "all" in names:
         names = ycb
     without: list[str] = []
     for name in names:
-        obj = load_object(name)
-        make = synthesize_grasps if args.method == "optimize" else generate_grasps
-        check = None
-        if args.require_hold is not None:
-            check = protocol_check(hand, obj, args.require_hold)
-        grasps, info = make(
-            hand,
-            obj,
-            args.count,
-            args.seed,
-            args.max_candidates,
-            progress=True,
-            style=args.type,
-            on_table=args.on_table,
-            check=check,
-        )
-        if args.require_hold is not None:
-            info["command"] = f"{info['command']} --require-hold {args.require_hold:g}"
-        rejected = cast(dict[str, int], info["rejected"])
-        depths = cast(dict[str, float], info.get("preshape_depth_mm", {}))
-        interrupted = bool(info.get("interrupted"))
-        if not grasps and interrupted:
-            print(f"{obj.name}: interrupted after {info['candidates_tried']} candidates, no grasp")
-            return 130
-        if not grasps:
-            without.append(obj.name)
-            print(
-                f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
-                "nothing written (raise --max-candidates or adjust the style in hand.toml). "
-                f"Rejected because:\n{_reasons(rejected, depths)}"
-            )
-            continue
-        default = grasp_file(args.hand, obj.name, args.type, args.on_table)
-        path = Path(args.out) / default.name if args.out else default
-        path = save_grasps(path, hand.name, obj.name, grasps, info)
-        if args.verbose and rejected:
-            print(f"{obj.name}: candidates rejected because:\n{_reasons(rejected, depths)}")
-        if not args.out and shipped_hand and obj.name in ycb:
-            # A shipped grasp was made on this decomposition: ship it, so that MuJoCo
-            # reproduces the grasp without running CoACD again (cached, so no extra cost here).
-            ship_decompositions([obj.name])
-        short = ""
-        if interrupted:
-            short = " (interrupted: the grasps found so far are written)"
-        elif len(grasps) < args.count:
-            short = (
-                f" (fewer than --count {args.count}: the limit of --max-candidates "
-                f"{args.max_candidates} was reached)"
-            )
-        faces = cast(list[int], info.get("grasps_per_face", []))
-        if faces:
-            short += (
-                f" on {sum(n > 0 for n in faces)} of its {len(faces)} resting faces "
-                f"(grasps per face, likeliest first: {faces})"
-            )
-        print(
-            f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates"
-            f"{short} -> {path}"
-        )
-        if interrupted:
+        outcome = _generate_for(args, hand, name, ship=shipped and name in ycb)
+        if outcome == "interrupted":
             return 130  # the objects after this one are not tried
+        if outcome == "none":
+            without.append(name)
     if len(names) > 1:
         print(f"{len(names) - len(without)} of {len(names)} objects yield {args.type} grasps")
         if without:
             print(f"none for: {', '.join(without)}")
     return 0
+
+
+def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bool) -> str:
+    """Generate and write one object's grasps as ``args`` say, print what came of it; returns
+    ``"written"``, ``"none"`` or ``"interrupted"``. ``ship``: also ship the object's convex
+    decomposition (a shipped hand's grasp of a YCB object, so that MuJoCo reproduces it
+    without running CoACD again)."""
+    from wholehand.grasps.generate import generate_grasps
+    from wholehand.grasps.optimized import synthesize_grasps
+    from wholehand.grasps.store import grasp_file, save_grasps
+    from wholehand.models.convex import ship_decompositions
+    from wholehand.models.object_catalogue import load_object
+    from wholehand.trials.hold_check import protocol_check
+
+    obj = load_object(name)
+    make = synthesize_grasps if args.method == "optimize" else generate_grasps
+    check = None if args.require_hold is None else protocol_check(hand, obj, args.require_hold)
+    grasps, info = make(
+        hand,
+        obj,
+        args.count,
+        args.seed,
+        args.max_candidates,
+        progress=True,
+        style=args.type,
+        on_table=args.on_table,
+        check=check,
+    )
+    if args.require_hold is not None:
+        info["command"] = f"{info['command']} --require-hold {args.require_hold:g}"
+    rejected = cast(dict[str, int], info["rejected"])
+    depths = cast(dict[str, float], info.get("preshape_depth_mm", {}))
+    interrupted = bool(info.get("interrupted"))
+    if not grasps:
+        if interrupted:
+            print(f"{obj.name}: interrupted after {info['candidates_tried']} candidates, no grasp")
+            return "interrupted"
+        print(
+            f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
+            "nothing written (raise --max-candidates or adjust the style in hand.toml). "
+            f"Rejected because:\n{_reasons(rejected, depths)}"
+        )
+        return "none"
+    default = grasp_file(args.hand, obj.name, args.type, args.on_table)
+    path = Path(args.out) / default.name if args.out else default
+    path = save_grasps(path, hand.name, obj.name, grasps, info)
+    if args.verbose and rejected:
+        print(f"{obj.name}: candidates rejected because:\n{_reasons(rejected, depths)}")
+    if not args.out and ship:
+        ship_decompositions([obj.name])
+    print(
+        f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates"
+        f"{_how_it_ended(args, len(grasps), info)} -> {path}"
+    )
+    return "interrupted" if interrupted else "written"
+
+
+def _how_it_ended(args: argparse.Namespace, found: int, info: dict[str, object]) -> str:
+    """The summary line's note: interrupted, or short of ``--count``, and the faces covered."""
+    note = ""
+    if info.get("interrupted"):
+        note = " (interrupted: the grasps found so far are written)"
+    elif found < args.count:
+        note = (
+            f" (fewer than --count {args.count}: the limit of --max-candidates "
+            f"{args.max_candidates} was reached)"
+        )
+    faces = cast(list[int], info.get("grasps_per_face", []))
+    if faces:
+        note += (
+            f" on {sum(n > 0 for n in faces)} of its {len(faces)} resting faces "
+            f"(grasps per face, likeliest first: {faces})"
+        )
+    return note
 
 
 def _cmd_import(args: argparse.Namespace) -> int:

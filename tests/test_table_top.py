@@ -9,7 +9,8 @@ from scipy.spatial import Delaunay
 from wholehand import registry
 from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
-from wholehand.grasps.generate import GENERATOR_TABLE, MAX_TILT, FaceSchedule, GraspGenerator
+from wholehand.grasps.face_schedule import FaceSchedule
+from wholehand.grasps.generate import GENERATOR_TABLE, MAX_TILT, GraspGenerator
 from wholehand.grasps.store import grasp_file, hand_grasps_dir, load_grasps
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel

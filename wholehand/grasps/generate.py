@@ -22,8 +22,9 @@ seeded candidate:
 The hand base pose in the object frame and the joint angles after settling are stored.
 
 On a table (``on_table``) the object instead rests on one of its stable faces
-(:mod:`wholehand.models.resting`; the faces take turns, :class:`FaceSchedule`) at a random yaw,
-and the hand comes from above: the palm normal points down, tilted by up to ``MAX_TILT`` from
+(:mod:`wholehand.models.resting`; the faces take turns,
+:class:`~wholehand.grasps.face_schedule.FaceSchedule`) at a random yaw, and the hand comes from
+above: the palm normal points down, tilted by up to ``MAX_TILT`` from
 the vertical, turned at random about itself, with the object placed in front of the palm as in
 step 1. The table is
 there while the fingers close, so they cannot reach under the object, and is taken away for the
@@ -46,6 +47,8 @@ from wholehand import registry
 from wholehand.backends.command import Command
 from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
+from wholehand.grasps.checks import GraspCheck, passes
+from wholehand.grasps.face_schedule import FaceSchedule
 from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import style_arrays
 from wholehand.loop.control_loop import ControlLoop
@@ -53,7 +56,7 @@ from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
-from wholehand.models.hand_folders import shipped_hands_dir
+from wholehand.models.hand_folders import is_shipped_hand
 from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import palm_frame
@@ -91,47 +94,9 @@ TABLE_CLEAR = GENERATOR_TABLE.top + HAND_MARGIN
 """Lowest height a table-top candidate's hand may reach [m]."""
 
 
-GraspCheck = Callable[[Grasp], "str | None"]
-"""A further test of a grasp that passed validation (e.g.
-:func:`~wholehand.trials.hold_check.protocol_check`): None to keep it, or the reason it fails,
-counted among the rejections."""
-
 Closing = tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]
 """How a hand closes (:class:`ClosingStage`): the pose the other joints hold (n_q,) [rad], the
 closing torques (n_v,) [N*m] and which joints close (n_v,) bool."""
-
-
-class FaceSchedule:
-    """Which resting face the next table-top candidates use, so that the grasps cover the faces.
-
-    An object lands on any of its faces, and a reacher can only use grasps made on the face it
-    lies on, so each face gets an equal share of the ``count`` grasps asked for (rounded up):
-    the next candidates go to the face that has fewest candidates tried among those short of
-    their share (ties: the likelier face), or among all faces once every face has its share.
-
-    Args:
-        faces: The object's resting faces, most probable first.
-        count: Grasps asked for in all.
-    """
-
-    def __init__(self, faces: list[RestingFace], count: int) -> None:
-        if not faces:
-            raise ValueError("a face schedule needs at least one resting face")
-        self.faces = faces
-        self.share = -(-max(count, 1) // len(faces))
-        self.tried = [0] * len(faces)
-        self.found = [0] * len(faces)
-
-    def next(self) -> int:
-        """Index into ``faces`` of the face of the next candidates."""
-        short = [i for i, n in enumerate(self.found) if n < self.share]
-        pool = short or list(range(len(self.faces)))
-        return min(pool, key=lambda i: (self.tried[i], i))
-
-    def record(self, face: int, tried: int, found: int) -> None:
-        """Count ``tried`` candidates on ``face`` that gave ``found`` grasps."""
-        self.tried[face] += tried
-        self.found[face] += found
 
 
 def named_style(hand: HandModel, name: str) -> GraspStyle:
@@ -473,16 +438,6 @@ class GraspGenerator:
         return grasps
 
 
-def passes(grasp: Grasp, check: GraspCheck | None, rejections: Counter[str]) -> Grasp | None:
-    """``grasp`` if it passes ``check`` (or there is none), else None with the reason counted
-    in ``rejections``."""
-    reason = check(grasp) if check is not None else None
-    if reason is not None:
-        rejections[reason] += 1
-        return None
-    return grasp
-
-
 def generate_command(
     method: str,
     hand: HandModel,
@@ -497,8 +452,7 @@ def generate_command(
     (``method`` "" for the default)."""
     command = "wholehand grasps generate" + (f" --method {method}" if method else "")
     folder = hand.config.path.parent
-    shipped = folder.is_relative_to(shipped_hands_dir())
-    command += f" --hand {hand.name if shipped else folder}"
+    command += f" --hand {hand.name if is_shipped_hand(folder) else folder}"
     command += f" --object {obj.name} --count {count} --seed {seed}"
     if max_candidates != MAX_CANDIDATES:
         command += f" --max-candidates {max_candidates}"

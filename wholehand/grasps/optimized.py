@@ -14,16 +14,15 @@ import time
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.grasps.checks import GraspCheck, passes
+from wholehand.grasps.face_schedule import FaceSchedule
 from wholehand.grasps.generate import (
     GENERATOR_TABLE,
     MAX_CANDIDATES,
     TABLE_CLEAR,
-    FaceSchedule,
-    GraspCheck,
     GraspGenerator,
     generate_command,
     named_style,
-    passes,
 )
 from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import with_close_torque

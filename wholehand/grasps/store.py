@@ -99,10 +99,10 @@ def hand_grasps_dir(hand: str | Path) -> Path:
     """Where a hand's grasp files live: ``objects/grasps/<name>/`` for a shipped hand, the
     folder ``grasps/`` beside the hand.toml of any other (a user's hand keeps its grasps with
     it, wherever it is and however its path is written)."""
-    from wholehand.models.hand_folders import resolve_hand_config, shipped_hands_dir
+    from wholehand.models.hand_folders import is_shipped_hand, resolve_hand_config
 
     folder = resolve_hand_config(hand).resolve().parent
-    if folder.parent == shipped_hands_dir().resolve():
+    if is_shipped_hand(folder):
         return grasps_dir() / folder.name
     return folder / "grasps"
 

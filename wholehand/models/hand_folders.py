@@ -14,6 +14,11 @@ def shipped_hands_dir() -> Path:
     return Path(wholehand_robots.__file__).parent
 
 
+def is_shipped_hand(folder: Path) -> bool:
+    """Whether the hand folder ``folder`` is one of the shipped hands (``robots/<name>/``)."""
+    return folder.resolve().parent == shipped_hands_dir().resolve()
+
+
 def available_hands() -> list[str]:
     """Names of the shipped hands."""
     return sorted(p.parent.name for p in shipped_hands_dir().glob("*/hand.toml"))

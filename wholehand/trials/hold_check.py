@@ -21,7 +21,7 @@ from wholehand.trials.trial import TrialSpec, run_trial
 def protocol_check(
     hand: HandModel, obj: ObjectModel, theta_deg: float, spec: TrialSpec | None = None
 ) -> Callable[[Grasp], str | None]:
-    """A grasp check (:data:`~wholehand.grasps.generate.GraspCheck`): None when the grasp is
+    """A grasp check (:data:`~wholehand.grasps.checks.GraspCheck`): None when the grasp is
     held through the protocol with a rotational pull of ``theta_deg`` [deg], else the reason
     (the phase it was lost in). ``spec`` sets the other trial parameters (default: those of
     ``wholehand run``); its hand, object and grasp are replaced."""

@@ -7,7 +7,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
 if TYPE_CHECKING:
+    from wholehand.grasps.checks import GraspCheck
     from wholehand.models.hand import HandModel
+    from wholehand.models.objects import ObjectModel
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -53,6 +55,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "only)",
     )
     p.add_argument(
+        "--require-reach",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="keep only grasps that the reacher closes within SECONDS of the start of "
+        "`wholehand reach` (with --on-table: `--start table`) and holds, from 3 seeded starts",
+    )
+    p.add_argument(
         "--out",
         default=None,
         help="folder for <object>.json; default: the hand's grasp folder (grasps/ beside a "
@@ -92,21 +102,32 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--type", default="power", help="grasp style to store them as")
     p.add_argument("--out", default=None, help="folder for <object>.json (default: the hand's)")
     p.set_defaults(func=_cmd_import)
+    p = gsub.add_parser(
+        "check",
+        help="run a hand's stored grasps of an object through --require-reach / --require-hold "
+        "and say which pass; --keep-passing rewrites the file with those alone",
+    )
+    p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
+    p.add_argument("--object", required=True, help="the object whose grasp file is checked")
+    p.add_argument("--type", default="power", help="grasp style of the file (default power)")
+    p.add_argument("--on-table", action="store_true", help="the style's table-top grasp file")
+    p.add_argument("--require-hold", type=float, default=None, metavar="DEG")
+    p.add_argument("--require-reach", type=float, default=None, metavar="SECONDS")
+    p.add_argument(
+        "--keep-passing",
+        action="store_true",
+        help="write the passing grasps back to the file (their ids kept), dropping the others",
+    )
+    p.set_defaults(func=_cmd_check)
     p = gsub.add_parser("list", help="list the shipped grasp files")
     p.set_defaults(func=_cmd_list)
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
-    from wholehand.errors import ConfigError
     from wholehand.grasps.store import grasps_dir, hand_grasps_dir
     from wholehand.models.hand import load_hand
     from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects
 
-    if args.require_hold is not None and args.on_table:
-        raise ConfigError(
-            "--require-hold runs the perturbation protocol in the air; it cannot check table-top "
-            "grasps (leave out --on-table or --require-hold)"
-        )
     hand = load_hand(args.hand)
     shipped = hand_grasps_dir(args.hand).is_relative_to(grasps_dir())
     ycb = available_objects()
@@ -137,11 +158,10 @@ def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bo
     from wholehand.grasps.store import grasp_file, save_grasps
     from wholehand.models.convex import ship_decompositions
     from wholehand.models.object_catalogue import load_object
-    from wholehand.trials.hold_check import protocol_check
 
     obj = load_object(name)
     make = synthesize_grasps if args.method == "optimize" else generate_grasps
-    check = None if args.require_hold is None else protocol_check(hand, obj, args.require_hold)
+    check = _checks(args, hand, obj)
     grasps, info = make(
         hand,
         obj,
@@ -153,8 +173,8 @@ def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bo
         on_table=args.on_table,
         check=check,
     )
-    if args.require_hold is not None:
-        info["command"] = f"{info['command']} --require-hold {args.require_hold:g}"
+    if args.require_hold is not None or args.require_reach is not None:
+        info["command"] = f"{info['command']} {_check_options(args)}"
     rejected = cast(dict[str, int], info["rejected"])
     depths = cast(dict[str, float], info.get("preshape_depth_mm", {}))
     interrupted = bool(info.get("interrupted"))
@@ -180,6 +200,30 @@ def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bo
         f"{_how_it_ended(args, len(grasps), info)} -> {path}"
     )
     return "interrupted" if interrupted else "written"
+
+
+def _checks(args: argparse.Namespace, hand: HandModel, obj: ObjectModel) -> GraspCheck | None:
+    """The further checks ``--require-hold`` and ``--require-reach`` ask for, as one.
+
+    Raises:
+        ConfigError: ``--require-hold`` with ``--on-table``.
+    """
+    from wholehand.errors import ConfigError
+    from wholehand.grasps.checks import all_of
+    from wholehand.reaching.reach_check import reach_check
+    from wholehand.trials.hold_check import protocol_check
+
+    if args.require_hold is not None and args.on_table:
+        raise ConfigError(
+            "--require-hold runs the perturbation protocol in the air; it cannot check table-top "
+            "grasps (leave out --on-table or --require-hold)"
+        )
+    checks: list[GraspCheck] = []
+    if args.require_hold is not None:
+        checks.append(protocol_check(hand, obj, args.require_hold))
+    if args.require_reach is not None:
+        checks.append(reach_check(hand, obj, args.type, args.require_reach, args.on_table))
+    return all_of(checks)
 
 
 def _how_it_ended(args: argparse.Namespace, found: int, info: dict[str, object]) -> str:
@@ -249,6 +293,50 @@ def _cmd_import(args: argparse.Namespace) -> int:
     if record["ignored_joints"]:
         print(f"joints of the files that {hand.name} does not have: {record['ignored_joints']}")
     return 0
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    import json
+
+    from wholehand.errors import ConfigError
+    from wholehand.grasps.store import grasp_file, load_grasps, save_grasps
+    from wholehand.models.hand import load_hand
+    from wholehand.models.object_catalogue import load_object
+
+    if args.require_hold is None and args.require_reach is None:
+        raise ConfigError("grasps check: give --require-reach SECONDS, --require-hold DEG or both")
+    hand, obj = load_hand(args.hand), load_object(args.object)
+    path = grasp_file(args.hand, obj.name, args.type, args.on_table)
+    grasps = load_grasps(path)
+    check = _checks(args, hand, obj)
+    assert check is not None
+    passing = []
+    for grasp in grasps:
+        reason = check(grasp)
+        print(f"grasp {grasp.id}: {'passes' if reason is None else reason}", flush=True)
+        if reason is None:
+            passing.append(grasp)
+    print(f"{len(passing)} of {len(grasps)} grasps pass")
+    if args.keep_passing and len(passing) < len(grasps):
+        if not passing:
+            print(f"none pass: {path} is left as it is")
+            return 1
+        info = json.loads(path.read_text()).get("generator", {})
+        kept = [g.id for g in passing]
+        info["checked"] = f"{_check_options(args)}: kept grasps {kept} of {len(grasps)}"
+        save_grasps(path, hand.name, obj.name, passing, info)
+        print(f"kept {len(passing)} -> {path}")
+    return 0
+
+
+def _check_options(args: argparse.Namespace) -> str:
+    """The command-line options of the checks ``args`` ask for."""
+    options = []
+    if args.require_hold is not None:
+        options.append(f"--require-hold {args.require_hold:g}")
+    if args.require_reach is not None:
+        options.append(f"--require-reach {args.require_reach:g}")
+    return " ".join(options)
 
 
 def _reasons(rejected: dict[str, int], depths: dict[str, float] | None = None) -> str:

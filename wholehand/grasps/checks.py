@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from wholehand.grasps.store import Grasp
 
@@ -21,3 +21,21 @@ def passes(grasp: Grasp, check: GraspCheck | None, rejections: Counter[str]) -> 
         rejections[reason] += 1
         return None
     return grasp
+
+
+def all_of(checks: Sequence[GraspCheck]) -> GraspCheck | None:
+    """One check that applies ``checks`` in turn and fails with the first one's reason;
+    None when there are none."""
+    if not checks:
+        return None
+    if len(checks) == 1:
+        return checks[0]
+
+    def check(grasp: Grasp) -> str | None:
+        for one in checks:
+            reason = one(grasp)
+            if reason is not None:
+                return reason
+        return None
+
+    return check

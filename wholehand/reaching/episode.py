@@ -118,10 +118,19 @@ class EpisodeScene:
     on_table: bool
 
 
-def episode_scene(spec: EpisodeSpec) -> EpisodeScene:
+def episode_scene(
+    spec: EpisodeSpec,
+    hand: HandModel | None = None,
+    obj: ObjectModel | None = None,
+    plans: list[GraspPlan] | None = None,
+) -> EpisodeScene:
     """The scene of ``spec``: the same for equal specs, in ``wholehand reach`` and in
     ``wholehand hw-sim`` (an assembly from its home posture, the fingers at the first plan's
     pre-shape; a floating wrist above the first plan's pre-grasp).
+
+    ``hand``, ``obj`` and ``plans`` replace what ``spec`` names (the models loaded by name, the
+    plans of the stored grasps), e.g. to try one grasp before it is stored
+    (:mod:`wholehand.reaching.reach_check`).
 
     Raises:
         ConfigError: a bad spec, or no usable stored grasp.
@@ -135,13 +144,16 @@ def episode_scene(spec: EpisodeSpec) -> EpisodeScene:
         if not (math.isfinite(value) and value >= 0.0):
             raise ConfigError(f"EpisodeSpec: {name} must be >= 0 [object weights], got {value!r}")
     on_table = spec.start == "table"
-    hand, obj = load_hand(spec.hand), load_object(spec.object)
+    hand = load_hand(spec.hand) if hand is None else hand
+    obj = load_object(spec.object) if obj is None else obj
     # An assembly's grasps, pre-grasps and targets are those of its hand alone.
     grasp_hand = grasp_hand_of(hand)
     rng = np.random.default_rng(spec.seed)
     table = episode_table(hand)
     held_at = table.centre
-    plans = grasp_plans(grasp_hand, obj, on_table)
+    plans = grasp_plans(grasp_hand, obj, on_table) if plans is None else plans
+    if not plans:
+        raise ConfigError(f"EpisodeSpec: no grasp plan of {obj.name!r} to reach for")
 
     start = plans[int(rng.integers(len(plans)))]
     if on_table:  # resting on the face the first plan was made on, turned at random
@@ -186,12 +198,15 @@ def run_episode(
     samples: bool = False,
     record: bool = False,
     observers: Sequence[Observer] = (),
+    scene: EpisodeScene | None = None,
 ) -> dict[str, Any]:
     """Run one episode; returns its summary (events, transitions, counts, timings), with every
     cycle's and reacher step's compute time [us] (``cycle_samples_us``, ``reacher_samples_us``)
     if ``samples``, and the :class:`~wholehand.loop.record.RunRecord` of every cycle
-    (``record``, not JSON) if ``record``. ``observers`` see every cycle too (a viewer)."""
-    scene = episode_scene(spec)
+    (``record``, not JSON) if ``record``. ``observers`` see every cycle too (a viewer).
+    ``scene``: start from this scene of ``spec`` (:func:`episode_scene`, e.g. with models and
+    plans of its own) instead of building it."""
+    scene = episode_scene(spec) if scene is None else scene
     hand, grasp_hand, obj, table = scene.hand, scene.grasp_hand, scene.obj, scene.table
     rng, plans, wMo, backend, on_table = (
         scene.rng,

@@ -9,13 +9,8 @@ import numpy as np
 from wholehand.allocation.kernels import finite_inputs
 from wholehand.allocation.problem import AllocationParams, build_allocation_qp
 from wholehand.allocation.screening_kernels import priced_edges
-from wholehand.allocation.solve import (
-    ActiveSet,
-    AllocationSolution,
-    binding_rows,
-    dense_qp,
-    solve_allocation,
-)
+from wholehand.allocation.solution import ActiveSet, AllocationSolution
+from wholehand.allocation.solve import binding_rows, dense_qp, solve_allocation
 from wholehand.allocation.solvers import QPSolver
 from wholehand.allocation.warm_start import matched_contacts, rows_of_joints, warm_edge_weights
 from wholehand.contacts.base import ContactSet

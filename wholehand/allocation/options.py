@@ -47,7 +47,7 @@ class SolveOptions:
     """Largest relative constraint violation of an accepted solution [-]: a torque's excess
     over its joint's limit as a fraction of the limit, a force constraint's as a fraction of the
     allocation's force scale (see
-    :attr:`~wholehand.allocation.solve.AllocationSolution.relative_violation`); beyond it the
+    :attr:`~wholehand.allocation.solution.AllocationSolution.relative_violation`); beyond it the
     allocation is ``INACCURATE``."""
     screen_tol: float = SCREEN_TOL
     """Violation above which a left-out row joins the working set."""

@@ -154,7 +154,7 @@ def active_of(
     """The active set of a screening round's solution by identity (-1 at the lower bound, +1 at
     the upper one, 0 inactive), from the solver's (n + m,) multipliers of the problem with the
     edge weights ``edge_sel``, the torque rows ``torque_sel`` and the consistency rows
-    ``null_sel`` (:class:`~wholehand.allocation.solve.ActiveSet`): every edge bound (-1 for
+    ``null_sel`` (:class:`~wholehand.allocation.solution.ActiveSet`): every edge bound (-1 for
     those left out, held at zero), the squeeze, every torque row, every consistency row."""
     n_edges = edge_sel.size
     edges = np.full(n_lambda, -1, dtype=np.intp)

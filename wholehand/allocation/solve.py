@@ -31,22 +31,19 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass, field
-from typing import cast
 
 import numpy as np
 import numpy.typing as npt
 
 from wholehand.allocation.problem import N_WRENCH, AllocationQP
 from wholehand.allocation.screening_kernels import (
-    active_of,
-    active_vector,
     at_bounds,
     priced_edges,
     rows_over,
     selection,
     solved_rows,
 )
+from wholehand.allocation.solution import ActiveSet, AllocationSolution
 from wholehand.allocation.solvers import QPSolver
 from wholehand.allocation.solvers.base import DenseQP, QPResult
 
@@ -67,93 +64,6 @@ force constraint's over the allocation's force scale); beyond it the answer is i
 # ------------------------------------------------------------------------------------------------
 # Screening loop
 # ------------------------------------------------------------------------------------------------
-
-
-@dataclass
-class AllocationSolution:
-    """Outcome of :func:`solve_allocation`."""
-
-    x: FloatArray | None
-    """(4N + 6,) ``[lambda; w]``, None on failure."""
-    status: str
-    """``"optimal"``, ``"infeasible"`` or ``"failed"``."""
-    rounds: int
-    """Solves performed (1 without screening)."""
-    n_rows: int
-    """Torque and consistency rows in the last solve."""
-    iterations: int
-    """Solver iterations, summed over rounds."""
-    violation: float
-    """Largest constraint violation of ``x`` over the full problem [N or N*m] (inf if none)."""
-    relative_violation: float = np.inf
-    """:attr:`violation` relative to each constraint's scale [-] (inf if none): a torque row's
-    excess as a fraction of its joint's limit, the edge weights' (``lambda >= 0``), the minimum
-    squeeze's and the consistency rows' as a fraction of the allocation's force scale
-    ``max(f_n_min, sum(lambda))``. Absolute tolerances would let a tiny torque limit be
-    exceeded many times over, and reject accurate answers to a large squeeze."""
-    detail: str = ""
-    """Solver status text of the last solve."""
-    solver_time: float = 0.0
-    """Wall time inside the solver's calls, all rounds [s]."""
-    torque_sel: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
-    """Positions in ``qp.torque_rows`` of the torque rows in the last solve."""
-    null_sel: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
-    """Consistency rows in the last solve."""
-    torque_values: FloatArray = field(default_factory=lambda: np.zeros(0))
-    """(n_t,) torques of every torque row at ``x`` [N*m] (``qp.T_lam @ lambda``); status
-    ``"deadline"``: at :attr:`x_relaxed` (empty without it)."""
-    null_values: FloatArray = field(default_factory=lambda: np.zeros(0))
-    """(n_null,) every consistency value ``N_u^T f_act`` at ``x`` [N]; status ``"deadline"``:
-    at :attr:`x_relaxed` (empty without it)."""
-    n_edges: int = 0
-    """Edge weights that were variables of the last solve (the others held at zero)."""
-    x_relaxed: FloatArray | None = None
-    """Status ``"deadline"``: the solution of the last finished round, optimal with fewer rows
-    but violating some others (no command; a warm start for the next cycle), or None."""
-
-
-@dataclass
-class ActiveSet:
-    """Which constraints of the allocation QP held at a solution, by identity (-1 at the lower
-    bound, +1 at the upper one, 0 inactive), so that a larger problem of the next screening
-    round can start from them."""
-
-    edges: IntArray
-    """(4N,) the bounds ``lambda_j >= 0``. Edge weights left out of the problem were held at
-    zero, so they count as at their bound: a round that adds them starts from the last round's
-    solution instead of rebuilding their bounds one solver iteration each (the fallback to the
-    full problem took as many iterations as a cold solve before)."""
-    squeeze: int
-    """The minimum squeeze."""
-    torque: IntArray
-    """(n_t,) the torque rows (positions in ``qp.torque_rows``)."""
-    null: IntArray
-    """(n_null,) the consistency rows."""
-
-    @classmethod
-    def of(
-        cls,
-        qp: AllocationQP,
-        duals: FloatArray,
-        torque_sel: IntArray,
-        null_sel: IntArray,
-        edge_sel: IntArray | None,
-    ) -> ActiveSet:
-        """From a solver's (n + m,) multipliers of the problem with these rows and edges."""
-        edges = np.arange(qp.n_lambda, dtype=np.intp) if edge_sel is None else edge_sel
-        n_t, n_null = qp.torque_rows.size, qp.n_null
-        state = active_of(duals, qp.n_lambda, edges, torque_sel, null_sel, n_t, n_null)
-        return cls(state[0], int(state[1]), state[2], state[3])
-
-    def vector(
-        self, torque_sel: IntArray, null_sel: IntArray, edge_sel: IntArray | None
-    ) -> IntArray:
-        """The (n + m,) :attr:`DenseQP.active` of the problem with these rows and edges."""
-        edges = np.arange(self.edges.size, dtype=np.intp) if edge_sel is None else edge_sel
-        vector = active_vector(
-            self.edges, self.squeeze, self.torque, self.null, edges, torque_sel, null_sel
-        )
-        return cast(IntArray, vector)
 
 
 def dense_qp(
@@ -265,16 +175,10 @@ def solve_allocation(
     eps = qp.params.eps_margin
     n_null = qp.n_null if np.isfinite(eps) else 0
     all_n = np.arange(n_null, dtype=np.intp)
-    e_mask: BoolArray | None = None  # the edge weights in the problem, when screened
-    if not screening:
-        t_mask, t_in = np.ones(all_t.size, bool), all_t
-        n_mask, n_in = np.ones(n_null, bool), all_n
-    else:
-        t_mask, t_in = selection(_NONE if torque_sel is None else torque_sel, all_t.size)
-        n_mask, n_in = selection(_NONE if null_sel is None else null_sel, n_null)
-        if screen_edges and edge_sel is not None:
-            e_mask = np.zeros(nl, bool)
-            e_mask[edge_sel[edge_sel < nl]] = True
+    t_mask, t_in = _first_rows(torque_sel, all_t, screening)
+    n_mask, n_in = _first_rows(null_sel, all_n, screening)
+    # The edge weights in the problem, when screened.
+    e_mask = _first_edges(edge_sel, nl) if screen_edges else None
     limits = qp.torque_limits
     torque_bounds = qp.torque_bounds()
     eps_limits = _uniform(n_null, eps)
@@ -285,7 +189,7 @@ def solve_allocation(
     x_relaxed: FloatArray | None = None  # the last round's solution, for a deadline
     t_val = z_val = np.zeros(0)  # every torque and consistency row's value at it
     while True:
-        if deadline_ns is not None and time.perf_counter_ns() >= deadline_ns:
+        if _past(deadline_ns):
             # Past it already: not even the next round's problem is built.
             return _deadline(rounds, iterations, t_in, n_in, x_relaxed, t_val, z_val, solver_ns)
         rounds += 1
@@ -294,9 +198,7 @@ def solve_allocation(
             t_in, n_in = all_t, all_n
             e_mask = None
         e_in = None if e_mask is None or e_mask.all() else np.flatnonzero(e_mask)
-        start = None
-        if x0 is not None and solver.primal_warm_start:
-            start = x0 if e_in is None else np.concatenate((x0[e_in], x0[nl:]))
+        start = _round_start(x0, e_in, nl) if solver.primal_warm_start else None
         null = qp.null_rows(n_in)
         problem = _round_problem(qp, null, torque_bounds, t_in, n_in, e_in, guess)
         time_limit = None
@@ -321,24 +223,8 @@ def solve_allocation(
             e_mask = None  # infeasible with some edges held at zero: try them all
             continue
         if res.x is None or not np.isfinite(res.x).all():
-            return AllocationSolution(
-                x=None,
-                status=res.status if res.x is None else "failed",
-                rounds=rounds,
-                n_rows=t_in.size + n_in.size,
-                iterations=iterations,
-                violation=np.inf,
-                detail=res.detail,
-                solver_time=solver_ns * 1e-9,
-                torque_sel=t_in,
-                null_sel=n_in,
-            )
-        if e_in is None:
-            x = res.x
-        else:
-            x = np.zeros(qp.n_x)
-            x[e_in] = res.x[: e_in.size]
-            x[nl:] = res.x[e_in.size :]
+            return _failed(res, rounds, iterations, t_in, n_in, solver_ns)
+        x = _full_x(qp, res.x, e_in)
         x_relaxed = x
         lam = x[:nl]
         t_val = qp.T_lam @ lam
@@ -350,12 +236,7 @@ def solve_allocation(
         add_e = _NONE
         if e_in is not None:
             assert e_mask is not None
-            if res.duals is None:  # no multipliers to price the left-out edges with
-                add_e = np.flatnonzero(~e_mask)
-            else:
-                # Multiplier each left-out bound lambda_j >= 0 would need (module docstring).
-                y = res.duals[e_in.size + N_WRENCH :]
-                add_e = priced_edges(qp.G_lam, qp.T_lam, t_in, null, y, e_mask, screen_tol)
+            add_e = _edges_to_add(qp, res.duals, e_in, e_mask, t_in, null, screen_tol)
         if add_t.size == 0 and add_n.size == 0 and add_e.size == 0:
             break
         if screen_edges and res.duals is not None:
@@ -383,6 +264,87 @@ def solve_allocation(
         null_values=z_val,
         n_edges=nl if e_mask is None else int(e_mask.sum()),
     )
+
+
+def _past(deadline_ns: int | None) -> bool:
+    """Whether ``time.perf_counter_ns()`` has reached the deadline (never, without one)."""
+    return deadline_ns is not None and time.perf_counter_ns() >= deadline_ns
+
+
+def _round_start(x0: FloatArray | None, e_in: IntArray | None, n_lambda: int) -> FloatArray | None:
+    """The round's primal start: ``x0`` restricted to the round's edge weights ``e_in``."""
+    if x0 is None or e_in is None:
+        return x0
+    return np.concatenate((x0[e_in], x0[n_lambda:]))
+
+
+def _first_rows(
+    chosen: IntArray | None, every: IntArray, screening: bool
+) -> tuple[BoolArray, IntArray]:
+    """Mask and positions of the rows the first round has: ``chosen`` (None: none) when
+    screening, else ``every`` row."""
+    if not screening:
+        return np.ones(every.size, bool), every
+    return selection(_NONE if chosen is None else chosen, every.size)
+
+
+def _first_edges(edge_sel: IntArray | None, n_lambda: int) -> BoolArray:
+    """Mask of the edge weights the first round has (those of ``edge_sel`` in range)."""
+    mask = np.zeros(n_lambda, bool)
+    if edge_sel is not None:
+        mask[edge_sel[edge_sel < n_lambda]] = True
+    return mask
+
+
+def _failed(
+    res: QPResult,
+    rounds: int,
+    iterations: int,
+    t_in: IntArray,
+    n_in: IntArray,
+    solver_ns: int,
+) -> AllocationSolution:
+    """The solution of a round whose solver returned no x, or a non-finite one."""
+    return AllocationSolution(
+        x=None,
+        status=res.status if res.x is None else "failed",
+        rounds=rounds,
+        n_rows=t_in.size + n_in.size,
+        iterations=iterations,
+        violation=np.inf,
+        detail=res.detail,
+        solver_time=solver_ns * 1e-9,
+        torque_sel=t_in,
+        null_sel=n_in,
+    )
+
+
+def _full_x(qp: AllocationQP, x_round: FloatArray, e_in: IntArray | None) -> FloatArray:
+    """(4N + 6,) the round's solution with the left-out edge weights (zero) put back."""
+    if e_in is None:
+        return x_round
+    nl = qp.n_lambda
+    x = np.zeros(qp.n_x)
+    x[e_in] = x_round[: e_in.size]
+    x[nl:] = x_round[e_in.size :]
+    return x
+
+
+def _edges_to_add(
+    qp: AllocationQP,
+    duals: FloatArray | None,
+    e_in: IntArray,
+    e_mask: BoolArray,
+    t_in: IntArray,
+    null: FloatArray,
+    screen_tol: float,
+) -> IntArray:
+    """The left-out edge weights the next round adds: those whose bound's multiplier would
+    be needed (module docstring); every one when the solver gave no multipliers."""
+    if duals is None:
+        return np.flatnonzero(~e_mask)
+    y = duals[e_in.size + N_WRENCH :]
+    return priced_edges(qp.G_lam, qp.T_lam, t_in, null, y, e_mask, screen_tol)
 
 
 def _violations(

@@ -273,15 +273,9 @@ def _workspace(raw: dict[str, Any], has_arm: bool, path: str) -> Workspace | Non
     return Workspace(_box(table, "palm", path), _box(table, "object", path), surface)
 
 
-def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig:
-    """A :class:`HardwareConfig` from the parsed TOML ``raw`` (the module's schema).
-
-    Raises:
-        ConfigError: an unknown table or key, or a value of the wrong kind (named with the file).
-    """
-    unknown = sorted(set(raw) - set(TABLES))
-    if unknown:
-        raise ConfigError(f"{_where(path)}: unknown tables {unknown}; valid: {', '.join(TABLES)}")
+def _ros2(raw: dict[str, Any], path: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The [ros2] table and its checked settings: transport, domain_id, distro, mode and
+    dds_interface (the :class:`HardwareConfig` fields of those names)."""
     ros2 = _table(
         raw,
         "ros2",
@@ -309,6 +303,19 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
     mode = ros2.get("mode", "peer")
     if mode not in ("peer", "client"):
         raise ConfigError(f"{_where(path)}: [ros2] mode must be 'peer' or 'client', got {mode!r}")
+    settings = {
+        "transport": transport,
+        "domain_id": domain,
+        "distro": distro,
+        "mode": mode,
+        "dds_interface": interface,
+    }
+    return ros2, settings
+
+
+def _topics(raw: dict[str, Any], path: str) -> dict[str, str]:
+    """Every topic's name: the defaults with [topics] applied; the three the controller
+    cannot run without must be named."""
     topics = dict(HardwareConfig().topics)
     for key, name in _table(raw, "topics", TOPICS, path).items():
         if not isinstance(name, str) or (name and not name.startswith("/")) or "//" in name:
@@ -320,6 +327,20 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
     for key in ("joint_states", "object_pose", "torque_command"):
         if not topics[key]:
             raise ConfigError(f"{_where(path)}: [topics] {key} must name a topic")
+    return topics
+
+
+def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig:
+    """A :class:`HardwareConfig` from the parsed TOML ``raw`` (the module's schema).
+
+    Raises:
+        ConfigError: an unknown table or key, or a value of the wrong kind (named with the file).
+    """
+    unknown = sorted(set(raw) - set(TABLES))
+    if unknown:
+        raise ConfigError(f"{_where(path)}: unknown tables {unknown}; valid: {', '.join(TABLES)}")
+    ros2, settings = _ros2(raw, path)
+    topics = _topics(raw, path)
     joints = _table(raw, "joints", ("rename", "ignore", "command"), path)
     rename = joints.get("rename", {})
     if not (isinstance(rename, dict) and all(isinstance(v, str) for v in rename.values())):
@@ -353,13 +374,9 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
     command = _joint_list(joints["command"], "[joints] command", path)
     arm = _arm(raw, bool(topics["arm_command"]), path)
     return HardwareConfig(
-        transport=transport,
-        domain_id=domain,
-        distro=distro,
-        mode=mode,
+        **settings,
         connect=_strings(ros2.get("connect", ["tcp/127.0.0.1:7447"]), "[ros2] connect", path),
         listen=_strings(ros2.get("listen", []), "[ros2] listen", path),
-        dds_interface=interface,
         dds_peers=_strings(ros2.get("dds_peers", []), "[ros2] dds_peers", path),
         topics=topics,
         rename=dict(rename),

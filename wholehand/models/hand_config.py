@@ -53,13 +53,13 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any, overload
+from typing import Any
 
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models.assembly import merged_urdf, moving_joints, parse_assembly, write_merged
 from wholehand.models.coupling import Mimic
-from wholehand.models.toml_values import three_numbers
+from wholehand.models.toml_values import joint_numbers, number, str_list, three_numbers
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -169,57 +169,8 @@ def _locate_in_distribution(dist_name: str, rel: str, where: Path) -> Path:
     )
 
 
-@overload
-def _str_list(
-    table: dict[str, Any], key: str, where: Path, default: list[str]
-) -> tuple[str, ...]: ...
-
-
-@overload
-def _str_list(
-    table: dict[str, Any], key: str, where: Path, default: None = None
-) -> tuple[str, ...] | None: ...
-
-
-def _str_list(
-    table: dict[str, Any], key: str, where: Path, default: list[str] | None = None
-) -> tuple[str, ...] | None:
-    """``table[key]`` as a tuple of names, else ``default``; anything else is a ConfigError."""
-    value = table.get(key, default)
-    if value is None:
-        return None
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        raise ConfigError(f"{where}: {key!r} must be a list of names, got {value!r}")
-    return tuple(value)
-
-
-def _number(value: Any, what: str, where: Path, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{where}: {what} must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ConfigError(f"{where}: {what} must be a finite number, got {value!r}")
-    if positive and not value > 0:
-        raise ConfigError(f"{where}: {what} must be > 0, got {value!r}")
-    if value < 0:
-        raise ConfigError(f"{where}: {what} must be >= 0, got {value!r}")
-    return float(value)
-
-
-def parse_hand_config(path: str | Path) -> HandConfig:
-    """Read and validate a hand.toml (syntax, types, file locations; not yet link names)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "hand.toml"
-    if not path.is_file():
-        raise ConfigError(f"hand config {path} does not exist; a hand folder must hold hand.toml")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path}: not valid TOML: {err}") from err
-    if "assembly" in raw:
-        return _assembly_config(raw, path)
-
-    known = {
+HAND_KEYS = frozenset(
+    {
         "name",
         "urdf",
         "mjcf",
@@ -237,9 +188,35 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         "mount",
         "grasping",
     }
-    unknown = sorted(set(raw) - known)
+)
+"""The top-level keys of a hand's hand.toml."""
+SUB_TABLE_KEYS: dict[str, set[str]] = {
+    "joints": {"actuated", "locked", "torque_limit", "coupled"},
+    "simulation": {"damping", "armature"},
+    "mount": {"xyz", "rpy"},
+    "grasping": {"preshape", "close_torque"},
+}
+"""The keys of hand.toml's tables ([grasping.<name>] sub-tables aside)."""
+
+
+def _read_hand_toml(path: str | Path) -> tuple[Path, dict[str, Any]]:
+    """The hand.toml of ``path`` (the file or its folder) and its parsed contents."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "hand.toml"
+    if not path.is_file():
+        raise ConfigError(f"hand config {path} does not exist; a hand folder must hold hand.toml")
+    try:
+        return path, tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from err
+
+
+def _check_hand_keys(raw: dict[str, Any], path: Path) -> None:
+    """No unknown key, exactly one model file, a palm link."""
+    unknown = sorted(set(raw) - HAND_KEYS)
     if unknown:
-        raise ConfigError(f"{path}: unknown keys {unknown}; valid keys are {sorted(known)}")
+        raise ConfigError(f"{path}: unknown keys {unknown}; valid keys are {sorted(HAND_KEYS)}")
     if ("urdf" in raw) == ("mjcf" in raw):
         raise ConfigError(
             f'{path}: give the hand\'s model as exactly one of urdf = "hand.urdf" or '
@@ -248,6 +225,9 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     if "palm_link" not in raw:
         raise ConfigError(f"{path}: missing required key 'palm_link'")
 
+
+def _model_source(raw: dict[str, Any], path: Path) -> tuple[str, Path, str | None]:
+    """The model's format (``urdf`` or ``mjcf``), its file and an MJCF scene's root body."""
     key = model_format = "urdf" if "urdf" in raw else "mjcf"
     source = raw[key]
     if isinstance(source, str):
@@ -269,29 +249,24 @@ def parse_hand_config(path: str | Path) -> HandConfig:
             f"{path}: root_body names the hand's body in an MJCF scene file (a string, with "
             f"mjcf = ...); got {root_body!r} with {key} = ..."
         )
-    # package://name/... URIs resolve against every ancestor of the URDF and the hand folder.
-    package_dirs = (path.parent.resolve(), *model_path.parents)
+    return model_format, model_path, root_body
 
-    palm = raw["palm_link"]
-    surface = raw.get("sample_surface", "collision")
-    if surface not in SURFACES:
-        raise ConfigError(f"{path}: sample_surface must be one of {SURFACES}, got {surface!r}")
 
+def _fingers(raw: dict[str, Any], path: Path) -> tuple[dict[str, tuple[str, ...]], str | None]:
+    """[fingers] (finger name -> links) and the thumb, one of them."""
     fingers_raw = raw.get("fingers", {})
     if not isinstance(fingers_raw, dict):
         raise ConfigError(f"{path}: [fingers] must be a table of finger name -> link list")
-    fingers = {name: _str_list(fingers_raw, name, path, []) for name in fingers_raw}
+    fingers = {name: str_list(fingers_raw, name, path, []) for name in fingers_raw}
     thumb = raw.get("thumb")
     if thumb is not None and thumb not in fingers:
         raise ConfigError(f"{path}: thumb = {thumb!r} is not a key of [fingers] {sorted(fingers)}")
+    return fingers, thumb
 
-    sub_keys = {
-        "joints": {"actuated", "locked", "torque_limit", "coupled"},
-        "simulation": {"damping", "armature"},
-        "mount": {"xyz", "rpy"},
-        "grasping": {"preshape", "close_torque"},
-    }
-    for table, allowed in sub_keys.items():
+
+def _check_sub_tables(raw: dict[str, Any], path: Path) -> None:
+    """Every table of :data:`SUB_TABLE_KEYS` is a table with only its keys."""
+    for table, allowed in SUB_TABLE_KEYS.items():
         value = raw.get(table, {})
         if not isinstance(value, dict):
             raise ConfigError(f"{path}: [{table}] must be a table, got {value!r}")
@@ -305,20 +280,38 @@ def parse_hand_config(path: str | Path) -> HandConfig:
                 f"{path}: unknown keys {extra} in [{table}]; valid keys are {sorted(allowed)}"
             )
 
+
+def parse_hand_config(path: str | Path) -> HandConfig:
+    """Read and validate a hand.toml (syntax, types, file locations; not yet link names)."""
+    path, raw = _read_hand_toml(path)
+    if "assembly" in raw:
+        return _assembly_config(raw, path)
+    _check_hand_keys(raw, path)
+    model_format, model_path, root_body = _model_source(raw, path)
+    # package://name/... URIs resolve against every ancestor of the URDF and the hand folder.
+    package_dirs = (path.parent.resolve(), *model_path.parents)
+
+    palm = raw["palm_link"]
+    surface = raw.get("sample_surface", "collision")
+    if surface not in SURFACES:
+        raise ConfigError(f"{path}: sample_surface must be one of {SURFACES}, got {surface!r}")
+    fingers, thumb = _fingers(raw, path)
+    _check_sub_tables(raw, path)
+
     joints = raw.get("joints", {})
     limits_raw = joints.get("torque_limit", {})
     if isinstance(limits_raw, (int, float)):
         limits_raw = {"default": limits_raw}
-    default_limit = _number(
+    default_limit = number(
         limits_raw.get("default", defaults.TAU_MAX), "torque_limit.default", path, positive=True
     )
     limits = {
-        j: _number(v, f"torque_limit.{j}", path, positive=True)
+        j: number(v, f"torque_limit.{j}", path, positive=True)
         for j, v in limits_raw.items()
         if j != "default"
     }
     grasp_styles = _grasp_styles(raw.get("grasping", {}), fingers, thumb, path)
-    locked = _joint_numbers(joints.get("locked", {}), "[joints] locked", path)
+    locked = joint_numbers(joints.get("locked", {}), "[joints] locked", path)
     coupled = _couplings(joints.get("coupled", {}), path)
     outer = raw.get("outer_surface_only", False)
     if not isinstance(outer, bool):
@@ -333,38 +326,27 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         model_path=model_path,
         package_dirs=package_dirs,
         palm_link=palm,
-        passive_links=_str_list(raw, "passive_links", path, [palm]),
+        passive_links=str_list(raw, "passive_links", path, [palm]),
         sample_surface=surface,
         fingers=fingers,
         thumb=thumb,
-        fingertip_links=_str_list(raw, "fingertip_links", path, []),
-        actuated_joints=_str_list(joints, "actuated", path),
+        fingertip_links=str_list(raw, "fingertip_links", path, []),
+        actuated_joints=str_list(joints, "actuated", path),
         locked_joints=locked,
         coupled_joints=coupled,
-        excluded_links=_str_list(raw, "excluded_links", path, []),
+        excluded_links=str_list(raw, "excluded_links", path, []),
         outer_surface_only=outer,
         torque_limit_set="torque_limit" in joints,
         model_format=model_format,
         root_body=root_body,
         torque_limit_default=default_limit,
         torque_limits=limits,
-        damping=_number(sim.get("damping", 0.05), "simulation.damping", path),
-        armature=_number(sim.get("armature", 0.001), "simulation.armature", path),
+        damping=number(sim.get("damping", 0.05), "simulation.damping", path),
+        armature=number(sim.get("armature", 0.001), "simulation.armature", path),
         grasp_styles=grasp_styles,
         mount_xyz=xyz,
         mount_rpy=rpy,
     )
-
-
-def _joint_numbers(table: Any, what: str, where: Path) -> dict[str, float]:
-    if not isinstance(table, dict):
-        raise ConfigError(f"{where}: {what} must be a table of joint name -> number")
-    out = {}
-    for joint, value in table.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: {what}.{joint} must be a number, got {value!r}")
-        out[joint] = float(value)
-    return out
 
 
 def _couplings(table: Any, where: Path) -> dict[str, Mimic]:
@@ -383,7 +365,7 @@ def _couplings(table: Any, where: Path) -> dict[str, Mimic]:
                 f"{where}: unknown keys {unknown} in {what}; valid keys are leader, multiplier "
                 "and offset"
             )
-        numbers = _joint_numbers(
+        numbers = joint_numbers(
             {k: spec.get(k, d) for k, d in (("multiplier", 1.0), ("offset", 0.0))}, what, where
         )
         if not all(math.isfinite(v) for v in numbers.values()):
@@ -398,8 +380,8 @@ def _grasp_styles(
     styles = {
         "power": GraspStyle(
             "power",
-            _joint_numbers(grasping.get("preshape", {}), "grasping.preshape", path),
-            _joint_numbers(grasping.get("close_torque", {}), "grasping.close_torque", path),
+            joint_numbers(grasping.get("preshape", {}), "grasping.preshape", path),
+            joint_numbers(grasping.get("close_torque", {}), "grasping.close_torque", path),
         )
     }
     for name, table in grasping.items():
@@ -417,7 +399,7 @@ def _grasp_styles(
             raise ConfigError(
                 f"{path}: [{where}] has unknown keys {extra}; valid keys are {sorted(allowed)}"
             )
-        style_fingers = _str_list(table, "fingers", path, [])
+        style_fingers = str_list(table, "fingers", path, [])
         unknown = [f for f in style_fingers if f not in fingers]
         named = "fingers" in table  # left out: judged as a power grasp
         if unknown or (
@@ -441,8 +423,8 @@ def _grasp_styles(
             )
         styles[name] = GraspStyle(
             name,
-            _joint_numbers(table.get("preshape", {}), f"{where}.preshape", path),
-            _joint_numbers(table.get("close_torque", {}), f"{where}.close_torque", path),
+            joint_numbers(table.get("preshape", {}), f"{where}.preshape", path),
+            joint_numbers(table.get("close_torque", {}), f"{where}.close_torque", path),
             style_fingers,
             (float(gap[0]), float(gap[1])),
         )

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -87,6 +87,21 @@ class Person(Observer):
     _pickup: tuple[FloatArray, FloatArray, float] | None = None
     """A pick-up under way: (object pose at its start, pose to hold it out at, start time)."""
 
+    STEPS: ClassVar[dict[str, str]] = {
+        "holding": "_move",
+        "moved": "_leave_after_move",
+        "resting": "_wait_for_the_grasp",
+        "released": "_push",
+        "pushing": "_end_push",
+        "pushed": "_twist",
+        "twisting": "_end_twist",
+        "twisted": "_snatch",
+        "snatched": "_leave_after_snatch",
+        "put down": "_wait_for_the_end",
+        "regrasped": "_wait_for_the_end",
+    }
+    """The script's states, in order, and the method that steps out of each."""
+
     def on_start(self, loop: ControlLoop) -> None:
         if not self.on_table:
             self._grip(self.wMo_hold)
@@ -114,102 +129,140 @@ class Person(Observer):
             self._pickup = None
 
     def on_cycle(self, cycle: Cycle) -> str | None:
-        t, spec, state = cycle.t, self.spec, self.state
-        if self._pickup is not None and state == "snatched":  # until the person lets go
+        t = cycle.t
+        if self._pickup is not None and self.state == "snatched":  # until the person lets go
             self._carry(t)
         holding = self._holding(cycle)
         self.held_since = (self.held_since or t) if holding else None
         held_for = t - self.held_since if self.held_since is not None else 0.0
-        if state == "holding" and t >= spec.displace_at:
-            assert cycle.truth.wMo is not None  # the episode's backend always has the pose
-            target = (cycle.truth.wMo if self.on_table else self.wMo_hold).copy()
-            target[:3, 3] += spec.displace * self._horizontal()
-            target[:3, :3] = pin.exp3(np.array([0.0, 0.0, np.radians(20.0)])) @ target[:3, :3]
-            self._grip(target)
-            self._note(t, f"person moves the object by {100 * spec.displace:.0f} cm and 20 deg")
-            self.state, self.since = "moved", t
-        elif state == "moved" and self.on_table and t - self.since >= SLIDE_TIME:
+        return self._next_step(self.state)(cycle, holding, held_for)
+
+    def _next_step(self, state: str) -> Callable[[Cycle, bool, float], str | None]:
+        """The script's step from ``state``: called every cycle with whether the hand holds
+        the object and for how long [s]; the episode's end message, or None."""
+        step: Callable[[Cycle, bool, float], str | None] = getattr(self, self.STEPS[state])
+        return step
+
+    def _to(self, state: str, t: float, note: str | None = None) -> None:
+        if note is not None:
+            self._note(t, note)
+        self.state, self.since = state, t
+
+    def _move(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        """While the hand reaches: move the object by ``displace`` and turn it by 20 deg."""
+        t, spec = cycle.t, self.spec
+        if t < spec.displace_at:
+            return
+        assert cycle.truth.wMo is not None  # the episode's backend always has the pose
+        target = (cycle.truth.wMo if self.on_table else self.wMo_hold).copy()
+        target[:3, 3] += spec.displace * self._horizontal()
+        target[:3, :3] = pin.exp3(np.array([0.0, 0.0, np.radians(20.0)])) @ target[:3, :3]
+        self._grip(target)
+        self._to("moved", t, f"person moves the object by {100 * spec.displace:.0f} cm and 20 deg")
+
+    def _leave_after_move(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        """On a table, leave the moved object there; in the air, let go once the hand has
+        held it for ``release_after``."""
+        t = cycle.t
+        if self.on_table and t - self.since >= SLIDE_TIME:
             self.backend.set_object_spring(None)
-            self._note(t, "person leaves the object on the table")
-            self.state, self.since = "resting", t
-        elif state == "resting" and held_for >= spec.release_after:
-            self.state, self.since = "released", t  # held off the table's support: pushes next
-        elif state == "moved" and not self.on_table and held_for >= spec.release_after:
+            self._to("resting", t, "person leaves the object on the table")
+        elif not self.on_table and held_for >= self.spec.release_after:
             self.backend.set_object_spring(None)
-            self._note(t, "person lets go")
-            self.state, self.since = "released", t
-        elif (
-            state == "snatched"
-            and not self.on_table
-            and held_for >= spec.release_after
-            and self.held_since is not None
-        ):
-            if self.held_since > self.since:  # a grasp made after the snatch
-                self.backend.set_object_spring(None)
-                self._note(t, "person lets go")
-                self.state, self.since = "regrasped", t
-            elif t - self.since >= SNATCH_GIVE_UP:
-                self.backend.set_object_spring(None)
-                self._note(t, "person lets go: the hand kept the object through the snatch")
-                self.state, self.since = "regrasped", t
-        elif state == "released" and t - self.since >= GAP:
-            # Pushes and twists test a grip: an object the hand has dropped is left alone (a
-            # 0.1 N*m twist on a dropped Lego brick spun it at 1000 rad/s).
-            push = spec.push * self.mass_inertia[0] * defaults.GRAVITY
-            if holding:
-                self.backend.apply_object_wrench(push * self._horizontal(), np.zeros(3))
-                self._note(t, f"push {push:.2f} N for {spec.pulse} s")
-            else:
-                self._note(t, "no push: the hand holds no object")
-            self.state, self.since = "pushing" if holding else "pushed", t
-        elif state == "pushing" and (t - self.since >= spec.pulse or not holding):
+            self._to("released", t, "person lets go")
+
+    def _wait_for_the_grasp(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        if held_for >= self.spec.release_after:
+            self._to("released", cycle.t)  # held off the table's support: pushes next
+
+    def _push(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        # Pushes and twists test a grip: an object the hand has dropped is left alone (a
+        # 0.1 N*m twist on a dropped Lego brick spun it at 1000 rad/s).
+        t, spec = cycle.t, self.spec
+        if t - self.since < GAP:
+            return
+        push = spec.push * self.mass_inertia[0] * defaults.GRAVITY
+        if holding:
+            self.backend.apply_object_wrench(push * self._horizontal(), np.zeros(3))
+            self._to("pushing", t, f"push {push:.2f} N for {spec.pulse} s")
+        else:
+            self._to("pushed", t, "no push: the hand holds no object")
+
+    def _end_push(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        if cycle.t - self.since >= self.spec.pulse or not holding:
             self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
-            self.state, self.since = "pushed", t
-        elif state == "pushed" and t - self.since >= GAP:
-            axis = self.rng.normal(size=3)
-            twist = spec.twist * self.mass_inertia[0] * defaults.GRAVITY * self.rim
-            if holding:
-                self.backend.apply_object_wrench(np.zeros(3), twist * axis / np.linalg.norm(axis))
-                self._note(t, f"twist {twist:.3f} N*m for {spec.pulse} s")
-            else:
-                self._note(t, "no twist: the hand holds no object")
-            self.state, self.since = "twisting" if holding else "twisted", t
-        elif state == "twisting" and (t - self.since >= spec.pulse or not holding):
+            self._to("pushed", cycle.t)
+
+    def _twist(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        t, spec = cycle.t, self.spec
+        if t - self.since < GAP:
+            return
+        axis = self.rng.normal(size=3)
+        twist = spec.twist * self.mass_inertia[0] * defaults.GRAVITY * self.rim
+        if holding:
+            self.backend.apply_object_wrench(np.zeros(3), twist * axis / np.linalg.norm(axis))
+            self._to("twisting", t, f"twist {twist:.3f} N*m for {spec.pulse} s")
+        else:
+            self._to("twisted", t, "no twist: the hand holds no object")
+
+    def _end_twist(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        if cycle.t - self.since >= self.spec.pulse or not holding:
             self.backend.apply_object_wrench(np.zeros(3), np.zeros(3))
-            self.state, self.since = "twisted", t
-        elif state == "twisted" and t - self.since >= GAP and self.on_table:
+            self._to("twisted", cycle.t)
+
+    def _snatch(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        if cycle.t - self.since < GAP:
+            return
+        if self.on_table:
             self._snatch_on_table(cycle)
-        elif state == "snatched" and self.on_table and t - self.since >= SLIDE_TIME:
+        else:
+            self._snatch_in_the_air(cycle, holding)
+
+    def _leave_after_snatch(self, cycle: Cycle, holding: bool, held_for: float) -> None:
+        """On a table, leave the snatched object where it was pulled to; in the air, let go
+        once the hand has regrasped it for ``release_after`` (or kept it through the snatch
+        for :data:`SNATCH_GIVE_UP`)."""
+        t = cycle.t
+        if self.on_table:
+            if t - self.since >= SLIDE_TIME:
+                self.backend.set_object_spring(None)
+                self._to("put down", t, "person leaves the object on the table")
+            return
+        if held_for < self.spec.release_after or self.held_since is None:
+            return
+        if self.held_since > self.since:  # a grasp made after the snatch
             self.backend.set_object_spring(None)
-            self._note(t, "person leaves the object on the table")
-            self.state, self.since = "put down", t
-        elif state == "put down" and held_for >= spec.hold_after:
-            self.done = True
-            return "episode complete"
-        elif state == "twisted" and t - self.since >= GAP:
-            assert cycle.truth.wMo is not None  # the episode's backend always has the pose
-            target = cycle.truth.wMo.copy()
-            if holding:  # pulled out of the hand, away from the palm (a pull
-                # into the palm would be held by the wrist, not the grip), not downward
-                target[:3, 3] += spec.snatch * self._away_from_palm(cycle, target, upward=True)
-                target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
-                self._grip(target, SNATCH_BANDWIDTH)
-            else:  # dropped earlier: picked up and held out beside where it was first held,
-                # the grip's target carried there at PICKUP_SPEED (a spring stretched to an
-                # object flung off the table yanked it to 300 m/s)
-                goal = target.copy()
-                goal[:3, 3] = self.wMo_hold[:3, 3] + spec.snatch * self._horizontal()
-                self._pickup = (target, goal, t)
-                self._carry(t)
-            if holding:
-                self._note(t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
-            else:
-                self._note(t, "person picks the dropped object up and holds it out")
-            self.state, self.since = "snatched", t
-        elif state == "regrasped" and held_for >= spec.hold_after:
+            self._to("regrasped", t, "person lets go")
+        elif t - self.since >= SNATCH_GIVE_UP:
+            self.backend.set_object_spring(None)
+            self._to("regrasped", t, "person lets go: the hand kept the object through the snatch")
+
+    def _wait_for_the_end(self, cycle: Cycle, holding: bool, held_for: float) -> str | None:
+        if held_for >= self.spec.hold_after:
             self.done = True
             return "episode complete"
         return None
+
+    def _snatch_in_the_air(self, cycle: Cycle, holding: bool) -> None:
+        """Pull a held object ``snatch`` away from the palm; pick a dropped one up and hold it
+        out beside where it was first held."""
+        t, spec = cycle.t, self.spec
+        assert cycle.truth.wMo is not None  # the episode's backend always has the pose
+        target = cycle.truth.wMo.copy()
+        if holding:  # pulled out of the hand, away from the palm (a pull
+            # into the palm would be held by the wrist, not the grip), not downward
+            target[:3, 3] += spec.snatch * self._away_from_palm(cycle, target, upward=True)
+            target[2, 3] = max(target[2, 3], self.wMo_hold[2, 3])
+            self._grip(target, SNATCH_BANDWIDTH)
+            self._to("snatched", t, f"person snatches the object {100 * spec.snatch:.0f} cm away")
+        else:  # dropped earlier: picked up and held out beside where it was first held,
+            # the grip's target carried there at PICKUP_SPEED (a spring stretched to an
+            # object flung off the table yanked it to 300 m/s)
+            goal = target.copy()
+            goal[:3, 3] = self.wMo_hold[:3, 3] + spec.snatch * self._horizontal()
+            self._pickup = (target, goal, t)
+            self._carry(t)
+            self._to("snatched", t, "person picks the dropped object up and holds it out")
 
     def _holding(self, cycle: Cycle) -> bool:
         return cycle.stage == REGULATE if self.holds is None else self.holds(cycle)

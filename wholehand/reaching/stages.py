@@ -277,14 +277,11 @@ class ReachStage(Stage):
         return moved
 
     def step(self, context: CycleContext) -> StageOutput:
-        obs = context.obs
-        wMo = obs.wMo
+        wMo = context.obs.wMo
         assert wMo is not None
-        if self.pose_timeout is not None and obs.stamp_q - obs.stamp_object > self.pose_timeout:
-            return StageOutput(self._hold(context), "pose_lost")
-        if self.workspace is not None and not self.workspace.object.contains(wMo[:3, 3]):
-            reason = "the object left the arm's workspace: going home"
-            return StageOutput(self._hold(context), "out_of_workspace", next=HOME, reason=reason)
+        stop = self._stopped(context, wMo)
+        if stop is not None:
+            return stop
         self._held = None
         plan = self.planner.chosen
         if plan is None:
@@ -301,6 +298,29 @@ class ReachStage(Stage):
         posture = self._q_ref.copy()
         posture[self._hand_q] = q_goal
         goal = ReachTargets(targets, posture, self.hand.palm_link, self.kind == "pregrasp")
+        q_next, wMb_next = self._reach(context, wMo, goal)
+        command = self._command(context, plan, targets, q_next, wMb_next)
+        if self.kind == "pregrasp":
+            return self._after_pregrasp_step(context, plan, targets, command)
+        return self._after_grasp_step(context, plan, command)
+
+    def _stopped(self, context: CycleContext, wMo: FloatArray) -> StageOutput | None:
+        """On a robot: hold the arm and fingers while the pose is stale, go home when the
+        object has left the workspace; None otherwise."""
+        obs = context.obs
+        if self.pose_timeout is not None and obs.stamp_q - obs.stamp_object > self.pose_timeout:
+            return StageOutput(self._hold(context), "pose_lost")
+        if self.workspace is not None and not self.workspace.object.contains(wMo[:3, 3]):
+            reason = "the object left the arm's workspace: going home"
+            return StageOutput(self._hold(context), "out_of_workspace", next=HOME, reason=reason)
+        return None
+
+    def _reach(
+        self, context: CycleContext, wMo: FloatArray, goal: ReachTargets
+    ) -> tuple[FloatArray, FloatArray]:
+        """One reacher step toward ``goal`` from the servo's references; the next joint
+        references and wrist pose (also kept as the references of the next cycle)."""
+        obs = context.obs
         # The reacher integrates the servo's reference, not the reading: a reference one step
         # ahead of the reading would give the servo almost no error to act on. It may lead the
         # reading by MAX_LEAD at most, so a finger blocked by the object does not wind it up.
@@ -314,40 +334,71 @@ class ReachStage(Stage):
         q_next, wMb_next = self.reacher.step(q_ref, wMb_ref, wMo, goal, context.dt)
         self.reacher_times.append(time.perf_counter() - started)
         self._q_ref, self._wMb_ref = q_next, wMb_next
-        now = context.kinematics
+        return q_next, wMb_next
+
+    def _command(
+        self,
+        context: CycleContext,
+        plan: GraspPlan,
+        targets: dict[str, FloatArray],
+        q_next: FloatArray,
+        wMb_next: FloatArray,
+    ) -> Command:
+        """The servo's command toward the reacher's step; in ``reach_grasp`` with the palm
+        near its target, the joints squeezed past it by the closing torques."""
+        palm = self.hand.palm_link
         palm_error = np.linalg.norm(
-            now.frame_pose(self.hand.palm_link)[:3, 3] - targets[self.hand.palm_link][:3, 3]
+            context.kinematics.frame_pose(palm)[:3, 3] - targets[palm][:3, 3]
         )
         q_servo = q_next
         if self.kind == "grasp" and palm_error < SQUEEZE_PALM_ERROR:
             squeeze = self.squeeze if plan.closing is None else self._squeeze(plan.closing)
             q_servo = np.clip(q_next + squeeze, self.hand.q_lower, self.hand.q_upper)
-        command = self._servo(obs, q_servo, wMb_next if self.arm is None else None)
+        return self._servo(context.obs, q_servo, wMb_next if self.arm is None else None)
+
+    def _after_pregrasp_step(
+        self,
+        context: CycleContext,
+        plan: GraspPlan,
+        targets: dict[str, FloatArray],
+        command: Command,
+    ) -> StageOutput:
+        """To ``reach_grasp`` once the fingertips are at the pre-grasp; another plan when it
+        is not reached within :data:`PREGRASP_TIMEOUT`."""
+        now = context.kinematics
         errors = [np.linalg.norm(now.frame_pose(t)[:3, 3] - targets[t][:3, 3]) for t in self.tips]
         error = float(np.mean(errors))
-        if self.kind == "pregrasp" and error < self.switch_distance:
+        if error < self.switch_distance:
             reason = f"mean fingertip error {100 * error:.1f} cm < {100 * self.switch_distance} cm"
             return StageOutput(command, "reaching", next=GRASP, reason=reason)
-        if self.kind == "pregrasp" and context.t - self._since > PREGRASP_TIMEOUT:
+        if context.t - self._since > PREGRASP_TIMEOUT:
+            wMo = context.obs.wMo
+            assert wMo is not None
             self.planner.fail()
             self.planner.choose(wMo, self.grasp_base(context))
             self._since = context.t
             reason = f"pre-grasp not reached within {PREGRASP_TIMEOUT} s: grasp {plan.grasp_id}"
             return StageOutput(command, "replan", reason=reason)
-        if self.kind == "grasp":
-            fingers = self.fingers_touching(context)
-            thumb = self.hand.config.thumb
-            if plan.fingers:
-                grasped = set(plan.fingers) <= fingers
-            else:
-                grasped = thumb in fingers and len(fingers - {thumb}) >= 2
-            if grasped:
-                reason = f"touching: {', '.join(sorted(fingers))}"
-                return StageOutput(command, "reaching", next=REGULATE, reason=reason)
-            if context.t - self._since > self.timeout:
-                self.planner.fail()
-                reason = f"no grasp within {self.timeout} s (touching: {sorted(fingers)})"
-                return StageOutput(command, "reaching", next=PREGRASP, reason=reason)
+        return StageOutput(command, "reaching")
+
+    def _after_grasp_step(
+        self, context: CycleContext, plan: GraspPlan, command: Command
+    ) -> StageOutput:
+        """To ``regulate`` once the plan's fingers (else the thumb and two others) touch; back
+        to ``reach_pregrasp`` when they do not within the timeout."""
+        fingers = self.fingers_touching(context)
+        thumb = self.hand.config.thumb
+        if plan.fingers:
+            grasped = set(plan.fingers) <= fingers
+        else:
+            grasped = thumb in fingers and len(fingers - {thumb}) >= 2
+        if grasped:
+            reason = f"touching: {', '.join(sorted(fingers))}"
+            return StageOutput(command, "reaching", next=REGULATE, reason=reason)
+        if context.t - self._since > self.timeout:
+            self.planner.fail()
+            reason = f"no grasp within {self.timeout} s (touching: {sorted(fingers)})"
+            return StageOutput(command, "reaching", next=PREGRASP, reason=reason)
         return StageOutput(command, "reaching")
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import shutil
 
 import numpy as np
@@ -122,3 +123,19 @@ def test_grasps_check_needs_a_check(capsys):
 
     assert main(["grasps", "check", "--object", "065-f_cups"]) != 0
     assert "give --require-reach SECONDS, --require-hold DEG or both" in capsys.readouterr().err
+
+
+def test_a_settled_angle_past_the_slack_is_named_and_refused_by_loading(allegro):
+    from wholehand.grasps.store import LIMIT_SLACK, joint_past_limits
+
+    q = allegro.q_lower.copy()
+    assert joint_past_limits(allegro, q) is None
+    q[3] = allegro.q_lower[3] - 0.5 * LIMIT_SLACK  # inside the slack: storable
+    assert joint_past_limits(allegro, q) is None
+    q[3] = allegro.q_lower[3] - 2.0 * LIMIT_SLACK
+    name = allegro.joint_names[3]
+    problem = joint_past_limits(allegro, q)
+    assert problem is not None and problem.startswith(f"joint {name!r} at {q[3]:.4g} rad")
+    grasp = Grasp(-1, np.eye(4), dict(zip(allegro.joint_names, q.tolist(), strict=True)))
+    with pytest.raises(ConfigError, match=re.escape(f"grasp -1: {problem}")):
+        grasp.q_array(allegro)

@@ -49,7 +49,7 @@ from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
 from wholehand.grasps.checks import GraspCheck, passes
 from wholehand.grasps.face_schedule import FaceSchedule
-from wholehand.grasps.store import Grasp
+from wholehand.grasps.store import LIMIT_SLACK, Grasp, joint_past_limits
 from wholehand.grasps.styles import style_arrays
 from wholehand.loop.control_loop import ControlLoop
 from wholehand.loop.grasp_loss import GraspLossCheck
@@ -376,6 +376,11 @@ class GraspGenerator:
                     f"the grasp comes within {1e3 * HAND_MARGIN:g} mm of the table top"
                 )
         hand = self.hand
+        if joint_past_limits(hand, state.q) is not None:
+            return self._reject(
+                f"a joint settled more than {LIMIT_SLACK:g} rad past its limit (MuJoCo's soft "
+                "limits)"
+            )
         q = {
             name: float(state.q[hand.model.joints[hand.model.getJointId(name)].idx_q])
             for name in hand.joint_names

@@ -73,19 +73,29 @@ class Grasp:
             raise ConfigError(f"{where} has no angle for joints {missing} of {hand.name!r}")
         q = np.zeros(hand.nq)
         for name in hand.joint_names:
-            i = hand.model.joints[hand.model.getJointId(name)].idx_q
-            q[i] = value = self.q[name]
-            lower, upper = hand.q_lower[i], hand.q_upper[i]
-            if not lower - LIMIT_SLACK <= value <= upper + LIMIT_SLACK:
-                raise ConfigError(
-                    f"{where}: joint {name!r} at {value:.4g} rad is outside its limits "
-                    f"[{lower:.4g}, {upper:.4g}] of {hand.name!r}; fix or remove the grasp"
-                )
+            q[hand.model.joints[hand.model.getJointId(name)].idx_q] = self.q[name]
+        problem = joint_past_limits(hand, q)
+        if problem is not None:
+            raise ConfigError(f"{where}: {problem} of {hand.name!r}; fix or remove the grasp")
         return q
 
     def object_pose(self, wMb: FloatArray) -> FloatArray:
         """(4, 4) object pose in the world for a hand base mounted at ``wMb``."""
         return wMb @ inverse(self.oMb)
+
+
+def joint_past_limits(hand: HandModel, q: FloatArray) -> str | None:
+    """The first of the hand's joints whose angle in ``q`` (n_q,) [rad] lies more than
+    :data:`LIMIT_SLACK` past its limits, with that angle and the limits; None if none (such a
+    grasp could not be stored: :meth:`Grasp.q_array` refuses it)."""
+    for name in hand.joint_names:
+        i = hand.model.joints[hand.model.getJointId(name)].idx_q
+        lower, upper = hand.q_lower[i], hand.q_upper[i]
+        if not lower - LIMIT_SLACK <= q[i] <= upper + LIMIT_SLACK:
+            return (
+                f"joint {name!r} at {q[i]:.4g} rad is outside its limits [{lower:.4g}, {upper:.4g}]"
+            )
+    return None
 
 
 def grasps_dir() -> Path:

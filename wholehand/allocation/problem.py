@@ -91,6 +91,38 @@ def friction_edges(mu: float) -> FloatArray:
     return np.array([[1.0, 1.0, 1.0, 1.0], [mu, -mu, 0.0, 0.0], [0.0, 0.0, mu, -mu]])
 
 
+def _bad(owner: str, name: str, value: object, want: str) -> ConfigError:
+    return ConfigError(f"{owner}: parameter {name}={value!r} is invalid; it must be {want}")
+
+
+def _checked_tau_max(owner: str, tau_max: object) -> float | FloatArray:
+    """``tau_max`` as a number or a 1-D array of numbers > 0 [N*m]."""
+    want = "a number or 1-D array of numbers > 0 [N*m]"
+    try:
+        tmax = np.array(tau_max, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise _bad(owner, "tau_max", tau_max, want) from err
+    if tmax.ndim > 1 or tmax.size == 0 or np.isnan(tmax).any() or (tmax <= 0.0).any():
+        raise _bad(owner, "tau_max", tau_max, want)
+    return float(tmax) if tmax.ndim == 0 else tmax
+
+
+def _checked_dofs(owner: str, actuated_dofs: object) -> IntArray:
+    """``actuated_dofs`` (a boolean mask or unique indices >= 0) as sorted joint indices."""
+    a = np.asarray(actuated_dofs)
+    want = "None, a 1-D boolean mask over the joints or 1-D unique joint indices >= 0"
+    if a.ndim != 1:
+        raise _bad(owner, "actuated_dofs", actuated_dofs, want)
+    if a.dtype == np.bool_:
+        return np.flatnonzero(a).astype(np.intp)
+    if not (np.issubdtype(a.dtype, np.integer) or a.size == 0):
+        raise _bad(owner, "actuated_dofs", actuated_dofs, want)
+    dofs = a.astype(np.intp)
+    if (dofs < 0).any() or np.unique(dofs).size != dofs.size:
+        raise _bad(owner, "actuated_dofs", actuated_dofs, want)
+    return np.sort(dofs)
+
+
 @dataclass(frozen=True)
 class AllocationParams:
     """Constants of the allocation QP; see :mod:`wholehand.defaults` for their meaning."""
@@ -125,16 +157,13 @@ class AllocationParams:
         eps_margin, svd_tol, reg = given["eps_margin"], given["svd_tol"], given["reg"]
         consistency, actuated_dofs = given["consistency"], given["actuated_dofs"]
 
-        def bad(name: str, value: object, want: str) -> ConfigError:
-            return ConfigError(f"{owner}: parameter {name}={value!r} is invalid; it must be {want}")
-
         def scalar(name: str, value: object, want: str, ok: Callable[[float], bool]) -> float:
             try:
                 v = float(value)  # type: ignore[arg-type]
             except (TypeError, ValueError) as err:
-                raise bad(name, value, want) from err
+                raise _bad(owner, name, value, want) from err
             if np.isnan(v) or not ok(v):
-                raise bad(name, value, want)
+                raise _bad(owner, name, value, want)
             return v
 
         mu_ = scalar("mu", mu, "a finite number >= 0", lambda v: 0.0 <= v < np.inf)
@@ -142,28 +171,8 @@ class AllocationParams:
         eps = scalar("eps_margin", eps_margin, "a number >= 0 [N]", lambda v: v >= 0.0)
         tol = scalar("svd_tol", svd_tol, "a finite number > 0", lambda v: 0.0 < v < np.inf)
         reg_ = scalar("reg", reg, "a finite number > 0", lambda v: 0.0 < v < np.inf)
-        try:
-            tmax = np.array(tau_max, dtype=np.float64)
-        except (TypeError, ValueError) as err:
-            raise bad("tau_max", tau_max, "a number or 1-D array of numbers > 0 [N*m]") from err
-        if tmax.ndim > 1 or tmax.size == 0 or np.isnan(tmax).any() or (tmax <= 0.0).any():
-            raise bad("tau_max", tau_max, "a number or 1-D array of numbers > 0 [N*m]")
-        tau: float | FloatArray = float(tmax) if tmax.ndim == 0 else tmax
-        dofs: IntArray | None = None
-        if actuated_dofs is not None:
-            a = np.asarray(actuated_dofs)
-            want = "None, a 1-D boolean mask over the joints or 1-D unique joint indices >= 0"
-            if a.ndim != 1:
-                raise bad("actuated_dofs", actuated_dofs, want)
-            if a.dtype == np.bool_:
-                dofs = np.flatnonzero(a).astype(np.intp)
-            elif np.issubdtype(a.dtype, np.integer) or a.size == 0:
-                dofs = a.astype(np.intp)
-                if (dofs < 0).any() or np.unique(dofs).size != dofs.size:
-                    raise bad("actuated_dofs", actuated_dofs, want)
-                dofs = np.sort(dofs)
-            else:
-                raise bad("actuated_dofs", actuated_dofs, want)
+        tau = _checked_tau_max(owner, tau_max)
+        dofs = None if actuated_dofs is None else _checked_dofs(owner, actuated_dofs)
         return cls(mu_, fmin, tau, eps, tol, reg_, bool(consistency), dofs)
 
     def dofs_and_limits(

@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from wholehand.backends.table import Table
     from wholehand.loop.control_loop import Cycle, Observer
     from wholehand.models.objects import ObjectModel
+    from wholehand.trials.trial import TrialSpec
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -170,7 +171,43 @@ def _object(name: str, sdf_spacing: str | None) -> ObjectModel | None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from wholehand.trials.trial import TrialSpec, run_trial
+    from wholehand.trials.trial import run_trial
+
+    spec = _trial_spec(args)
+    observers = [live_view(spec, args.view_every)] if args.view else []
+    if args.record:
+        from wholehand.hardware.mcap_recording import McapRecorder
+
+        observers.append(McapRecorder(args.record, {"spec": dataclasses.asdict(spec)}))
+    if args.protocol == "dexgraspbench":
+        return _load_test(args, spec, observers)
+    record = run_trial(spec, obj=_object(spec.object, args.sdf_spacing), observers=observers)
+    _write_outputs(args, record)
+    summary = summarise(record)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print_summary(summary)
+    loop = record.meta["loop"]
+    if loop["n_errors"]:
+        first = loop["errors"][0]
+        print(
+            f"\nERROR: stage {first['stage']!r} raised {loop['n_errors']} times (first at t = "
+            f"{first['t']:.3f} s); the last feasible torque was kept each time:\n"
+            f"{first['traceback']}",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
+def _trial_spec(args: argparse.Namespace) -> TrialSpec:
+    """The trial ``wholehand run``'s options describe.
+
+    Raises:
+        ConfigError: a bad angle or rate, or --grasps of another object than --object.
+    """
+    from wholehand.trials.trial import TrialSpec
 
     if not (math.isfinite(args.theta) and args.theta >= 0.0):
         raise ConfigError(f"--theta {args.theta} must be a finite angle >= 0 [deg]")
@@ -188,7 +225,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--grasps {args.grasps} holds grasps of {obj!r}, not of --object {args.object!r}"
             )
-    spec = TrialSpec(
+    return TrialSpec(
         hand=args.hand,
         object=obj,
         grasp=args.grasp,
@@ -205,14 +242,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         tracking=tracking_options(args),
         estimate_at=args.estimate_at,
     )
-    observers = [live_view(spec, args.view_every)] if args.view else []
-    if args.record:
-        from wholehand.hardware.mcap_recording import McapRecorder
 
-        observers.append(McapRecorder(args.record, {"spec": dataclasses.asdict(spec)}))
-    if args.protocol == "dexgraspbench":
-        return _load_test(args, spec, observers)
-    record = run_trial(spec, obj=_object(obj, args.sdf_spacing), observers=observers)
+
+def _write_outputs(args: argparse.Namespace, record: RunRecord) -> None:
+    """Save the run, its HTML animation and its plot where the options ask."""
     if args.save:
         print(f"run record: {record.save(Path(args.save))}")
     if args.record:
@@ -225,22 +258,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from wholehand.viz.plots import plot_run
 
         print(f"plot: {plot_run(record, args.plot)}")
-    summary = summarise(record)
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        print_summary(summary)
-    loop = record.meta["loop"]
-    if loop["n_errors"]:
-        first = loop["errors"][0]
-        print(
-            f"\nERROR: stage {first['stage']!r} raised {loop['n_errors']} times (first at t = "
-            f"{first['t']:.3f} s); the last feasible torque was kept each time:\n"
-            f"{first['traceback']}",
-            file=sys.stderr,
-        )
-        return 1
-    return 0
 
 
 def _load_test(args: argparse.Namespace, spec: Any, observers: list[Observer]) -> int:

@@ -54,21 +54,27 @@ def read_mcap_record(path: str | Path) -> RunRecord:
             if cycle:
                 _append(record, cycle, info)
             cycle = {"t": t, "tf": {tf.child_frame_id: tf.transform for tf in msg.transforms}}
-        elif topic == "/joint_states":
-            cycle["q"] = np.asarray(msg.position, dtype=float)
-            cycle["tau"] = np.asarray(msg.effort, dtype=float)
-        elif topic == "/wholehand/contacts":
-            cycle["contacts"] = {m.ns: m for m in msg.markers}
-        elif topic == "/wholehand/residual_wrench":
-            f, m = msg.wrench.force, msg.wrench.torque
-            cycle["wrench"] = [f.x, f.y, f.z, m.x, m.y, m.z]
-        elif topic == "/wholehand/status":
-            cycle["stage"], _, cycle["status"] = msg.data.partition(": ")
+        elif cycle:
+            _add_to_cycle(cycle, topic, msg)
     if cycle:
         _append(record, cycle, info)
     if not info:
         raise ConfigError(f"{path} is no wholehand recording: it has no /wholehand/run_info")
     return record
+
+
+def _add_to_cycle(cycle: dict[str, Any], topic: str, msg: Any) -> None:
+    """Put what a cycle's message on ``topic`` says into ``cycle`` (other topics: nothing)."""
+    if topic == "/joint_states":
+        cycle["q"] = np.asarray(msg.position, dtype=float)
+        cycle["tau"] = np.asarray(msg.effort, dtype=float)
+    elif topic == "/wholehand/contacts":
+        cycle["contacts"] = {m.ns: m for m in msg.markers}
+    elif topic == "/wholehand/residual_wrench":
+        f, m = msg.wrench.force, msg.wrench.torque
+        cycle["wrench"] = [f.x, f.y, f.z, m.x, m.y, m.z]
+    elif topic == "/wholehand/status":
+        cycle["stage"], _, cycle["status"] = msg.data.partition(": ")
 
 
 def _matrix(transform: Any) -> FloatArray:

@@ -33,9 +33,8 @@ import logging
 import math
 import time
 import traceback
-from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -46,15 +45,13 @@ from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError, ObservationError
 from wholehand.loop.filters import ObservationFilter
 from wholehand.loop.gate import ObservationGate
+from wholehand.loop.report import MAX_KEPT_ERRORS, LoopReport, StageError, Transition
 from wholehand.loop.stage import END, CycleContext, LoopStatus, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 
 log = logging.getLogger(__name__)
-
-MAX_KEPT_ERRORS = 20
-"""Stage exceptions kept with their traceback (later ones are counted only)."""
 
 BROKEN_READING = 1.0
 """A joint reading this far past its joint's limits [rad or m] is no position the joint can
@@ -63,18 +60,6 @@ feasible command kept), with or without the plausibility gate, for as long as it
 
 HOLD_WARNING_S = 0.1
 """A hold of the last feasible command this long [s] is logged as a warning, once per hold."""
-
-
-@dataclass(frozen=True)
-class StageError:
-    """An unexpected exception inside a stage."""
-
-    t: float
-    """Backend time of the cycle [s]."""
-    stage: str
-    error: str
-    """``Type: message``."""
-    traceback: str
 
 
 @dataclass(frozen=True)
@@ -99,81 +84,6 @@ class Cycle:
     """Compute time from reading the observation to applying the command [s]."""
     fault: str = ""
     """Why the cycle faulted ("" when it did not)."""
-
-
-@dataclass(frozen=True)
-class Transition:
-    """A switch between stages."""
-
-    t: float
-    """Backend time of the cycle that asked for it [s]."""
-    source: str
-    target: str
-    reason: str
-
-
-@dataclass
-class LoopReport:
-    """What a run of the loop did, for records and the CLI."""
-
-    cycles: int = 0
-    stopped_by: str = ""
-    """``"duration"``, ``"end"`` (a stage ended the run) or the observer's reason."""
-    status_counts: Counter[str] = field(default_factory=Counter)
-    """Cycles per status."""
-    faults: Counter[str] = field(default_factory=Counter)
-    """Faulted cycles per loop status (``bad_state``, ``stage_error``, ``no_pose``)."""
-    last_fault: str = ""
-    """Reason of the latest faulted cycle."""
-    clamped: int = 0
-    """Cycles whose commanded torque exceeded a joint's limit and was clamped to it."""
-    max_excess: float = 0.0
-    """Largest excess over a limit before clamping [N*m]."""
-    held_commands: int = 0
-    """Cycles whose stage gave no command, so that the last feasible one stayed applied: faults,
-    allocations without a torque (deadline, infeasible, ...) and holds by design (a stage that
-    allocates once per object pose)."""
-    longest_hold: int = 0
-    """Most consecutive held cycles: how long the applied command once went without renewal."""
-    longest_hold_s: float = 0.0
-    """The longest hold on the backend's clock [s], from the start of its first cycle to the
-    end of its last one's period."""
-    longest_hold_at: float = 0.0
-    """Backend time of the longest hold's first cycle [s]."""
-    longest_hold_status: str = ""
-    """Status of the longest hold's first cycle: why it began."""
-    overruns: int = 0
-    """Cycles that computed past their period (wall-clock backends)."""
-    max_overrun: float = 0.0
-    """Largest overrun [s]."""
-    errors: list[StageError] = field(default_factory=list)
-    """Stage exceptions, the first :data:`MAX_KEPT_ERRORS` with their tracebacks."""
-    n_errors: int = 0
-    """All stage exceptions, kept or not."""
-    transitions: list[Transition] = field(default_factory=list)
-    """Every switch between stages, in order."""
-
-    def as_dict(self) -> dict[str, object]:
-        """JSON-serialisable summary (tracebacks of at most three errors)."""
-        return {
-            "cycles": self.cycles,
-            "stopped_by": self.stopped_by,
-            "status_counts": dict(self.status_counts),
-            "faults": dict(self.faults),
-            "last_fault": self.last_fault,
-            "clamped": self.clamped,
-            "max_excess_Nm": self.max_excess,
-            "held_commands": self.held_commands,
-            "longest_hold": self.longest_hold,
-            "longest_hold_s": self.longest_hold_s,
-            "longest_hold_at": self.longest_hold_at,
-            "longest_hold_status": self.longest_hold_status,
-            "overruns": self.overruns,
-            "max_overrun_s": self.max_overrun,
-            "n_errors": self.n_errors,
-            "errors": [e.__dict__ for e in self.errors[:3]],
-            "transitions": [t.__dict__ for t in self.transitions],
-        }
 
 
 class Observer:
@@ -278,36 +188,50 @@ class ControlLoop:
                     break
                 cycle = self._cycle(report.cycles, t)
                 report.cycles += 1
-                reason = None
-                for observer in self.observers:
-                    reason = observer.on_cycle(cycle) or reason
-                if reason is not None:
-                    report.stopped_by = reason
+                stop = self._after(cycle)
+                if stop is not None:
+                    report.stopped_by = stop
                     break
-                next_stage = cycle.output.next
-                if next_stage == END:
-                    report.stopped_by = END
-                    break
-                if next_stage is not None:
-                    self._switch(next_stage, t, cycle.output.reason)
-                if backend.clock == "sim":
-                    # The schedule t0 + n dt keeps the rate on average when a period is not a
-                    # whole number of simulation steps; every cycle advances at least one step.
-                    n_run += 1
-                    self._advance(max(t0 + n_run * self.dt, t + 0.5 * self.dt))
-                else:
-                    deadline += self.dt
-                    overran = self._advance(deadline)
-                    late = backend.time - deadline
-                    if late > self.dt:  # woke a whole period late: a missed slot too
-                        if not overran:
-                            report.overruns += 1
-                            report.max_overrun = max(report.max_overrun, late)
-                        deadline = backend.time
+                n_run += 1
+                deadline = self._next_cycle(t0, n_run, t, deadline)
         finally:
             for observer in self.observers:
                 observer.on_end(self)
         return report
+
+    def _after(self, cycle: Cycle) -> str | None:
+        """Show the cycle to the observers and switch to the stage it asks for; why the run
+        stops (an observer's reason, or the stage's END), or None."""
+        reason = None
+        for observer in self.observers:
+            reason = observer.on_cycle(cycle) or reason
+        if reason is not None:
+            return reason
+        next_stage = cycle.output.next
+        if next_stage == END:
+            return END
+        if next_stage is not None:
+            self._switch(next_stage, cycle.t, cycle.output.reason)
+        return None
+
+    def _next_cycle(self, t0: float, n_run: int, t: float, deadline: float) -> float:
+        """Advance the backend to the start of the run's cycle ``n_run`` (after the one at
+        ``t``); the wall clock's next ``deadline`` (unchanged on a simulation clock)."""
+        backend, report = self.backend, self.report
+        if backend.clock == "sim":
+            # The schedule t0 + n dt keeps the rate on average when a period is not a whole
+            # number of simulation steps; every cycle advances at least one step.
+            self._advance(max(t0 + n_run * self.dt, t + 0.5 * self.dt))
+            return deadline
+        deadline += self.dt
+        overran = self._advance(deadline)
+        late = backend.time - deadline
+        if late > self.dt:  # woke a whole period late: a missed slot too
+            if not overran:
+                report.overruns += 1
+                report.max_overrun = max(report.max_overrun, late)
+            deadline = backend.time
+        return deadline
 
     def _switch(self, name: str, t: float, reason: str = "") -> None:
         if name not in self.stages:  # a bug of the stage: reported, and the stage stays
@@ -337,8 +261,37 @@ class ControlLoop:
         started = time.perf_counter()
         truth = self.backend.observe()
         stage = self.stages[self.active]
+        output, fault, context = self._step(stage, truth, t)
+        if context is None:  # the cycle failed before its context was built
+            context = CycleContext(
+                t, self.dt, truth, self.hand, self.obj, self._kin_now, self._kin_then
+            )
+        if output.command is not None:
+            self.command = output.command
+            self._hold_start = None
+        else:
+            self._held(t, output.status)
+        self.backend.apply(self.command)
+        self._count(output.status, fault, t)
+        return Cycle(
+            index,
+            t,
+            truth,
+            context,
+            stage.name,
+            output,
+            self.command,
+            time.perf_counter() - started,
+            fault,
+        )
+
+    def _step(
+        self, stage: Stage, truth: Observation, t: float
+    ) -> tuple[StageOutput, str, CycleContext | None]:
+        """Check the reading, filter it and step the stage; its output, the fault ("" if
+        none) and the cycle's context (None if the cycle failed before it was built). Never
+        raises: a bad reading or a stage's exception becomes a status without a command."""
         obs = truth
-        fault = ""
         context: CycleContext | None = None
         try:
             check_observation(truth, self.hand.nq, self.hand.nv)
@@ -359,51 +312,32 @@ class ControlLoop:
             )
             if obs.wMo is None and stage.needs_object_pose:
                 output = StageOutput(None, LoopStatus.NO_POSE.value)
-                fault = "no object pose has arrived yet"
-            else:
-                if self.active not in self._started:
-                    self._started.add(self.active)
-                    stage.start(context)
-                output = stage.step(context)
-                if output.command is not None:
-                    checked = self._checked(output.command)
-                    if checked is not output.command:
-                        output = dataclasses.replace(output, command=checked)
+                return output, "no object pose has arrived yet", context
+            if self.active not in self._started:
+                self._started.add(self.active)
+                stage.start(context)
+            output = stage.step(context)
+            if output.command is not None:
+                checked = self._checked(output.command)
+                if checked is not output.command:
+                    output = dataclasses.replace(output, command=checked)
+            return output, "", context
         except ObservationError as err:
-            output = StageOutput(None, LoopStatus.BAD_STATE.value)
-            fault = str(err)
+            return StageOutput(None, LoopStatus.BAD_STATE.value), str(err), context
         except Exception as err:  # noqa: BLE001 - the loop never raises mid-grasp
-            output = StageOutput(None, LoopStatus.STAGE_ERROR.value)
             fault = f"{type(err).__name__}: {err}"
             self._keep_error(t, stage.name, fault, err)
-        if context is None:  # the cycle failed before its context was built
-            context = CycleContext(
-                t, self.dt, truth, self.hand, self.obj, self._kin_now, self._kin_then
-            )
-        if output.command is not None:
-            self.command = output.command
-            self._hold_start = None
-        else:
-            self._held(t, output.status)
-        self.backend.apply(self.command)
+            return StageOutput(None, LoopStatus.STAGE_ERROR.value), fault, context
+
+    def _count(self, status: str, fault: str, t: float) -> None:
+        """Count the cycle's status, and its fault if any (logged when it is a new one)."""
         report = self.report
-        report.status_counts[output.status] += 1
+        report.status_counts[status] += 1
         if fault:
-            report.faults[output.status] += 1
+            report.faults[status] += 1
             if fault != report.last_fault:
-                log.info("cycle at t = %.4f s: %s (%s)", t, output.status, fault)
+                log.info("cycle at t = %.4f s: %s (%s)", t, status, fault)
             report.last_fault = fault
-        return Cycle(
-            index,
-            t,
-            truth,
-            context,
-            stage.name,
-            output,
-            self.command,
-            time.perf_counter() - started,
-            fault,
-        )
 
     def _check_joint_range(self, q: np.ndarray) -> None:
         """Raise :class:`ObservationError` for a joint reading :data:`BROKEN_READING` or more

@@ -246,7 +246,7 @@ def _flush(
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def mesh_sdf_contacts(
+def mesh_sdf_contacts(  # noqa: C901 - one compiled pass over the samples
     wMo: FloatArray,
     wMb: FloatArray,
     bRj: FloatArray,

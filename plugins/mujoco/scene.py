@@ -132,6 +132,35 @@ def _check_hand(hand: HandModel) -> None:
         raise ConfigError(f"{hand.config.path}: hand {hand.name!r} has no actuated joint")
 
 
+def _set_joints(spec: mujoco.MjSpec, hand: HandModel) -> None:
+    """Every joint's damping and armature from hand.toml (an arm's its own), no friction."""
+    arm_joints = set(hand.config.arm_joints)
+    for joint in spec.joints:
+        joint.damping = [hand.config.damping, 0.0, 0.0]  # linear viscous damping only
+        arm = joint.name in arm_joints
+        joint.armature = hand.config.arm_armature if arm else hand.config.armature
+        joint.frictionloss = 0.0
+
+
+def _set_geoms(spec: mujoco.MjSpec, opts: SceneOptions, mu: float) -> None:
+    """Every hand geom named after its link, in the hand's collision group, with the scene's
+    contact parameters and friction ``mu``."""
+    for body in spec.bodies:  # URDF geoms are nameless: name them after their link
+        for k, geom in enumerate(body.geoms):
+            geom.name = geom.name or f"{body.name}/collision_{k}"
+    hand_affinity = OBJECT_BIT | (HAND_BIT if opts.self_collision else 0)
+    for geom in spec.geoms:
+        geom.contype = HAND_BIT
+        geom.conaffinity = hand_affinity
+        geom.condim = opts.condim
+        geom.friction = [mu, 0.005, 0.0001]
+        geom.solref = list(opts.solref)
+        geom.solimp = list(opts.solimp)
+        geom.priority = 0
+        geom.margin = 0.0
+        geom.gap = 0.0
+
+
 def _edit_hand(
     spec: mujoco.MjSpec, hand: HandModel, wMb: FloatArray, opts: SceneOptions, mu: float
 ) -> None:
@@ -152,26 +181,8 @@ def _edit_hand(
         target.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
     weld_locked_joints(spec, hand)
     add_declared_couplings(spec, hand)
-    arm_joints = set(hand.config.arm_joints)
-    for joint in spec.joints:
-        joint.damping = [hand.config.damping, 0.0, 0.0]  # linear viscous damping only
-        arm = joint.name in arm_joints
-        joint.armature = hand.config.arm_armature if arm else hand.config.armature
-        joint.frictionloss = 0.0
-    for body in spec.bodies:  # URDF geoms are nameless: name them after their link
-        for k, geom in enumerate(body.geoms):
-            geom.name = geom.name or f"{body.name}/collision_{k}"
-    hand_affinity = OBJECT_BIT | (HAND_BIT if opts.self_collision else 0)
-    for geom in spec.geoms:
-        geom.contype = HAND_BIT
-        geom.conaffinity = hand_affinity
-        geom.condim = opts.condim
-        geom.friction = [mu, 0.005, 0.0001]
-        geom.solref = list(opts.solref)
-        geom.solimp = list(opts.solimp)
-        geom.priority = 0
-        geom.margin = 0.0
-        geom.gap = 0.0
+    _set_joints(spec, hand)
+    _set_geoms(spec, opts, mu)
     for equality in spec.equalities:  # couplings: an MJCF's own, or URDF <mimic> as imported
         equality.solref = list(opts.solref)
     if opts.base == "floating":  # after the joint edits: the free joint gets no damping

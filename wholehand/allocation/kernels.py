@@ -93,7 +93,7 @@ def wrench_map(r_world: FloatArray, V: FloatArray) -> FloatArray:  # pragma: no 
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def structured_terms(
+def structured_terms(  # noqa: C901 - one compiled pass over the contacts
     n_world: FloatArray,
     p_world: FloatArray,
     p_com: FloatArray,

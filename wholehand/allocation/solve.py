@@ -131,7 +131,7 @@ def _uniform(n: int, value: float) -> FloatArray:
     return out
 
 
-def solve_allocation(
+def solve_allocation(  # noqa: C901 - the screening loop, read as one
     qp: AllocationQP,
     solver: QPSolver,
     *,

@@ -202,6 +202,11 @@ def check_observation(obs: Observation, n_q: int, n_v: int) -> None:
         and _usable(obs.q, obs.dq, wMb, wMb if wMo is None else wMo)
     ):
         return
+    _raise_fault(obs, n_q, n_v)
+
+
+def _raise_fault(obs: Observation, n_q: int, n_v: int) -> None:
+    """Raise :class:`ObservationError` naming what of ``obs`` is unusable (field by field)."""
     for name, value, n in (("q", obs.q, n_q), ("dq", obs.dq, n_v)):
         kind = np.asarray(value).dtype.kind
         if kind not in "fiu":  # text that numpy would parse ("1.0") is still not a reading

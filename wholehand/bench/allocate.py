@@ -266,7 +266,7 @@ def _time_direct(
     return {**percentiles_us(samples), "found": found}
 
 
-def run_allocation_benchmark(
+def run_allocation_benchmark(  # noqa: C901 - one table of cases and solvers
     contact_counts: Sequence[int] = (14, 45, 90),
     solvers: Sequence[str] | None = None,
     cycles: int = 300,

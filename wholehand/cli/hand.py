@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from wholehand.models.check import HandReport
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -30,6 +34,19 @@ def _cmd_check(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report.as_dict(), indent=2))
         return 0 if report.ok else 1
+    _print_model(report)
+    print()
+    if not report.findings:
+        print("no findings")
+    for f in report.findings:
+        print(f"{f.severity.upper()}: {f.what}\n  fix: {f.fix}")
+    print(f"\n{'usable' if report.ok else 'NOT usable'}: {len(report.findings)} findings")
+    return 0 if report.ok else 1
+
+
+def _print_model(report: HandReport) -> None:
+    """The report's summary: the hand, its joints (limits, torque limits, actuation), locked
+    joints and samples per link."""
     s = report.summary
     print(f"hand {s.get('name', '?')} from {report.path}")
     if s:
@@ -55,10 +72,3 @@ def _cmd_check(args: argparse.Namespace) -> int:
         print("\n  samples per link:")
         for link, n in s["points_per_link"].items():
             print(f"    {link:<30} {n:>6}")
-    print()
-    if not report.findings:
-        print("no findings")
-    for f in report.findings:
-        print(f"{f.severity.upper()}: {f.what}\n  fix: {f.fix}")
-    print(f"\n{'usable' if report.ok else 'NOT usable'}: {len(report.findings)} findings")
-    return 0 if report.ok else 1

@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from wholehand.reaching.episode_spec import EpisodeSpec
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -69,52 +72,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_reach(args: argparse.Namespace) -> int:
-    from wholehand.errors import ConfigError
     from wholehand.reaching.episode import run_episode
-    from wholehand.reaching.episode_spec import EpisodeSpec
 
-    if args.seed < 0:
-        raise ConfigError(f"--seed {args.seed} must be an integer >= 0")
-    if not args.duration > 0.0:
-        raise ConfigError(f"--duration {args.duration} must be > 0 [s]")
-    extra: dict[str, Any] = {}
-    if args.push is not None:
-        extra["push"] = args.push
-    if args.twist is not None:
-        extra["twist"] = args.twist
-    spec = EpisodeSpec(
-        hand=args.hand,
-        object=args.object,
-        seed=args.seed,
-        duration=args.duration,
-        reacher=args.reacher,
-        allocator=args.allocator,
-        balance_weight=not args.no_balance_weight,
-        gravity_compensation=not args.no_gravity_compensation,
-        self_collision=args.self_collision,
-        start=args.start,
-        **extra,
-    )
+    spec = _episode_spec(args)
     mcap = bool(args.record) and Path(args.record).suffix == ".mcap"
     recording = bool(args.record_html) or (bool(args.record) and not mcap)
-    observers: list[Any] = []
-    if mcap:
-        from dataclasses import asdict
-
-        from wholehand.hardware.mcap_recording import McapRecorder
-        from wholehand.models.hand import load_hand
-        from wholehand.reaching.episode import episode_table
-
-        surface = asdict(episode_table(load_hand(spec.hand)))
-        observers.append(McapRecorder(args.record, {"spec": asdict(spec), "table": surface}))
-    if args.view:
-        from wholehand.cli.run import live_view
-        from wholehand.models.hand import load_hand
-        from wholehand.reaching.episode import episode_table
-
-        table = episode_table(load_hand(spec.hand))
-        observers.append(live_view(spec, args.view_every, table))
-    summary = run_episode(spec, record=recording, observers=observers)
+    summary = run_episode(spec, record=recording, observers=_observers(args, spec, mcap))
     record = summary.pop("record", None)
     if mcap:
         print(f"recording: {args.record}")
@@ -133,6 +96,57 @@ def _cmd_reach(args: argparse.Namespace) -> int:
     else:
         print(format_summary(summary))
     return 0
+
+
+def _episode_spec(args: argparse.Namespace) -> EpisodeSpec:
+    """The episode ``wholehand reach``'s options describe.
+
+    Raises:
+        ConfigError: a negative seed or a duration that is not > 0.
+    """
+    from wholehand.errors import ConfigError
+    from wholehand.reaching.episode_spec import EpisodeSpec
+
+    if args.seed < 0:
+        raise ConfigError(f"--seed {args.seed} must be an integer >= 0")
+    if not args.duration > 0.0:
+        raise ConfigError(f"--duration {args.duration} must be > 0 [s]")
+    extra = {k: getattr(args, k) for k in ("push", "twist") if getattr(args, k) is not None}
+    return EpisodeSpec(
+        hand=args.hand,
+        object=args.object,
+        seed=args.seed,
+        duration=args.duration,
+        reacher=args.reacher,
+        allocator=args.allocator,
+        balance_weight=not args.no_balance_weight,
+        gravity_compensation=not args.no_gravity_compensation,
+        self_collision=args.self_collision,
+        start=args.start,
+        **extra,
+    )
+
+
+def _observers(args: argparse.Namespace, spec: EpisodeSpec, mcap: bool) -> list[Any]:
+    """The MCAP recorder and the live viewer, where the options ask for them."""
+    if not (mcap or args.view):
+        return []
+    from dataclasses import asdict
+
+    from wholehand.models.hand import load_hand
+    from wholehand.reaching.episode import episode_table
+
+    table = episode_table(load_hand(spec.hand))
+    observers: list[Any] = []
+    if mcap:
+        from wholehand.hardware.mcap_recording import McapRecorder
+
+        observers.append(McapRecorder(args.record, {"spec": asdict(spec), "table": asdict(table)}))
+    if args.view:
+        from wholehand.cli.run import live_view
+
+        observers.append(live_view(spec, args.view_every, table))
+    return observers
 
 
 def format_summary(s: dict[str, Any]) -> str:

@@ -137,18 +137,19 @@ def tracking_options(args: argparse.Namespace) -> dict[str, Any]:
             out[key] = value
     if out.get("noise_mm") or out.get("noise_deg"):
         out["noise_seed"] = args.seed
-    dropouts = []
-    for text in args.pose_dropout:
-        try:
-            start, duration = (float(x) for x in text.split(":"))
-        except ValueError:
-            raise ConfigError(
-                f"--pose-dropout {text!r} must be START:DURATION in seconds"
-            ) from None
-        dropouts.append([start, duration])
+    dropouts = [_dropout(text) for text in args.pose_dropout]
     if dropouts:
         out["dropouts"] = dropouts
     return out
+
+
+def _dropout(text: str) -> list[float]:
+    """``--pose-dropout START:DURATION`` as [start, duration] [s]."""
+    try:
+        start, duration = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise ConfigError(f"--pose-dropout {text!r} must be START:DURATION in seconds") from None
+    return [start, duration]
 
 
 def _object(name: str, sdf_spacing: str | None) -> ObjectModel | None:

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from wholehand.loop.record import RunRecord
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -30,11 +34,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_view)
 
 
-def _cmd_view(args: argparse.Namespace) -> int:
+def _read_record(path: Path) -> RunRecord:
+    """The run record or MCAP recording at ``path``."""
     from wholehand.errors import ConfigError
     from wholehand.loop.record import RunRecord
 
-    path = Path(args.record)
     if not path.is_file():
         raise ConfigError(
             f"wholehand view: no run record at {path}; write one with `wholehand run --save` "
@@ -43,9 +47,12 @@ def _cmd_view(args: argparse.Namespace) -> int:
     if path.suffix == ".mcap":
         from wholehand.hardware.mcap_replay import read_mcap_record
 
-        record = read_mcap_record(path)
-    else:
-        record = RunRecord.load(path)
+        return read_mcap_record(path)
+    return RunRecord.load(path)
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    record = _read_record(Path(args.record))
     if args.plot:
         from wholehand.viz.plots import plot_run
 

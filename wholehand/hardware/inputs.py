@@ -26,6 +26,7 @@ from wholehand.loop.control_loop import BROKEN_READING
 from wholehand.models.hand import HandModel
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
 
 LIMIT_SLACK = BROKEN_READING
 """How far past a joint limit a measured position is still believed [rad]: the loop's own bound
@@ -123,14 +124,7 @@ class JointStateReader:
         Raises:
             RejectedMessage: why the message cannot be used.
         """
-        n = len(msg.names)
-        if msg.position.shape != (n,):
-            raise RejectedMessage(
-                "wrong_length", f"{msg.position.shape[0]} positions for {n} names"
-            )
-        for what, arr in (("velocities", msg.velocity), ("efforts", msg.effort)):
-            if arr.shape not in ((0,), (n,)):
-                raise RejectedMessage("wrong_length", f"{arr.shape[0]} {what} for {n} names")
+        _check_lengths(msg)
         check_stamp(msg.stamp, now, self.max_future)
         rows, idx = self._mapping(msg.names)
         hand = self.hand
@@ -151,18 +145,33 @@ class JointStateReader:
                 f"joint {name!r} at {q[j]:.4g} rad is outside its limits "
                 f"[{hand.q_lower[j]:.4g}, {hand.q_upper[j]:.4g}]",
             )
-        dq = effort = None
-        if msg.velocity.size:
-            dq = np.zeros(hand.nv)
-            dq[idx] = msg.velocity[rows]
-            if not np.isfinite(dq).all():
-                raise RejectedMessage("not_finite", "velocities hold NaN or inf")
-        if msg.effort.size:
-            effort = np.zeros(hand.nv)
-            effort[idx] = msg.effort[rows]
-            if not np.isfinite(effort).all():
-                raise RejectedMessage("not_finite", "efforts hold NaN or inf")
+        dq = self._per_joint(msg.velocity, rows, idx, "velocities")
+        effort = self._per_joint(msg.effort, rows, idx, "efforts")
         return JointSample(msg.stamp, q, dq, effort)
+
+    def _per_joint(
+        self, values: FloatArray, rows: IntArray, idx: IntArray, what: str
+    ) -> FloatArray | None:
+        """(n_v,) the message's ``values`` (velocities or efforts) in the model's order, zero
+        for joints it does not name; None if it sends none."""
+        if not values.size:
+            return None
+        out = np.zeros(self.hand.nv)
+        out[idx] = values[rows]
+        if not np.isfinite(out).all():
+            raise RejectedMessage("not_finite", f"{what} hold NaN or inf")
+        return out
+
+
+def _check_lengths(msg: JointStateMsg) -> None:
+    """Raise :class:`RejectedMessage` unless there is one position per name, and one velocity
+    and one effort per name or none."""
+    n = len(msg.names)
+    if msg.position.shape != (n,):
+        raise RejectedMessage("wrong_length", f"{msg.position.shape[0]} positions for {n} names")
+    for what, arr in (("velocities", msg.velocity), ("efforts", msg.effort)):
+        if arr.shape not in ((0,), (n,)):
+            raise RejectedMessage("wrong_length", f"{arr.shape[0]} {what} for {n} names")
 
 
 def check_stamp(stamp: float, now: float, max_future: float = 0.01) -> None:

@@ -349,6 +349,26 @@ class McapRecorder(Observer):
                 self.on_end(self._loop)
         return None
 
+    def _write_targets(self, writer: McapWriter, cycle: Cycle, header: Any, t: float) -> None:
+        """The command's joint position targets, if it has any, on /wholehand/joint_targets."""
+        names: list[str] = []
+        positions: list[float] = []
+        for group in cycle.command.targets:
+            if group.q is None:
+                continue
+            names += [self.dof_names[int(i)] for i in group.dofs]
+            positions += [float(v) for v in group.q]
+        if not names:
+            return
+        message = self.types.JointState(
+            header=header,
+            name=names,
+            position=np.asarray(positions),
+            velocity=np.zeros(0),
+            effort=np.zeros(0),
+        )
+        writer.write("/wholehand/joint_targets", message, t)
+
     def _record(self, writer: McapWriter, cycle: Cycle) -> None:
         T, hand = self.types, self.hand
         t = cycle.t
@@ -393,25 +413,7 @@ class McapRecorder(Observer):
             ),
             t,
         )
-        if cycle.command.targets:
-            names, positions = [], []
-            for group in cycle.command.targets:
-                if group.q is None:
-                    continue
-                names += [self.dof_names[int(i)] for i in group.dofs]
-                positions += [float(v) for v in group.q]
-            if names:
-                writer.write(
-                    "/wholehand/joint_targets",
-                    T.JointState(
-                        header=header,
-                        name=names,
-                        position=np.asarray(positions),
-                        velocity=np.zeros(0),
-                        effort=np.zeros(0),
-                    ),
-                    t,
-                )
+        self._write_targets(writer, cycle, header, t)
         self._write_contacts(writer, cycle, header, t)
         allocation = cycle.output.allocation
         if allocation is not None:

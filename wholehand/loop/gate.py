@@ -74,7 +74,15 @@ class ObservationGate:
     def check(self, obs: Observation) -> None:
         """Raise :class:`ObservationError` naming the implausible value, unless the same check
         has failed ``accept_after`` times in a row (then accept it)."""
-        failures = {}
+        refused = self._refused(self._failures(obs))
+        if refused:
+            raise ObservationError("implausible observation: " + "; ".join(refused))
+        if obs.wMo is not None:
+            self._reference = (obs.stamp_object, obs.wMo)
+
+    def _failures(self, obs: Observation) -> dict[str, str]:
+        """Each check ``obs`` fails, with why."""
+        failures: dict[str, str] = {}
         wMo, limits = obs.wMo, self.limits
         ref = self._reference
         dt = 0.0 if ref is None or wMo is None else obs.stamp_object - ref[0]
@@ -103,6 +111,12 @@ class ObservationGate:
             jump = self._jump(dt, moved, turned)
             if jump:
                 failures["jump"] = jump
+        return failures
+
+    def _refused(self, failures: dict[str, str]) -> list[str]:
+        """Count ``failures`` against the checks' runs of failures; the reasons of those not
+        yet sustained for ``accept_after`` observations (refused)."""
+        limits = self.limits
         for name in list(self._failing):
             if name not in failures:
                 del self._failing[name]
@@ -114,10 +128,7 @@ class ObservationGate:
                 refused.append(reason)
             elif count == limits.accept_after:  # sustained: accepted while it lasts
                 self.accepted[name] += 1
-        if refused:
-            raise ObservationError("implausible observation: " + "; ".join(refused))
-        if wMo is not None:
-            self._reference = (obs.stamp_object, wMo)
+        return refused
 
     def _jump(self, dt: float, moved: float, turned: float) -> str:
         """The reason a pose ``dt`` [s] after the reference, ``moved`` [m] and ``turned``

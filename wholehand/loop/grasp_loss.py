@@ -105,7 +105,7 @@ class GraspLossCheck:
 
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy")
-def clear_verdict(
+def clear_verdict(  # noqa: C901 - one compiled pass over the points
     points: FloatArray, wMbox: FloatArray, half: FloatArray, n_tips: int, margin: float
 ) -> int:  # pragma: no cover - jit
     """1 when the hull of ``points`` (M, 3, world) [m] clearly meets the box of half sides

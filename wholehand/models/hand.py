@@ -279,16 +279,10 @@ class HandModel:
         }
         return resolve_chains(mimics, moving, cfg.model_path, sources)
 
-    def _build_joint_tables(self) -> None:
-        cfg, model = self.config, self.model
-        moving = [model.names[j] for j in range(1, model.njoints)]
-        self.mimics = self._couplings(moving)
-        """Coupled joints: follower -> :class:`~wholehand.models.coupling.Mimic` (its leader)."""
-        actuated = (
-            list(cfg.actuated_joints)
-            if cfg.actuated_joints is not None
-            else [j for j in moving if j not in self.mimics]
-        )
+    def _check_named_joints(self, actuated: list[str], moving: list[str]) -> None:
+        """Raise :class:`ConfigError` for a joint that hand.toml actuates, limits or closes
+        but that is locked, not a moving joint of the model, or a coupling's follower."""
+        cfg = self.config
         styles = cfg.grasp_styles.values()
         grasp_joints = [j for st in styles for j in (*st.preshape, *st.close_torque)]
         for name in [*actuated, *cfg.torque_limits, *grasp_joints]:
@@ -313,6 +307,18 @@ class HandModel:
                     f"motor of its own; name {leader!r} instead (in [joints] actuated, "
                     "torque_limit or a close_torque)"
                 )
+
+    def _build_joint_tables(self) -> None:
+        cfg, model = self.config, self.model
+        moving = [model.names[j] for j in range(1, model.njoints)]
+        self.mimics = self._couplings(moving)
+        """Coupled joints: follower -> :class:`~wholehand.models.coupling.Mimic` (its leader)."""
+        actuated = (
+            list(cfg.actuated_joints)
+            if cfg.actuated_joints is not None
+            else [j for j in moving if j not in self.mimics]
+        )
+        self._check_named_joints(actuated, moving)
         self.joint_names = moving
         self.actuated_dofs = np.zeros(model.nv, dtype=bool)
         self.tau_max = np.zeros(model.nv)

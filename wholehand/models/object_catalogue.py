@@ -85,6 +85,25 @@ def ycb_registry_path() -> Path:
 _ENTRY_KEYS = {"mass", "density", "friction", "repair", "source", "note"}
 
 
+def _check_entry(entry: Any, where: str) -> None:
+    """Raise :class:`ConfigError` for an object entry of ycb.toml that is not a table of known
+    keys with valid values."""
+    if not isinstance(entry, dict):
+        raise ConfigError(f"{where} must be a table")
+    unknown = set(entry) - _ENTRY_KEYS
+    if unknown:
+        raise ConfigError(
+            f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(_ENTRY_KEYS)}"
+        )
+    if "mass" in entry and "density" in entry:
+        raise ConfigError(f"{where}: give mass or density, not both")
+    for key in ("mass", "density", "friction"):
+        if key in entry and not (isinstance(entry[key], (int, float)) and entry[key] >= 0):
+            raise ConfigError(f"{where}: {key} must be a non-negative number, got {entry[key]!r}")
+    if "repair" in entry and not isinstance(entry["repair"], bool):
+        raise ConfigError(f"{where}: repair must be true or false, got {entry['repair']!r}")
+
+
 @functools.lru_cache(maxsize=1)
 def ycb_registry() -> dict[str, dict[str, Any]]:
     """Entries of ``ycb.toml`` by YCB name, validated (read once)."""
@@ -99,23 +118,7 @@ def ycb_registry() -> dict[str, dict[str, Any]]:
     if not isinstance(objects, dict):
         raise ConfigError(f"{str(path)!r}: [objects] must be a table of per-object tables")
     for name, entry in objects.items():
-        where = f"{str(path)!r} [objects.{name!r}]"
-        if not isinstance(entry, dict):
-            raise ConfigError(f"{where} must be a table")
-        unknown = set(entry) - _ENTRY_KEYS
-        if unknown:
-            raise ConfigError(
-                f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(_ENTRY_KEYS)}"
-            )
-        if "mass" in entry and "density" in entry:
-            raise ConfigError(f"{where}: give mass or density, not both")
-        for key in ("mass", "density", "friction"):
-            if key in entry and not (isinstance(entry[key], (int, float)) and entry[key] >= 0):
-                raise ConfigError(
-                    f"{where}: {key} must be a non-negative number, got {entry[key]!r}"
-                )
-        if "repair" in entry and not isinstance(entry["repair"], bool):
-            raise ConfigError(f"{where}: repair must be true or false, got {entry['repair']!r}")
+        _check_entry(entry, f"{str(path)!r} [objects.{name!r}]")
     return objects
 
 

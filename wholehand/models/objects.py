@@ -59,6 +59,21 @@ AUTO_SPACING = "auto"
 """``sdf_spacing`` value that picks the grid spacing from the object's thinnest wall."""
 
 
+def _checked_inertia(value: Any, where: str) -> FloatArray:
+    """``value`` as a finite, symmetric, positive semi-definite (3, 3) array [kg*m^2]."""
+    inertia = np.array(value, dtype=np.float64)
+    if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
+        raise ConfigError(f"{where}: inertia must be a finite (3, 3) array, got {value!r}")
+    scale = max(float(np.abs(inertia).max()), 1e-300)
+    if not np.allclose(inertia, inertia.T, rtol=0.0, atol=1e-9 * scale):
+        raise ConfigError(f"{where}: inertia must be symmetric, got {inertia.tolist()}")
+    if np.linalg.eigvalsh(inertia).min() < -1e-9 * scale:
+        raise ConfigError(
+            f"{where}: inertia must be positive semi-definite, got {inertia.tolist()}"
+        )
+    return inertia
+
+
 @dataclass(frozen=True, eq=False)
 class ObjectModel:
     """A rigid object in its canonical frame: geometry, mass properties, friction and SDF.
@@ -108,18 +123,7 @@ class ObjectModel:
         com = np.array(self.com, dtype=np.float64)
         if com.shape != (3,) or not np.all(np.isfinite(com)):
             raise ConfigError(f"{where}: com must be 3 finite numbers [m], got {self.com!r}")
-        inertia = np.array(self.inertia, dtype=np.float64)
-        if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
-            raise ConfigError(
-                f"{where}: inertia must be a finite (3, 3) array, got {self.inertia!r}"
-            )
-        scale = max(float(np.abs(inertia).max()), 1e-300)
-        if not np.allclose(inertia, inertia.T, rtol=0.0, atol=1e-9 * scale):
-            raise ConfigError(f"{where}: inertia must be symmetric, got {inertia.tolist()}")
-        if np.linalg.eigvalsh(inertia).min() < -1e-9 * scale:
-            raise ConfigError(
-                f"{where}: inertia must be positive semi-definite, got {inertia.tolist()}"
-            )
+        inertia = _checked_inertia(self.inertia, where)
         spacing = self.sdf_spacing
         if spacing != AUTO_SPACING and not (
             isinstance(spacing, (int, float)) and np.isfinite(spacing) and spacing > 0.0

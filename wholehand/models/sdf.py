@@ -280,20 +280,7 @@ class SignedDistanceGrid:
             ConfigError: spacing or padding not positive, or a grid above ``MAX_GRID_NODES``.
             AssetError: the mesh is empty, not watertight, or wound inside out.
         """
-        spacing, padding = float(spacing), float(padding)
-        if not (np.isfinite(spacing) and spacing > 0.0):
-            raise ConfigError(
-                f"SignedDistanceGrid.from_mesh: spacing must be > 0 [m], got {spacing!r}"
-            )
-        if not (np.isfinite(padding) and padding >= 0.0):
-            raise ConfigError(
-                f"SignedDistanceGrid.from_mesh: padding must be >= 0 [m], got {padding!r}"
-            )
-        exact_band = float(exact_band)
-        if not (np.isfinite(exact_band) and exact_band >= 0.0):
-            raise ConfigError(
-                f"SignedDistanceGrid.from_mesh: exact_band must be >= 0 [m], got {exact_band!r}"
-            )
+        spacing, padding, exact_band = _checked_sizes(spacing, padding, exact_band)
         vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
         faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         if len(faces) == 0:
@@ -357,3 +344,19 @@ def grid_layout(
 # ----------------------------------------------------------------------------------------------
 # Exact distances to a triangle mesh
 # ----------------------------------------------------------------------------------------------
+
+
+def _checked_sizes(spacing: float, padding: float, exact_band: float) -> tuple[float, float, float]:
+    """The grid's spacing (> 0), padding and exact band (>= 0) [m] as floats."""
+    spacing, padding, exact_band = float(spacing), float(padding), float(exact_band)
+    if not (np.isfinite(spacing) and spacing > 0.0):
+        raise ConfigError(f"SignedDistanceGrid.from_mesh: spacing must be > 0 [m], got {spacing!r}")
+    if not (np.isfinite(padding) and padding >= 0.0):
+        raise ConfigError(
+            f"SignedDistanceGrid.from_mesh: padding must be >= 0 [m], got {padding!r}"
+        )
+    if not (np.isfinite(exact_band) and exact_band >= 0.0):
+        raise ConfigError(
+            f"SignedDistanceGrid.from_mesh: exact_band must be >= 0 [m], got {exact_band!r}"
+        )
+    return spacing, padding, exact_band

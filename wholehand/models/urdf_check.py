@@ -23,32 +23,40 @@ def urdf_problems(path: Path) -> list[str]:
         return [f"not well-formed XML: {err}"]
     if root.tag != "robot":
         return [f"the root element is <{root.tag}>, not <robot>"]
-    problems = []
-    children = set()
+    problems: list[str] = []
+    children: set[str] = set()
     for joint in root.findall("joint"):  # not a <transmission>'s <joint>
-        name, kind = joint.get("name", "?"), joint.get("type", "")
-        if kind not in JOINT_TYPES:
-            problems.append(f"joint {name!r} has type {kind!r}; one of {list(JOINT_TYPES)}")
-        for tag in ("parent", "child"):
-            element = joint.find(tag)
-            link = None if element is None else element.get("link")
-            if not link:
-                problems.append(f"joint {name!r} has no <{tag} link=...>")
-            elif tag == "child":
-                children.add(link)
-        if kind in LIMITED:
-            limit = joint.find("limit")
-            if limit is None:
-                problems.append(
-                    f"joint {name!r} ({kind}) has no <limit>; add <limit lower=... upper=... "
-                    "effort=... velocity=.../>"
-                )
-            else:
-                missing = [a for a in ("effort", "velocity") if limit.get(a) is None]
-                if missing:
-                    problems.append(f"the <limit> of joint {name!r} lacks {missing}")
+        problems += _joint_problems(joint, children)
     links = [link.get("name") for link in root.findall("link")]
     roots = [link for link in links if link not in children]
     if len(roots) > 1:
         problems.append(f"links {roots} have no parent joint: a URDF has one root link")
+    return problems
+
+
+def _joint_problems(joint: ET.Element, children: set[str]) -> list[str]:
+    """What urdfdom refuses in one ``<joint>``; adds its child link to ``children``."""
+    problems = []
+    name, kind = joint.get("name", "?"), joint.get("type", "")
+    if kind not in JOINT_TYPES:
+        problems.append(f"joint {name!r} has type {kind!r}; one of {list(JOINT_TYPES)}")
+    for tag in ("parent", "child"):
+        element = joint.find(tag)
+        link = None if element is None else element.get("link")
+        if not link:
+            problems.append(f"joint {name!r} has no <{tag} link=...>")
+        elif tag == "child":
+            children.add(link)
+    if kind not in LIMITED:
+        return problems
+    limit = joint.find("limit")
+    if limit is None:
+        problems.append(
+            f"joint {name!r} ({kind}) has no <limit>; add <limit lower=... upper=... "
+            "effort=... velocity=.../>"
+        )
+    else:
+        missing = [a for a in ("effort", "velocity") if limit.get(a) is None]
+        if missing:
+            problems.append(f"the <limit> of joint {name!r} lacks {missing}")
     return problems

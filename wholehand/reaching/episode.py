@@ -135,14 +135,7 @@ def episode_scene(
     Raises:
         ConfigError: a bad spec, or no usable stored grasp.
     """
-    if not (math.isfinite(spec.rate) and spec.rate > 0):
-        raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
-    if spec.start not in STARTS:
-        raise ConfigError(f"EpisodeSpec: start must be one of {STARTS}, got {spec.start!r}")
-    for name in ("push", "twist"):
-        value = getattr(spec, name)
-        if not (math.isfinite(value) and value >= 0.0):
-            raise ConfigError(f"EpisodeSpec: {name} must be >= 0 [object weights], got {value!r}")
+    _check_spec(spec)
     on_table = spec.start == "table"
     hand = load_hand(spec.hand) if hand is None else hand
     obj = load_object(spec.object) if obj is None else obj
@@ -170,13 +163,7 @@ def episode_scene(
         wMo[:3, 3] = [*held_at, table.top]
         wMo[2, 3] += spec.hold_height
     if hand.arm_dofs.any():  # an arm: from its home posture, fingers at the pre-shape
-        q0 = np.zeros(hand.nq)
-        for name, value in zip(hand.config.arm_joints, hand.config.arm_home, strict=True):
-            q0[hand.model.joints[hand.model.getJointId(name)].idx_q] = value
-        for name in grasp_hand.joint_names:
-            i = grasp_hand.model.joints[grasp_hand.model.getJointId(name)].idx_q
-            q0[hand.model.joints[hand.model.getJointId(name)].idx_q] = start.q_pre[i]
-        placement: dict[str, Any] = {"q_init": q0}
+        placement: dict[str, Any] = {"q_init": _arm_start(hand, grasp_hand, start)}
     else:  # a floating wrist: above the pre-grasp, offset at random, clear of everything
         wMb0 = floating_start(hand, obj, start, wMo, table, rng)
         placement = {"q_init": start.q_pre, "wMb": wMb0, "base": "floating"}
@@ -191,6 +178,29 @@ def episode_scene(
         **placement,
     )
     return EpisodeScene(hand, grasp_hand, obj, table, rng, plans, wMo, backend, on_table)
+
+
+def _check_spec(spec: EpisodeSpec) -> None:
+    """Raise :class:`ConfigError` for a bad rate, start, push or twist."""
+    if not (math.isfinite(spec.rate) and spec.rate > 0):
+        raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
+    if spec.start not in STARTS:
+        raise ConfigError(f"EpisodeSpec: start must be one of {STARTS}, got {spec.start!r}")
+    for name in ("push", "twist"):
+        value = getattr(spec, name)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ConfigError(f"EpisodeSpec: {name} must be >= 0 [object weights], got {value!r}")
+
+
+def _arm_start(hand: HandModel, grasp_hand: HandModel, start: GraspPlan) -> FloatArray:
+    """(n_q,) an assembly's start: the arm at its home, the fingers at ``start``'s pre-shape."""
+    q0 = np.zeros(hand.nq)
+    for name, value in zip(hand.config.arm_joints, hand.config.arm_home, strict=True):
+        q0[hand.model.joints[hand.model.getJointId(name)].idx_q] = value
+    for name in grasp_hand.joint_names:
+        i = grasp_hand.model.joints[grasp_hand.model.getJointId(name)].idx_q
+        q0[hand.model.joints[hand.model.getJointId(name)].idx_q] = start.q_pre[i]
+    return q0
 
 
 def run_episode(

@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from wholehand import registry
 from wholehand.errors import ConfigError
@@ -209,6 +209,53 @@ def study_jobs(
     return jobs if not only else only_jobs(jobs, only)
 
 
+def _output_folder(
+    study: Study, out: str | Path | None, hand: str, grasps: str | Path | None
+) -> Path:
+    """``out`` (created), or ``out/study-<name>[-<hand>][-<grasps>]``."""
+    default = f"study-{study.name}" + ("" if hand == DEFAULT_HAND else f"-{Path(hand).name}")
+    default += "" if grasps is None else f"-{Path(grasps).name}"
+    folder = Path(out) if out is not None else Path("out") / default
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def _resumed_rows(
+    study: Study, folder: Path, jobs: list[TrialJob], done: dict[int, dict[str, Any]]
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Put the rows of ``folder`` that finish ``jobs`` into ``done`` (by job index) and say so
+    on stderr; the rows read from trials.csv and from the journal."""
+    cut: list[int] = []
+    from_csv, from_journal = folder_rows(folder, cut)
+    matched = match_rows(jobs, from_csv + from_journal)
+    done.update(matched.rows)
+    damaged = matched.n_damaged + len(cut)
+    where = f" (trials.csv lines cut short: {cut})" if cut else ""
+    print(
+        f"study {study.name}: resuming in {folder}: {len(done)} of {len(jobs)} trials "
+        f"reused, {matched.n_failed} rows of trials that raised re-run, "
+        f"{damaged} damaged rows (no result) re-run{where}, "
+        f"{matched.n_ignored} rows matching no job of this design ignored",
+        file=sys.stderr,
+    )
+    return from_csv, from_journal
+
+
+def _journal_csv_rows(
+    journal: IO[str], from_csv: list[dict[str, Any]], from_journal: list[dict[str, Any]]
+) -> None:
+    """Write the finished rows of trials.csv that the journal lacks to the journal."""
+    if not from_csv:
+        return
+    in_journal = {content_key(r) for r in from_journal}
+    for row in from_csv:
+        key = content_key(row)
+        if not failed_to_run(row) and has_result(row) and key not in in_journal:
+            in_journal.add(key)
+            journal.write(journal_line(row))
+    journal.flush()
+
+
 def run_study(
     study: Study,
     size: str = "full",
@@ -272,41 +319,20 @@ def run_study(
             "grasps of the study's objects; generate them with `wholehand grasps generate "
             f"--hand {hand}`"
         )
-    default = f"study-{study.name}" + ("" if hand == DEFAULT_HAND else f"-{Path(hand).name}")
-    default += "" if grasps is None else f"-{Path(grasps).name}"
-    folder = Path(out) if out is not None else Path("out") / default
-    folder.mkdir(parents=True, exist_ok=True)
-    journal_path = folder / JOURNAL_NAME
+    folder = _output_folder(study, out, hand, grasps)
     done: dict[int, dict[str, Any]] = {}
     from_csv: list[dict[str, Any]] = []
+    from_journal: list[dict[str, Any]] = []
     if resume:
-        cut: list[int] = []
-        from_csv, from_journal = folder_rows(folder, cut)
-        matched = match_rows(jobs, from_csv + from_journal)
-        done.update(matched.rows)
-        damaged = matched.n_damaged + len(cut)
-        where = f" (trials.csv lines cut short: {cut})" if cut else ""
-        print(
-            f"study {study.name}: resuming in {folder}: {len(done)} of {len(jobs)} trials "
-            f"reused, {matched.n_failed} rows of trials that raised re-run, "
-            f"{damaged} damaged rows (no result) re-run{where}, "
-            f"{matched.n_ignored} rows matching no job of this design ignored",
-            file=sys.stderr,
-        )
+        from_csv, from_journal = _resumed_rows(study, folder, jobs, done)
     n_reused = len(done)
     todo = [job for job in execution_order(jobs) if job.index not in done]
     if limit is not None:
         todo = todo[: int(limit)]
 
-    journal = open_journal(journal_path, fresh=not resume)
-    if from_csv:  # keep every row of trials.csv in the journal: trials.csv is rewritten below
-        in_journal = {content_key(r) for r in from_journal}
-        for row in from_csv:
-            key = content_key(row)
-            if not failed_to_run(row) and has_result(row) and key not in in_journal:
-                in_journal.add(key)
-                journal.write(journal_line(row))
-        journal.flush()
+    journal = open_journal(folder / JOURNAL_NAME, fresh=not resume)
+    # Keep every row of trials.csv in the journal: trials.csv is rewritten below.
+    _journal_csv_rows(journal, from_csv, from_journal)
 
     def finished(index: int, row: dict[str, Any]) -> None:
         journal.write(journal_line(row))

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 from processes import wait_for_line, wholehand
 
@@ -155,3 +156,29 @@ def test_controller_and_double_as_clients_of_a_router_hold_the_grasp(endpoint, t
     finally:
         router.kill()
         router.wait()
+
+
+def test_the_drives_count_a_step_to_zero_as_a_stop_not_a_torque_rate():
+    """The guard's ``joints_stale`` rule zeroes the torque at once: a stop, by design. The
+    double's drives measure the torque rate between one controller's commands without it."""
+    from wholehand.hardware.double import RemoteTorque
+    from wholehand.hardware.messages import encode_array
+    from wholehand.hardware.transport import SampleMeta
+    from wholehand.models.hand import load_hand
+
+    hand = load_hand("allegro_right")
+    dofs = np.flatnonzero(hand.actuated_dofs)
+    drives = RemoteTorque(hand, dofs, timeout=1.0)
+    source = bytes(16)
+
+    def send(value: float, t_ms: int) -> None:
+        payload = encode_array(np.full(dofs.size, value))
+        drives.on_message(payload, SampleMeta(t_ms * 1_000_000, source), time.monotonic())
+
+    send(0.1, 0)
+    send(0.11, 5)  # 0.01 N*m in 5 ms: 2 N*m/s
+    assert drives.max_rate == pytest.approx(2.0) and drives.stops == 0
+    send(0.0, 10)  # to zero on every joint: a stop
+    assert drives.max_rate == pytest.approx(2.0) and drives.stops == 1
+    send(0.1, 15)  # 0.1 N*m in 5 ms from zero: 20 N*m/s, a rate
+    assert drives.max_rate == pytest.approx(20.0) and drives.stops == 1

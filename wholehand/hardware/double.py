@@ -114,7 +114,10 @@ class RemoteTorque(Stage):
         """(source timestamp [ns], arrival wall time [ns]) of every torque message."""
         self.max_rate = 0.0
         """Largest torque rate between consecutive commands of one controller [N*m/s], by the
-        publish stamps of their attachments."""
+        publish stamps of their attachments; a step to zero torque on every joint (a safety
+        stop, e.g. the guard's ``joints_stale``) is counted in :attr:`stops` instead."""
+        self.stops = 0
+        """Steps of one controller to zero torque on every joint from a nonzero torque."""
         self.restart_steps: list[float] = []
         """For each controller after the first (a new publisher GID): the largest difference
         between its first command and the torque the drives applied when it arrived [N*m]."""
@@ -137,7 +140,9 @@ class RemoteTorque(Stage):
             applied = self._applied(received)
             if self._source is not None and self._source[0] == meta.source:
                 dt = 1e-9 * (meta.source_timestamp - self._source[1])
-                if dt > 0.0:
+                if not tau.any() and applied.any():
+                    self.stops += 1
+                elif dt > 0.0:
                     self.max_rate = max(self.max_rate, float(np.abs(tau - applied).max()) / dt)
             elif self._source is not None:
                 self.restart_steps.append(float(np.abs(tau - applied).max()))
@@ -329,6 +334,7 @@ def run_double(
         "malformed_commands": drives.malformed,
         "pose_messages": publisher.pose_messages,
         "max_torque_rate_Nm_s": drives.max_rate,
+        "stops_to_zero": drives.stops,
         "restart_steps_Nm": drives.restart_steps,
         "sim_warnings": backend.warnings(),
         "arrivals": drives.arrivals,

@@ -367,5 +367,6 @@ def run_episode_double(
         "hand_position_messages": drives.hand_position_messages,
         "pose_messages": publisher.pose_messages,
         "max_torque_rate_Nm_s": drives.torque.max_rate,
+        "stops_to_zero": drives.torque.stops,
         "sim_warnings": backend.warnings(),
     }

@@ -71,6 +71,11 @@ def test_a_bad_time_limit_is_refused(allegro, cups, within):
         reach_check(allegro, cups, "power", within, on_table=True)
 
 
+def test_an_unknown_grasp_style_is_named(allegro, cups):
+    with pytest.raises(ConfigError, match="has no grasp style 'wrap'; its styles: "):
+        reach_check(allegro, cups, "wrap", 2.0, on_table=True)
+
+
 def test_all_of_fails_with_the_first_reason():
     def fails(reason):
         return lambda grasp: reason

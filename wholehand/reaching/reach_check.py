@@ -25,7 +25,8 @@ from wholehand.reaching.episode_spec import EpisodeSpec
 from wholehand.reaching.pregrasp import plan_pregrasp, usable_on_table
 
 HOLD: float = 1.0
-"""How long the hand must keep the grasp after closing [s] (the episode's ``hold_after``)."""
+"""How long the hand must keep the grasp after closing [s]: the episode runs this long past
+the time limit."""
 SEEDS: tuple[int, ...] = (0, 1, 2, 3, 4)
 """The episode seeds each grasp is reached from (the start's offset, the person's move and, on
 a table, the object's yaw)."""
@@ -52,19 +53,25 @@ def reach_check(
     """A grasp check (:data:`~wholehand.grasps.checks.GraspCheck`): None when the reacher
     closes the grasp within ``within`` [s] of the episode's start and keeps it for at least
     :data:`HOLD` (no loss before the episode ends at ``within + HOLD``), from each of
-    ``seeds``; else the reason. ``style``: the grasp style the grasps
-    are made with (its fingers must touch to close); ``on_table``: the object rests on the
-    table (the grasps are table-top grasps) rather than being held out by the person.
+    ``seeds``; else the reason. ``style``: the grasp style the grasps are made with (its
+    fingers must touch to close); ``on_table``: the object rests on the table (the grasps are
+    table-top grasps) rather than being held out by the person.
 
     Raises:
-        ConfigError: ``within`` is not a positive number of seconds, or no seed is given.
+        ConfigError: ``within`` is not a positive number of seconds, no seed is given, or the
+            hand has no grasp style ``style``.
     """
     if not (math.isfinite(within) and within > 0):
         raise ConfigError(f"--require-reach must be > 0 [s], got {within!r}")
     if not seeds:
         raise ConfigError("reach_check: give at least one seed")
-    q_open = style_arrays(hand, hand.config.grasp_styles["power"])[0]
-    grasp_style = None if style == "power" else hand.config.grasp_styles[style]
+    styles = hand.config.grasp_styles
+    if style not in styles:
+        raise ConfigError(
+            f"hand {hand.name!r} has no grasp style {style!r}; its styles: {sorted(styles)}"
+        )
+    q_open = style_arrays(hand, styles["power"])[0]
+    grasp_style = None if style == "power" else styles[style]
 
     def check(grasp: Grasp) -> str | None:
         plan = plan_pregrasp(hand, obj, grasp, q_open, style=grasp_style)

@@ -101,8 +101,10 @@ def test_the_pose_lost_while_reaching_holds_the_arm_then_reaching_resumes(tmp_pa
     robot, ctl = _finish(sim, control, tmp_path)
     counts = ctl["loop"]["status_counts"]
     # 0.8 s without poses less the 0.2 s timeout and the tracker's 33 ms latency: ~0.57 s held
-    # (fewer cycles when a loaded machine makes some overrun).
-    assert 0.25 * 200 <= counts.get("pose_lost", 0) <= 0.7 * 200, counts
+    # (fewer cycles when a loaded machine makes some overrun). The dropout is 0.8 s of the
+    # double's simulated time, which a loaded machine stretches: the bound scales with it.
+    stretch = max(1.0, robot["wall_s"] / robot["duration_s"])
+    assert 0.25 * 200 <= counts.get("pose_lost", 0) <= 0.7 * 200 * stretch, (counts, stretch)
     assert counts["reaching"] > counts["pose_lost"], counts  # and reaching before and after
 
 

@@ -18,6 +18,7 @@ rate with its latency, noise and dropouts, as in :mod:`wholehand.hardware.double
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -346,6 +347,7 @@ def run_episode_double(
             backend, drives.commanded, joints, poses, names, config, wait_for_controller
         )
         report = loop.run(spec.episode.duration)
+        wall = time.monotonic() - pacer.mono0  # the run's simulated time took this long
         for sub in subs:
             sub.close()
     finally:
@@ -358,6 +360,7 @@ def run_episode_double(
         "perturbations": sum(e["what"].startswith(PERTURBATIONS) for e in events),
         "duration_s": backend.time,
         "start_monotonic_s": pacer.mono0,
+        "wall_s": wall,
         "cycles": report.cycles,
         "statuses": dict(report.status_counts),
         "late_cycles": pacer.late,

@@ -11,6 +11,15 @@ if TYPE_CHECKING:
     from wholehand.models.hand import HandModel
     from wholehand.models.objects import ObjectModel
 
+REQUIRE_HOLD_HELP = (
+    "keep only grasps that force regulation holds through the perturbation protocol with this "
+    "rotational pull [deg], as `wholehand run --theta DEG` runs it (in the air only)"
+)
+REQUIRE_REACH_HELP = (
+    "keep only grasps that the reacher closes within SECONDS of the start of `wholehand reach` "
+    "(with --on-table: `--start table`) and keeps for 1 s, from 5 seeded starts"
+)
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     grasps = sub.add_parser("grasps", help="generate or list stored grasps")
@@ -50,17 +59,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="DEG",
-        help="keep only grasps that force regulation holds through the perturbation protocol "
-        "with this rotational pull [deg], as `wholehand run --theta DEG` runs it (in the air "
-        "only)",
+        help=REQUIRE_HOLD_HELP,
     )
     p.add_argument(
         "--require-reach",
         type=float,
         default=None,
         metavar="SECONDS",
-        help="keep only grasps that the reacher closes within SECONDS of the start of "
-        "`wholehand reach` (with --on-table: `--start table`) and holds, from 3 seeded starts",
+        help=REQUIRE_REACH_HELP,
     )
     p.add_argument(
         "--out",
@@ -111,8 +117,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object", required=True, help="the object whose grasp file is checked")
     p.add_argument("--type", default="power", help="grasp style of the file (default power)")
     p.add_argument("--on-table", action="store_true", help="the style's table-top grasp file")
-    p.add_argument("--require-hold", type=float, default=None, metavar="DEG")
-    p.add_argument("--require-reach", type=float, default=None, metavar="SECONDS")
+    p.add_argument(
+        "--require-hold", type=float, default=None, metavar="DEG", help=REQUIRE_HOLD_HELP
+    )
+    p.add_argument(
+        "--require-reach", type=float, default=None, metavar="SECONDS", help=REQUIRE_REACH_HELP
+    )
     p.add_argument(
         "--keep-passing",
         action="store_true",

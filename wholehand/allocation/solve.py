@@ -131,7 +131,7 @@ def _uniform(n: int, value: float) -> FloatArray:
     return out
 
 
-def solve_allocation(  # noqa: C901 - the screening loop, read as one
+def solve_allocation(
     qp: AllocationQP,
     solver: QPSolver,
     *,
@@ -169,106 +169,214 @@ def solve_allocation(  # noqa: C901 - the screening loop, read as one
             left-out row once the time is up, ends with status ``"deadline"`` and no x. None:
             no deadline.
     """
-    nl = qp.n_lambda
     screen_edges = screening and edge_sel is not None and edge_sel.size > 0 and solver.reports_duals
-    all_t = np.arange(qp.torque_rows.size, dtype=np.intp)
-    eps = qp.params.eps_margin
-    n_null = qp.n_null if np.isfinite(eps) else 0
-    all_n = np.arange(n_null, dtype=np.intp)
-    t_mask, t_in = _first_rows(torque_sel, all_t, screening)
-    n_mask, n_in = _first_rows(null_sel, all_n, screening)
-    # The edge weights in the problem, when screened.
-    e_mask = _first_edges(edge_sel, nl) if screen_edges else None
-    limits = qp.torque_limits
+    ws = _WorkingSet(qp, torque_sel, null_sel, edge_sel if screen_edges else None, screening)
     torque_bounds = qp.torque_bounds()
-    eps_limits = _uniform(n_null, eps)
-    rounds = iterations = solver_ns = 0
-    res = QPResult(None, "failed")
-    x = np.zeros(qp.n_x)
-    guess: ActiveSet | None = None
-    x_relaxed: FloatArray | None = None  # the last round's solution, for a deadline
-    t_val = z_val = np.zeros(0)  # every torque and consistency row's value at it
     while True:
         if _past(deadline_ns):
             # Past it already: not even the next round's problem is built.
-            return _deadline(rounds, iterations, t_in, n_in, x_relaxed, t_val, z_val, solver_ns)
-        rounds += 1
-        full = rounds > max_rounds
-        if full:
-            t_in, n_in = all_t, all_n
-            e_mask = None
-        e_in = None if e_mask is None or e_mask.all() else np.flatnonzero(e_mask)
-        start = _round_start(x0, e_in, nl) if solver.primal_warm_start else None
-        null = qp.null_rows(n_in)
-        problem = _round_problem(qp, null, torque_bounds, t_in, n_in, e_in, guess)
-        time_limit = None
-        if deadline_ns is not None:  # the time left once the problem is built
-            time_limit = (deadline_ns - time.perf_counter_ns()) * 1e-9
-            if time_limit <= 0.0:
-                return _deadline(
-                    rounds - 1, iterations, t_in, n_in, x_relaxed, t_val, z_val, solver_ns
-                )
-        solve_started = time.perf_counter_ns()
-        res = solver.solve(
-            problem,
-            start,
-            warm=warm or x0 is not None,
-            time_limit=time_limit,
-        )
-        solver_ns += time.perf_counter_ns() - solve_started
-        iterations += res.iterations
-        if res.status == "deadline":
-            return _deadline(rounds, iterations, t_in, n_in, x_relaxed, t_val, z_val, solver_ns)
+            return ws.deadline()
+        full = ws.next_round(max_rounds)
+        e_in = ws.edges_in()
+        start = _round_start(x0, e_in, qp.n_lambda) if solver.primal_warm_start else None
+        null = qp.null_rows(ws.n_in)
+        problem = _round_problem(qp, null, torque_bounds, ws.t_in, ws.n_in, e_in, ws.guess)
+        time_limit = _time_left(deadline_ns)  # once the problem is built
+        if time_limit is not None and time_limit <= 0.0:
+            ws.rounds -= 1  # this round never solved
+            return ws.deadline()
+        res = ws.solve(solver, problem, start, warm or x0 is not None, time_limit)
         if res.status == "infeasible" and e_in is not None:
-            e_mask = None  # infeasible with some edges held at zero: try them all
+            ws.e_mask = None  # infeasible with some edges held at zero: try them all
             continue
-        if res.x is None or not np.isfinite(res.x).all():
-            return _failed(res, rounds, iterations, t_in, n_in, solver_ns)
+        unsolved = ws.unsolved(res)
+        if unsolved is not None:
+            return unsolved
+        assert res.x is not None
         x = _full_x(qp, res.x, e_in)
-        x_relaxed = x
-        lam = x[:nl]
-        t_val = qp.T_lam @ lam
-        add_t, _ = rows_over(qp.torque_totals(t_val), limits, t_mask, screen_tol)
-        z_val = qp.null_values(lam) if n_null else np.zeros(0)
-        add_n, z_worst = rows_over(z_val, eps_limits, n_mask, screen_tol)
-        if full:
+        add_t, add_n = ws.evaluate_rows(x, screen_tol)
+        if full or not ws.widen(res, e_in, null, add_t, add_n, screen_tol, screen_edges):
             break
+        x0, warm = x, True
+    return ws.optimal(x, res.detail)
+
+
+class _WorkingSet:
+    """The rows and edge weights of the screening rounds so far, their tallies, and the values
+    of every row at the last round's solution."""
+
+    def __init__(
+        self,
+        qp: AllocationQP,
+        torque_sel: IntArray | None,
+        null_sel: IntArray | None,
+        edge_sel: IntArray | None,
+        screening: bool,
+    ) -> None:
+        self.qp = qp
+        eps = qp.params.eps_margin
+        self.n_null = qp.n_null if np.isfinite(eps) else 0
+        self.all_t = np.arange(qp.torque_rows.size, dtype=np.intp)
+        self.all_n = np.arange(self.n_null, dtype=np.intp)
+        self.t_mask, self.t_in = _first_rows(torque_sel, self.all_t, screening)
+        self.n_mask, self.n_in = _first_rows(null_sel, self.all_n, screening)
+        self.e_mask: BoolArray | None = (
+            None if edge_sel is None else _first_edges(edge_sel, qp.n_lambda)
+        )
+        """The edge weights in the problem, when screened (None: all of them)."""
+        self.eps_limits = _uniform(self.n_null, eps)
+        self.guess: ActiveSet | None = None
+        self.rounds = self.iterations = self.solver_ns = 0
+        self.x_relaxed: FloatArray | None = None
+        """The last round's solution, for a deadline."""
+        self.t_val = self.z_val = np.zeros(0)
+        """Every torque and consistency row's value at :attr:`x_relaxed`."""
+        self.z_worst = 0.0
+
+    def next_round(self, max_rounds: int) -> bool:
+        """Count a round; past ``max_rounds``, the fallback to the full problem (every row,
+        every edge weight), and True."""
+        self.rounds += 1
+        if self.rounds <= max_rounds:
+            return False
+        self.t_in, self.n_in = self.all_t, self.all_n
+        self.e_mask = None
+        return True
+
+    def edges_in(self) -> IntArray | None:
+        """The edge weights of this round's problem, or None for all of them."""
+        if self.e_mask is None or self.e_mask.all():
+            return None
+        return np.flatnonzero(self.e_mask)
+
+    def solve(
+        self,
+        solver: QPSolver,
+        problem: DenseQP,
+        start: FloatArray | None,
+        warm: bool,
+        time_limit: float | None,
+    ) -> QPResult:
+        """One round's solve, its time and iterations tallied."""
+        started = time.perf_counter_ns()
+        res = solver.solve(problem, start, warm=warm, time_limit=time_limit)
+        self.solver_ns += time.perf_counter_ns() - started
+        self.iterations += res.iterations
+        return res
+
+    def evaluate_rows(self, x: FloatArray, screen_tol: float) -> tuple[IntArray, IntArray]:
+        """Every row's value at the round's solution ``x``, and the left-out torque and
+        consistency rows it violates."""
+        self.x_relaxed = x
+        lam = x[: self.qp.n_lambda]
+        self.t_val = self.qp.T_lam @ lam
+        totals = self.qp.torque_totals(self.t_val)
+        add_t, _ = rows_over(totals, self.qp.torque_limits, self.t_mask, screen_tol)
+        self.z_val = self.qp.null_values(lam) if self.n_null else np.zeros(0)
+        add_n, self.z_worst = rows_over(self.z_val, self.eps_limits, self.n_mask, screen_tol)
+        return add_t, add_n
+
+    def widen(
+        self,
+        res: QPResult,
+        e_in: IntArray | None,
+        null: FloatArray,
+        add_t: IntArray,
+        add_n: IntArray,
+        screen_tol: float,
+        guess: bool,
+    ) -> bool:
+        """Add the violated rows ``add_t``, ``add_n`` and the edge weights that price negative
+        at the round's multipliers to the next round's problem; False when there are none
+        (the round's solution is optimal). ``guess``: the next round starts from this round's
+        active set."""
         add_e = _NONE
         if e_in is not None:
-            assert e_mask is not None
-            add_e = _edges_to_add(qp, res.duals, e_in, e_mask, t_in, null, screen_tol)
+            assert self.e_mask is not None
+            add_e = _edges_to_add(
+                self.qp, res.duals, e_in, self.e_mask, self.t_in, null, screen_tol
+            )
         if add_t.size == 0 and add_n.size == 0 and add_e.size == 0:
-            break
-        if screen_edges and res.duals is not None:
-            guess = ActiveSet.of(qp, res.duals, t_in, n_in, e_in)
-        t_mask[add_t] = True
-        n_mask[add_n] = True
-        if e_mask is not None:
-            e_mask[add_e] = True
-        t_in, n_in = np.flatnonzero(t_mask), np.flatnonzero(n_mask)
-        x0, warm = x, True
-    viol, rel = _violations(qp, lam, t_val, z_worst)
-    return AllocationSolution(
-        x=x,
-        status="optimal",
-        rounds=rounds,
-        n_rows=t_in.size + n_in.size,
-        iterations=iterations,
-        violation=viol,
-        relative_violation=rel,
-        detail=res.detail,
-        solver_time=solver_ns * 1e-9,
-        torque_sel=t_in,
-        null_sel=n_in,
-        torque_values=t_val,
-        null_values=z_val,
-        n_edges=nl if e_mask is None else int(e_mask.sum()),
-    )
+            return False
+        if guess and res.duals is not None:
+            self.guess = ActiveSet.of(self.qp, res.duals, self.t_in, self.n_in, e_in)
+        self.t_mask[add_t] = True
+        self.n_mask[add_n] = True
+        if self.e_mask is not None:
+            self.e_mask[add_e] = True
+        self.t_in, self.n_in = np.flatnonzero(self.t_mask), np.flatnonzero(self.n_mask)
+        return True
+
+    def optimal(self, x: FloatArray, detail: str) -> AllocationSolution:
+        """The solution of a round that violates no left-out row (or of the full problem)."""
+        viol, rel = _violations(self.qp, x[: self.qp.n_lambda], self.t_val, self.z_worst)
+        return AllocationSolution(
+            x=x,
+            status="optimal",
+            rounds=self.rounds,
+            n_rows=self.t_in.size + self.n_in.size,
+            iterations=self.iterations,
+            violation=viol,
+            relative_violation=rel,
+            detail=detail,
+            solver_time=self.solver_ns * 1e-9,
+            torque_sel=self.t_in,
+            null_sel=self.n_in,
+            torque_values=self.t_val,
+            null_values=self.z_val,
+            n_edges=self.qp.n_lambda if self.e_mask is None else int(self.e_mask.sum()),
+        )
+
+    def unsolved(self, res: QPResult) -> AllocationSolution | None:
+        """The outcome of a round whose solver was stopped by the deadline, returned no x, or
+        a non-finite one; None when it solved."""
+        if res.status == "deadline":
+            return self.deadline()
+        if res.x is not None and np.isfinite(res.x).all():
+            return None
+        return AllocationSolution(
+            x=None,
+            status=res.status if res.x is None else "failed",
+            rounds=self.rounds,
+            n_rows=self.t_in.size + self.n_in.size,
+            iterations=self.iterations,
+            violation=np.inf,
+            detail=res.detail,
+            solver_time=self.solver_ns * 1e-9,
+            torque_sel=self.t_in,
+            null_sel=self.n_in,
+        )
+
+    def deadline(self) -> AllocationSolution:
+        """The outcome of a solve stopped by its deadline; the row values are those at
+        :attr:`x_relaxed` (empty without it)."""
+        return AllocationSolution(
+            x=None,
+            status="deadline",
+            rounds=self.rounds,
+            n_rows=self.t_in.size + self.n_in.size,
+            iterations=self.iterations,
+            violation=np.inf,
+            detail="deadline passed before the solution was exact",
+            solver_time=self.solver_ns * 1e-9,
+            torque_sel=self.t_in,
+            null_sel=self.n_in,
+            torque_values=self.t_val,
+            null_values=self.z_val,
+            x_relaxed=self.x_relaxed,
+        )
 
 
 def _past(deadline_ns: int | None) -> bool:
     """Whether ``time.perf_counter_ns()`` has reached the deadline (never, without one)."""
     return deadline_ns is not None and time.perf_counter_ns() >= deadline_ns
+
+
+def _time_left(deadline_ns: int | None) -> float | None:
+    """Seconds until the deadline (negative past it), or None without one."""
+    if deadline_ns is None:
+        return None
+    return (deadline_ns - time.perf_counter_ns()) * 1e-9
 
 
 def _round_start(x0: FloatArray | None, e_in: IntArray | None, n_lambda: int) -> FloatArray | None:
@@ -294,29 +402,6 @@ def _first_edges(edge_sel: IntArray | None, n_lambda: int) -> BoolArray:
     if edge_sel is not None:
         mask[edge_sel[edge_sel < n_lambda]] = True
     return mask
-
-
-def _failed(
-    res: QPResult,
-    rounds: int,
-    iterations: int,
-    t_in: IntArray,
-    n_in: IntArray,
-    solver_ns: int,
-) -> AllocationSolution:
-    """The solution of a round whose solver returned no x, or a non-finite one."""
-    return AllocationSolution(
-        x=None,
-        status=res.status if res.x is None else "failed",
-        rounds=rounds,
-        n_rows=t_in.size + n_in.size,
-        iterations=iterations,
-        violation=np.inf,
-        detail=res.detail,
-        solver_time=solver_ns * 1e-9,
-        torque_sel=t_in,
-        null_sel=n_in,
-    )
 
 
 def _full_x(qp: AllocationQP, x_round: FloatArray, e_in: IntArray | None) -> FloatArray:
@@ -366,35 +451,6 @@ def _violations(
     if not (np.isfinite(worst) and np.isfinite(relative)):
         return np.inf, np.inf
     return worst, relative
-
-
-def _deadline(
-    rounds: int,
-    iterations: int,
-    torque_sel: IntArray,
-    null_sel: IntArray,
-    x_relaxed: FloatArray | None,
-    torque_values: FloatArray,
-    null_values: FloatArray,
-    solver_ns: int,
-) -> AllocationSolution:
-    """The outcome of a solve stopped by its deadline; the row values are those at
-    ``x_relaxed`` (empty without it)."""
-    return AllocationSolution(
-        x=None,
-        status="deadline",
-        rounds=rounds,
-        n_rows=torque_sel.size + null_sel.size,
-        iterations=iterations,
-        violation=np.inf,
-        detail="deadline passed before the solution was exact",
-        solver_time=solver_ns * 1e-9,
-        torque_sel=torque_sel,
-        null_sel=null_sel,
-        torque_values=torque_values,
-        null_values=null_values,
-        x_relaxed=x_relaxed,
-    )
 
 
 def binding_rows(

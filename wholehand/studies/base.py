@@ -144,7 +144,8 @@ def save_success_figure(fig: Any, ax: Any, path: Path, title: str | None = None)
     ax.set_ylim(-5, 105)
     if title:
         ax.set_title("\n".join(textwrap.wrap(title, 48)), fontsize=10)
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[0]:  # a partial run may have no line yet
+        ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 

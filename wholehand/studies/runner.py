@@ -329,41 +329,15 @@ def run_study(
     todo = [job for job in execution_order(jobs) if job.index not in done]
     if limit is not None:
         todo = todo[: int(limit)]
-
     journal = open_journal(folder / JOURNAL_NAME, fresh=not resume)
     # Keep every row of trials.csv in the journal: trials.csv is rewritten below.
     _journal_csv_rows(journal, from_csv, from_journal)
-
-    def finished(index: int, row: dict[str, Any]) -> None:
-        journal.write(journal_line(row))
-        journal.flush()
-        done[index] = row
-
     started = time.perf_counter()
-    interrupted = False
     with _terminate_as_interrupt() as termination:
-        try:
-            if todo:
-                _warm_caches(todo)
-                execute(
-                    todo,
-                    run_job,
-                    executor=executor,
-                    workers=workers,
-                    progress=progress,
-                    desc=f"study {study.name}",
-                    address=address,
-                    on_result=finished,
-                )
-        except KeyboardInterrupt:
-            interrupted = True
-            print(f"\nstudy {study.name}: interrupted; writing the finished rows", file=sys.stderr)
-        finally:
-            termination.interrupts = False
-            journal.close()
-        wall = time.perf_counter() - started
+        interrupted = _run_journaled(
+            study.name, todo, journal, done, termination, executor, workers, progress, address
+        )
         rows = [done[i] for i in sorted(done)]
-        complete = len(rows) == len(jobs)
         summary = {
             "study": study.name,
             "provenance": provenance(),
@@ -373,24 +347,17 @@ def run_study(
             "only": {k: list(v) for k, v in (only or {}).items()},
             "size": size,
             "seed": seed,
-            "complete": complete,
+            "complete": len(rows) == len(jobs),
             "n_planned": len(jobs),
             "n_trials": len(rows),
             "n_reused": n_reused,
             "n_errors": sum(1 for r in rows if r.get("error")),
             "executor": executor,
-            "wall_time_s": wall,
+            "wall_time_s": time.perf_counter() - started,
             **study.summarise(rows),
         }
-        csv_path = write_csv(rows, folder / "trials.csv")
-        summary_path = folder / "summary.json"
-        summary_path.write_text(json.dumps(json_safe(summary), indent=2) + "\n")
-        plot_path = folder / f"{study.name}.png"
-        # The plot gets NaN, not JSON's None, where a group has no valid trial (more likely in a
-        # partial run): a gap in the figure instead of a TypeError.
-        study.plot(rows, summary, plot_path)
-        summary = json_safe(summary)
-        if not complete:
+        result = _write_outputs(study, rows, summary, folder, interrupted)
+        if not summary["complete"]:
             why = "interrupted" if interrupted else f"limit {limit}"
             print(
                 f"study {study.name}: {len(rows)} of {len(jobs)} trials finished ({why}); "
@@ -398,4 +365,63 @@ def run_study(
                 f"  {continue_command(study, folder, size, seed, hand, methods, grasps, only)}",
                 file=sys.stderr,
             )
-        return StudyResult(rows, summary, csv_path, summary_path, plot_path, interrupted)
+        return result
+
+
+def _run_journaled(
+    name: str,
+    todo: list[TrialJob],
+    journal: IO[str],
+    done: dict[int, dict[str, Any]],
+    termination: _Termination,
+    executor: str,
+    workers: int | None,
+    progress: bool,
+    address: str | None,
+) -> bool:
+    """Run ``todo``, writing each finished row to ``journal`` at once and into ``done`` (by
+    job index); then close the journal. True when Ctrl-C or SIGTERM interrupted the run."""
+
+    def finished(index: int, row: dict[str, Any]) -> None:
+        journal.write(journal_line(row))
+        journal.flush()
+        done[index] = row
+
+    try:
+        if todo:
+            _warm_caches(todo)
+            execute(
+                todo,
+                run_job,
+                executor=executor,
+                workers=workers,
+                progress=progress,
+                desc=f"study {name}",
+                address=address,
+                on_result=finished,
+            )
+    except KeyboardInterrupt:
+        print(f"\nstudy {name}: interrupted; writing the finished rows", file=sys.stderr)
+        return True
+    finally:
+        termination.interrupts = False
+        journal.close()
+    return False
+
+
+def _write_outputs(
+    study: Study,
+    rows: list[dict[str, Any]],
+    summary: dict[str, Any],
+    folder: Path,
+    interrupted: bool,
+) -> StudyResult:
+    """Write ``trials.csv``, ``summary.json`` and the plot of ``rows`` to ``folder``."""
+    csv_path = write_csv(rows, folder / "trials.csv")
+    summary_path = folder / "summary.json"
+    summary_path.write_text(json.dumps(json_safe(summary), indent=2) + "\n")
+    plot_path = folder / f"{study.name}.png"
+    # The plot gets NaN, not JSON's None, where a group has no valid trial (more likely in a
+    # partial run): a gap in the figure instead of a TypeError.
+    study.plot(rows, summary, plot_path)
+    return StudyResult(rows, json_safe(summary), csv_path, summary_path, plot_path, interrupted)

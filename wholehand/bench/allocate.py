@@ -266,7 +266,7 @@ def _time_direct(
     return {**percentiles_us(samples), "found": found}
 
 
-def run_allocation_benchmark(  # noqa: C901 - one table of cases and solvers
+def run_allocation_benchmark(
     contact_counts: Sequence[int] = (14, 45, 90),
     solvers: Sequence[str] | None = None,
     cycles: int = 300,
@@ -302,8 +302,6 @@ def run_allocation_benchmark(  # noqa: C901 - one table of cases and solvers
     """
     from wholehand.allocation.solvers import NATIVE_SOLVERS
 
-    qp_allocator = registry.get_class("allocators", "qp")
-
     names = list(solvers) if solvers is not None else list(NATIVE_SOLVERS)
     extra = dict(allocator_kwargs or {})
     configs: list[tuple[str, bool, bool]] = [(s, True, False) for s in names]
@@ -311,60 +309,15 @@ def run_allocation_benchmark(  # noqa: C901 - one table of cases and solvers
         configs.append(("daqp", True, True))
         if unscreened:
             configs.append(("daqp", False, False))
-    results: list[dict[str, Any]] = []
-    for n in contact_counts:
-        grasp = synthetic_grasp(seed, int(n))
-        for solver, screening, edges in configs:
-            qp_allocator(options={"solver": solver}, **extra)  # fail early on a bad name
-
-            def make(
-                warm_start: bool,
-                solver: str = solver,
-                screening: bool = screening,
-                edges: bool = edges,
-            ) -> Allocator:
-                options = SolveOptions(
-                    solver=solver, screening=screening, screen_edges=edges, warm_start=warm_start
-                )
-                return cast(Allocator, qp_allocator(options=options, **extra))
-
-            for mode in MODES:
-                stats = _time_mode(grasp, make, cycles, warmup, seed, mode)
-                config = {"solver": solver, "screening": screening, "screen_edges": edges}
-                results.append(config | {"mode": mode, "n_contacts": int(n)} | stats)
-    best: dict[str, Any] = {}
-    for n in contact_counts:
-        rows = [r for r in results if r["n_contacts"] == n and r["mode"] == "warm"]
-        if rows:
-            b = min(rows, key=lambda r: r["p50_us"])
-            keys = ("solver", "screening", "screen_edges", "p50_us", "p99_us")
-            best[str(n)] = {k: b[k] for k in keys}
-    direct: list[dict[str, Any]] = []
-    speedup: dict[str, Any] = {}
-    if direct_solvers:
-        import qpsolvers
-
-        from wholehand.allocation.problem import AllocationParams
-
-        fields = set(AllocationParams.__dataclass_fields__)
-        params = AllocationParams.checked(
-            "bench allocate", **{k: v for k, v in extra.items() if k in fields}
-        )
-        chosen = [s for s in direct_solvers if s in qpsolvers.available_solvers]
-        for n in contact_counts:
-            grasp = synthetic_grasp(seed, int(n))
-            for solver in chosen:
-                stats = _time_direct(grasp, solver, params, cycles, warmup, seed)
-                direct.append({"solver": solver, "n_contacts": int(n)} | stats)
-            rows = [r for r in direct if r["n_contacts"] == n and r["found"] == cycles]
-            if rows and str(n) in best:
-                d = min(rows, key=lambda r: r["p50_us"])
-                speedup[str(n)] = {
-                    "allocator_p50_us": best[str(n)]["p50_us"],
-                    "direct_solver": d["solver"],
-                    "direct_p50_us": d["p50_us"],
-                    "ratio": round(d["p50_us"] / best[str(n)]["p50_us"], 2),
-                }
+    results = [
+        row
+        for n in contact_counts
+        for row in _allocator_rows(int(n), configs, extra, cycles, warmup, seed)
+    ]
+    best = _best_warm(results, contact_counts)
+    direct, speedup = _direct_rows(
+        contact_counts, direct_solvers, extra, best, cycles, warmup, seed
+    )
     report: dict[str, Any] = {
         "config": {
             "contact_counts": [int(n) for n in contact_counts],
@@ -390,6 +343,94 @@ def run_allocation_benchmark(  # noqa: C901 - one table of cases and solvers
         report["plot"] = str(_plot(results, out / "allocate.png"))
         (out / "allocate.json").write_text(json.dumps(report, indent=2))
     return report
+
+
+def _allocator_rows(
+    n: int,
+    configs: list[tuple[str, bool, bool]],
+    extra: dict[str, Any],
+    cycles: int,
+    warmup: int,
+    seed: int,
+) -> list[dict[str, Any]]:
+    """One row per (solver, screening, edge screening) of ``configs`` and mode of
+    :data:`MODES` at ``n`` contacts."""
+    qp_allocator = registry.get_class("allocators", "qp")
+    grasp = synthetic_grasp(seed, n)
+    rows: list[dict[str, Any]] = []
+    for solver, screening, edges in configs:
+        qp_allocator(options={"solver": solver}, **extra)  # fail early on a bad name
+
+        def make(
+            warm_start: bool,
+            solver: str = solver,
+            screening: bool = screening,
+            edges: bool = edges,
+        ) -> Allocator:
+            options = SolveOptions(
+                solver=solver, screening=screening, screen_edges=edges, warm_start=warm_start
+            )
+            return cast(Allocator, qp_allocator(options=options, **extra))
+
+        for mode in MODES:
+            stats = _time_mode(grasp, make, cycles, warmup, seed, mode)
+            config = {"solver": solver, "screening": screening, "screen_edges": edges}
+            rows.append(config | {"mode": mode, "n_contacts": n} | stats)
+    return rows
+
+
+def _best_warm(results: list[dict[str, Any]], contact_counts: Sequence[int]) -> dict[str, Any]:
+    """Per contact count, the warm configuration with the lowest p50."""
+    best: dict[str, Any] = {}
+    for n in contact_counts:
+        rows = [r for r in results if r["n_contacts"] == n and r["mode"] == "warm"]
+        if rows:
+            b = min(rows, key=lambda r: r["p50_us"])
+            keys = ("solver", "screening", "screen_edges", "p50_us", "p99_us")
+            best[str(n)] = {k: b[k] for k in keys}
+    return best
+
+
+def _direct_rows(
+    contact_counts: Sequence[int],
+    direct_solvers: Sequence[str],
+    extra: dict[str, Any],
+    best: dict[str, Any],
+    cycles: int,
+    warmup: int,
+    seed: int,
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The direct form timed per installed solver of ``direct_solvers`` and contact count,
+    and per count the best direct p50 over the best allocator's (solvers that solved every
+    cycle only)."""
+    direct: list[dict[str, Any]] = []
+    speedup: dict[str, Any] = {}
+    if not direct_solvers:
+        return direct, speedup
+    import qpsolvers
+
+    from wholehand.allocation.problem import AllocationParams
+
+    fields = set(AllocationParams.__dataclass_fields__)
+    params = AllocationParams.checked(
+        "bench allocate", **{k: v for k, v in extra.items() if k in fields}
+    )
+    chosen = [s for s in direct_solvers if s in qpsolvers.available_solvers]
+    for n in contact_counts:
+        grasp = synthetic_grasp(seed, int(n))
+        for solver in chosen:
+            stats = _time_direct(grasp, solver, params, cycles, warmup, seed)
+            direct.append({"solver": solver, "n_contacts": int(n)} | stats)
+        rows = [r for r in direct if r["n_contacts"] == n and r["found"] == cycles]
+        if rows and str(n) in best:
+            d = min(rows, key=lambda r: r["p50_us"])
+            speedup[str(n)] = {
+                "allocator_p50_us": best[str(n)]["p50_us"],
+                "direct_solver": d["solver"],
+                "direct_p50_us": d["p50_us"],
+                "ratio": round(d["p50_us"] / best[str(n)]["p50_us"], 2),
+            }
+    return direct, speedup
 
 
 def _plot(results: list[dict[str, Any]], path: Path) -> Path:

@@ -37,6 +37,8 @@ from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossMonitor
 from wholehand.loop.record import Recorder
 from wholehand.loop.regulation import ForceRegulation
+from wholehand.loop.report import LoopReport
+from wholehand.loop.stage import Stage
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.object_catalogue import load_object
@@ -46,7 +48,7 @@ from wholehand.reaching.episode_spec import EpisodeSpec
 from wholehand.reaching.person import PERTURBATIONS, Person, loss_cause
 from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, pipeline_stages
 from wholehand.reaching.pregrasp import GraspPlan, hand_clearance, usable_on_table
-from wholehand.reaching.stages import PREGRASP, REGULATE, ReachPlanner
+from wholehand.reaching.stages import PREGRASP, REGULATE, ReachPlanner, ReachStage
 from wholehand.timing import percentiles
 from wholehand.trials.trial import load_allocator
 
@@ -217,14 +219,46 @@ def run_episode(
     ``scene``: start from this scene of ``spec`` (:func:`episode_scene`, e.g. with models and
     plans of its own) instead of building it."""
     scene = episode_scene(spec) if scene is None else scene
-    hand, grasp_hand, obj, table = scene.hand, scene.grasp_hand, scene.obj, scene.table
-    rng, plans, wMo, backend, on_table = (
-        scene.rng,
-        scene.plans,
+    hand, obj, backend = scene.hand, scene.obj, scene.backend
+    stages, reaching = _episode_stages(spec, scene)
+    inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
+    rim = 0.5 * float(np.max(obj.extents))
+    person = Person(
+        spec,
+        backend,
         scene.wMo,
-        scene.backend,
+        scene.rng,
+        (obj.mass, inertia),
+        hand.palm_link,
+        rim,
         scene.on_table,
     )
+    timer = _CycleTimes()
+    watchers: list[Observer] = [person, timer, *observers]
+    recorder = None
+    if record:
+        loss = GraspLossMonitor(hand, obj, stop_on_loss=False)
+        meta = {"spec": asdict(spec), "kind": "reach episode", "table": asdict(scene.table)}
+        recorder = Recorder(loss, meta=meta)
+        watchers += [loss, recorder]
+    loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=watchers)
+    report = loop.run(spec.duration)
+    reacher_us = [1e6 * t for stage in reaching for t in stage.reacher_times]
+    summary = _episode_summary(spec, scene, report, person, timer, reacher_us)
+    if samples:
+        summary["cycle_samples_us"] = timer.times
+        summary["reacher_samples_us"] = reacher_us
+    if recorder is not None:
+        summary["record"] = recorder.record
+    return summary
+
+
+def _episode_stages(
+    spec: EpisodeSpec, scene: EpisodeScene
+) -> tuple[dict[str, Stage], tuple[ReachStage, ReachStage]]:
+    """The stage machine of an episode (the pipeline's stages) and its reaching stages, with
+    the plug-ins of ``spec`` loaded and their compiled kernels run once."""
+    hand, grasp_hand, obj, table = scene.hand, scene.grasp_hand, scene.obj, scene.table
     kin = HandKinematics(grasp_hand)  # one for every check: the stages check in their cycles
 
     def usable(plan: GraspPlan, wMo_now: FloatArray) -> bool:
@@ -232,67 +266,58 @@ def run_episode(
 
     estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj)
     # The first estimate loads its compiled kernel (~0.1 s): done here, not in the first cycle.
-    warm, first = HandKinematics(hand), backend.observe()
+    warm, first = HandKinematics(hand), scene.backend.observe()
     warm.update(first.q, first.wMb)
-    estimator.estimate(warm, wMo)
+    estimator.estimate(warm, scene.wMo)
     # Passed only when asked for, so that a reacher without the option still loads.
     avoid = {"self_collision": True} if spec.self_collision else {}
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table, **avoid)
-    planner = ReachPlanner(plans, usable)
+    planner = ReachPlanner(scene.plans, usable)
     # On the table the table carries the weight: balancing it would have the fingers lift the
     # object off its support (measured: the box rose 4 mm and the QP's p99 went to 10-24 ms).
-    balance = spec.balance_weight and not on_table
+    balance = spec.balance_weight and not scene.on_table
     weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if balance else None
     allocator = load_allocator(spec.allocator, hand, {})
     compensate = spec.gravity_compensation
     regulation = ForceRegulation(
         hand, obj, estimator, allocator, weight=weight, gravity_compensation=compensate
     )
-    stages, reaching = pipeline_stages(
+    return pipeline_stages(
         hand, grasp_hand, obj, planner, estimator, reacher, regulation, compensate
     )
-    inertia = float(np.linalg.eigvalsh(np.asarray(obj.inertia)).max())
-    rim = 0.5 * float(np.max(obj.extents))
-    person = Person(spec, backend, wMo, rng, (obj.mass, inertia), hand.palm_link, rim, on_table)
-    timer = _CycleTimes()
-    watchers: list[Observer] = [person, timer, *observers]
-    recorder = None
-    if record:
-        loss = GraspLossMonitor(hand, obj, stop_on_loss=False)
-        meta = {"spec": asdict(spec), "kind": "reach episode", "table": asdict(table)}
-        recorder = Recorder(loss, meta=meta)
-        watchers += [loss, recorder]
-    loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=watchers)
-    report = loop.run(spec.duration)
+
+
+def _episode_summary(
+    spec: EpisodeSpec,
+    scene: EpisodeScene,
+    report: LoopReport,
+    person: Person,
+    timer: _CycleTimes,
+    reacher_us: list[float],
+) -> dict[str, Any]:
+    """An episode's summary: its events, transitions, grasps, losses and their causes,
+    regrasps, and the timings [us] of its cycles and reacher steps."""
     losses = [t for t in report.transitions if t.source == REGULATE and t.target == PREGRASP]
     grasps = [t for t in report.transitions if t.target == REGULATE]
     recovered = sum(any(g.t > loss.t for g in grasps) for loss in losses)
-    reacher_us = [1e6 * t for stage in reaching for t in stage.reacher_times]
-    causes = [loss_cause(person.events, loss.t) for loss in losses]
-    summary: dict[str, Any] = {
+    return {
         "spec": asdict(spec),
         "complete": person.done,
-        "mount": "arm" if hand.arm_dofs.any() else "floating wrist",
-        "duration_s": backend.time,
+        "mount": "arm" if scene.hand.arm_dofs.any() else "floating wrist",
+        "duration_s": scene.backend.time,
         "perturbations": sum(e.what.startswith(PERTURBATIONS) for e in person.events),
         "grasps": len(grasps),
         "time_to_grasp_s": grasps[0].t if grasps else None,
         "losses": len(losses),
-        "loss_causes": causes,
+        "loss_causes": [loss_cause(person.events, loss.t) for loss in losses],
         "recovered": recovered,
         "events": [asdict(e) for e in person.events],
         "transitions": [t.__dict__ for t in report.transitions],
         "cycle_us": timer.summary(),
         "reacher_us": percentiles(reacher_us),
         "loop": report.as_dict(),
-        "mujoco_warnings": backend.warnings(),
+        "mujoco_warnings": scene.backend.warnings(),
     }
-    if samples:
-        summary["cycle_samples_us"] = timer.times
-        summary["reacher_samples_us"] = reacher_us
-    if recorder is not None:
-        summary["record"] = recorder.record
-    return summary
 
 
 class _CycleTimes(Observer):

@@ -160,6 +160,28 @@ class SynthesisResult:
     """Index of the start it came from."""
 
 
+@dataclass(frozen=True)
+class _Terms:
+    """The energy of a state and what its gradient reuses: the hand's sample points ``X``
+    (P, 3) in the object frame, at the contacts their points ``xc``, pad normals ``mc``, SDF
+    values ``dc`` and gradients ``gc`` (C, 3), the force-closure sums ``F`` and ``T`` and the
+    lever arms ``r``; the penetrating samples, those below the table's margin, and the
+    self-penetrating pairs (first, second, distance)."""
+
+    energy: Energy
+    X: FloatArray
+    xc: FloatArray
+    mc: FloatArray
+    dc: FloatArray
+    gc: FloatArray
+    F: FloatArray
+    T: FloatArray
+    r: FloatArray
+    inside: IntArray
+    below: IntArray
+    self_pairs: tuple[IntArray, IntArray, FloatArray]
+
+
 class GraspSynthesizer:
     """Optimises grasps of one object for one hand and grasp style (module docstring).
 
@@ -311,6 +333,14 @@ class GraspSynthesizer:
     def evaluate(self, state: SynthesisState, gradient: bool = True) -> Energy:
         """The energy of ``state`` (stored in it), with its gradient in ``state.grad``
         (``t`` (3,) [1/m], ``w`` (3,) about the base origin [1/rad], ``a`` (n_a,) [1/rad])."""
+        terms = self._terms(state)
+        state.energy = terms.energy
+        if gradient:
+            state.grad = self._gradient(state, terms)
+        return terms.energy
+
+    def _terms(self, state: SynthesisState) -> _Terms:
+        """The energy's terms at ``state``, with the points they were evaluated at."""
         p, kin, s = self.params, self.kin, self.samples
         kin.update(self.q_of(state.a), state.oMb)
         X = kin.transform_points(s.p_joint, s.joint)  # (P, 3) object frame
@@ -319,15 +349,13 @@ class GraspSynthesizer:
         xc = X[c]
         mc = kin.from_joint_frames(s.p_joint[c], s.n_joint[c], s.joint[c])[1]
         dc, gc = self.sdf.query_with_gradient(xc)
-        L = self.radius
         F = gc.sum(axis=0)
         r = xc - self.com
-        T = np.cross(r, gc).sum(axis=0) / L
+        T = np.cross(r, gc).sum(axis=0) / self.radius
         e_dis = float(np.abs(dc).sum())
         e_fc = float(F @ F + T @ T)
         e_align = float((1.0 + np.einsum("ij,ij->i", mc, gc)).sum())
         depth = np.maximum(-d, 0.0)
-        inside = np.flatnonzero(depth > 0.0)
         e_pen = float(depth.sum())
         below = np.zeros(0, dtype=np.intp)
         e_table = 0.0
@@ -348,16 +376,20 @@ class GraspSynthesizer:
         )
         max_depth = float(depth.max()) if depth.size else 0.0
         energy = Energy(total, e_dis, e_fc, e_align, e_pen, e_table, max_depth, e_self)
-        state.energy = energy
-        if not gradient:
-            return energy
-        # dE/dx per point, then through the point Jacobians to the variables.
-        H = self._normal_jacobians(xc)  # (C, 3, 3): d g_i / d c_i
-        g_fc = 2.0 * (np.einsum("nab,a->nb", H, F) + np.cross(gc, T) / L)
-        g_fc += 2.0 / L * np.einsum("nab,na->nb", H, np.cross(T, r))
-        g_align = np.einsum("nab,na->nb", H, mc)
-        gx = [p.w_dis * np.sign(dc)[:, None] * gc + p.w_fc * g_fc + p.w_align * g_align]
-        points, joints = [xc], [s.joint[c]]
+        inside = np.flatnonzero(depth > 0.0)
+        return _Terms(energy, X, xc, mc, dc, gc, F, T, r, inside, below, (si, sj, dist))
+
+    def _gradient(self, state: SynthesisState, e: _Terms) -> dict[str, FloatArray]:
+        """The energy's gradient at ``state`` from its terms: dE/dx per point, then through
+        the point Jacobians to the variables."""
+        p, kin, s, c, L = self.params, self.kin, self.samples, state.contacts, self.radius
+        H = self._normal_jacobians(e.xc)  # (C, 3, 3): d g_i / d c_i
+        g_fc = 2.0 * (np.einsum("nab,a->nb", H, e.F) + np.cross(e.gc, e.T) / L)
+        g_fc += 2.0 / L * np.einsum("nab,na->nb", H, np.cross(e.T, e.r))
+        g_align = np.einsum("nab,na->nb", H, e.mc)
+        gx = [p.w_dis * np.sign(e.dc)[:, None] * e.gc + p.w_fc * g_fc + p.w_align * g_align]
+        points, joints = [e.xc], [s.joint[c]]
+        X, inside, below = e.X, e.inside, e.below
         if inside.size:
             gin = self.sdf.query_with_gradient(X[inside])[1]
             gx.append(-p.w_pen * gin)
@@ -368,6 +400,7 @@ class GraspSynthesizer:
             gx.append(np.broadcast_to(-p.w_table * self.table_up, (below.size, 3)))
             points.append(X[below])
             joints.append(s.joint[below])
+        si, sj, dist = e.self_pairs
         if si.size:  # d(gap - |x - y|)/dx = -(x - y)/|x - y|, and the opposite for y
             u = (X[si] - X[sj]) / np.maximum(dist, 1e-12)[:, None]
             gx += [-p.w_self * u, p.w_self * u]
@@ -382,8 +415,8 @@ class GraspSynthesizer:
         grad_w = np.cross(P - t, G).sum(axis=0)
         grad_a = np.einsum("nak,na->k", jac, G)
         # The pads' normals: dm = omega x m.
-        gm = p.w_align * gc
-        mxg = np.cross(mc, gm)
+        gm = p.w_align * e.gc
+        mxg = np.cross(e.mc, gm)
         grad_w += mxg.sum(axis=0)
         Jw = kin.angular_jacobians(s.joint[c])
         if self.hand.coupled:
@@ -391,8 +424,7 @@ class GraspSynthesizer:
         grad_a += np.einsum("nak,na->k", Jw, mxg)
         if not self.hand.coupled:
             grad_a = grad_a[self.act]
-        state.grad = {"t": grad_t, "w": grad_w, "a": grad_a}
-        return energy
+        return {"t": grad_t, "w": grad_w, "a": grad_a}
 
     def _normal_jacobians(self, x: FloatArray) -> FloatArray:
         """(N, 3, 3) derivatives of the object normal (the SDF's unit gradient) at points ``x``

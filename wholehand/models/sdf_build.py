@@ -289,45 +289,9 @@ def compute_grid_values(
     t0 = time.perf_counter()
     mesh = MeshDistance(vertices, faces, sample_step=SAMPLE_STEP_CELLS * spacing)
     n_nodes = int(np.prod(shape))
-    upper = np.array(shape) - 1
-    # Narrow band: a node at distance d from the surface is within d + step (lattice, 1/3 cell
-    # unless faces are huge) + sqrt(3)/2 (rounding to a node) cells of a node holding a sample;
-    # the band takes all nodes within exact_band / spacing + that margin of one, so it holds
-    # every node with d <= exact_band.
-    margin = mesh.sample_step / spacing + 0.5 * np.sqrt(3.0) + 0.05
-    hit = np.clip(np.rint((mesh.samples - origin) / spacing), 0, upper).astype(np.intp)
-    occupied = np.zeros(shape, dtype=bool)
-    occupied[hit[:, 0], hit[:, 1], hit[:, 2]] = True
-    cells_to_sample = ndimage.distance_transform_edt(~occupied)
-    in_band = cells_to_sample <= max(exact_band / spacing, MIN_BAND_CELLS) + margin
-    inner = cells_to_sample <= MIN_BAND_CELLS + margin
-    del cells_to_sample
-    inner_idx = np.flatnonzero(inner)
-    outer_idx = np.flatnonzero(in_band & ~inner)
+    in_band, inner = _bands(mesh, origin, spacing, shape, exact_band)
     t1 = time.perf_counter()
-    # Inner band (d <= 3 cells at least): the nearest lattice sample's face joins the centroid
-    # candidates, bounding the error by the lattice step whatever the triangle shapes (centroids
-    # alone miss the closest face near large triangles, e.g. on 073-g_lego_duplo, by up to 1 mm).
-    res = mesh.signed_distance(_node_positions(inner_idx, origin, spacing, shape), bounded=True)
-    band_idx, band_d, band_cp = inner_idx, res.distance, res.closest
-    if outer_idx.size:
-        # Outer band: the closest face of the nearest inner node joins the centroid candidates
-        # (a lattice query this far from the surface is expensive per node).
-        nearest = ndimage.distance_transform_edt(
-            ~inner, return_distances=False, return_indices=True
-        )
-        from_inner = np.ravel_multi_index(tuple(ix.reshape(-1)[outer_idx] for ix in nearest), shape)
-        del nearest
-        row_of = np.full(n_nodes, -1, dtype=np.intp)
-        row_of[inner_idx] = np.arange(inner_idx.size)
-        outer = mesh.signed_distance(
-            _node_positions(outer_idx, origin, spacing, shape),
-            bounded=False,
-            extra_faces=res.face[row_of[from_inner]],
-        )
-        band_idx = np.concatenate([inner_idx, outer_idx])
-        band_d = np.concatenate([band_d, outer.distance])
-        band_cp = np.concatenate([band_cp, outer.closest])
+    band_idx, band_d, band_cp = _band_distances(mesh, in_band, inner, origin, spacing, shape)
     t2 = time.perf_counter()
     # Off the band: distance to the closest surface point of the nearest band node. An upper
     # bound of the true distance, above it by less than sqrt(3)/2 cells.
@@ -363,6 +327,67 @@ def compute_grid_values(
     if stats is not None:
         stats.update(timings)
     return values.astype(np.float32)
+
+
+def _bands(
+    mesh: MeshDistance,
+    origin: FloatArray,
+    spacing: float,
+    shape: tuple[int, int, int],
+    exact_band: float,
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """(nx, ny, nz) masks of the nodes that get exact distances (the band) and of its inner
+    part (at least :data:`MIN_BAND_CELLS` cells around the surface)."""
+    upper = np.array(shape) - 1
+    # Narrow band: a node at distance d from the surface is within d + step (lattice, 1/3 cell
+    # unless faces are huge) + sqrt(3)/2 (rounding to a node) cells of a node holding a sample;
+    # the band takes all nodes within exact_band / spacing + that margin of one, so it holds
+    # every node with d <= exact_band.
+    margin = mesh.sample_step / spacing + 0.5 * np.sqrt(3.0) + 0.05
+    hit = np.clip(np.rint((mesh.samples - origin) / spacing), 0, upper).astype(np.intp)
+    occupied = np.zeros(shape, dtype=bool)
+    occupied[hit[:, 0], hit[:, 1], hit[:, 2]] = True
+    cells_to_sample = ndimage.distance_transform_edt(~occupied)
+    in_band = cells_to_sample <= max(exact_band / spacing, MIN_BAND_CELLS) + margin
+    inner = cells_to_sample <= MIN_BAND_CELLS + margin
+    return in_band, inner
+
+
+def _band_distances(
+    mesh: MeshDistance,
+    in_band: npt.NDArray[np.bool_],
+    inner: npt.NDArray[np.bool_],
+    origin: FloatArray,
+    spacing: float,
+    shape: tuple[int, int, int],
+) -> tuple[npt.NDArray[np.intp], FloatArray, FloatArray]:
+    """The band's flat node indices, their exact signed distances [m] and closest surface
+    points (B, 3) [m]."""
+    inner_idx = np.flatnonzero(inner)
+    outer_idx = np.flatnonzero(in_band & ~inner)
+    # Inner band (d <= 3 cells at least): the nearest lattice sample's face joins the centroid
+    # candidates, bounding the error by the lattice step whatever the triangle shapes (centroids
+    # alone miss the closest face near large triangles, e.g. on 073-g_lego_duplo, by up to 1 mm).
+    res = mesh.signed_distance(_node_positions(inner_idx, origin, spacing, shape), bounded=True)
+    if not outer_idx.size:
+        return inner_idx, res.distance, res.closest
+    # Outer band: the closest face of the nearest inner node joins the centroid candidates
+    # (a lattice query this far from the surface is expensive per node).
+    nearest = ndimage.distance_transform_edt(~inner, return_distances=False, return_indices=True)
+    from_inner = np.ravel_multi_index(tuple(ix.reshape(-1)[outer_idx] for ix in nearest), shape)
+    del nearest
+    row_of = np.full(int(np.prod(shape)), -1, dtype=np.intp)
+    row_of[inner_idx] = np.arange(inner_idx.size)
+    outer = mesh.signed_distance(
+        _node_positions(outer_idx, origin, spacing, shape),
+        bounded=False,
+        extra_faces=res.face[row_of[from_inner]],
+    )
+    return (
+        np.concatenate([inner_idx, outer_idx]),
+        np.concatenate([res.distance, outer.distance]),
+        np.concatenate([res.closest, outer.closest]),
+    )
 
 
 def _node_positions(

@@ -14,11 +14,12 @@ each safety rule acted.
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import signal
 import threading
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -28,6 +29,7 @@ import numpy.typing as npt
 from wholehand import defaults, registry
 from wholehand.allocation.base import Allocator
 from wholehand.allocation.options import SolveOptions
+from wholehand.backends.base import Backend
 from wholehand.backends.observation import check_observation
 from wholehand.backends.table import HAND_MARGIN
 from wholehand.contacts.base import ContactEstimator
@@ -272,28 +274,18 @@ def run_controller(
     stages: dict[str, Stage] | Stage
     if pipeline:
         stages = pipeline_for_robot(hand, obj, config, spec, estimator, allocator)
-        first_stage: str | None = PREGRASP
     else:
         stages = _regulation(hand, obj, spec, estimator, allocator)
-        first_stage = None
     stopped = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: stopped.set())
     stopper = _StopWhen(stopped, stop)
-    try:
+    announcer = [] if announce is None else [_AnnounceTransitions(announce)]
+    watchers: list[Observer] = [stopper, *announcer, *observers]
+    with _signals_set(stopped):
         with registry.load(
             "backends", "ros2", hand=hand, obj=obj, config=config, trace=trace
         ) as backend:
             backend.wait_for_streams(wait)
-            # wholehand's kernels load when built; a first estimate here also loads a third-party
-            # estimator's (~0.1-0.2 s each) and checks the first reading, not in a cycle.
-            first, warm = backend.observe(), HandKinematics(hand)
-            check_observation(first, hand.nq, hand.nv)
-            warm.update(first.q, first.wMb)
-            assert first.wMo is not None
-            estimator.estimate(warm, first.wMo)
+            _first_estimate(backend, hand, estimator)
             if announce is not None:
                 what = "the pipeline" if pipeline else "regulating"
                 announce(
@@ -301,43 +293,62 @@ def run_controller(
                     f"{config.topics['torque_command']}"
                 )
             gate = ObservationGate(hand)
+            first = PREGRASP if pipeline else None
+            rate = config.control_rate
             loop = ControlLoop(
-                backend,
-                hand,
-                obj,
-                stages,
-                first=first_stage,
-                rate=config.control_rate,
-                observers=[
-                    stopper,
-                    *([_AnnounceTransitions(announce)] if announce is not None else []),
-                    *observers,
-                ],
-                gate=gate,
+                backend, hand, obj, stages, first=first, rate=rate, observers=watchers, gate=gate
             )
             report = loop.run(duration)
         # After the backend's last commands (the exit ramp, when it closed), so they count.
         stats = backend.stats()
         stats["gate_refused"] = dict(gate.refused)
         traced = list(backend.trace or ())
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    times = np.asarray(stopper.cycle_times) * 1e3
-    regulation = stages if isinstance(stages, ForceRegulation) else None
-    if isinstance(stages, dict):
-        hold = stages[REGULATE]
-        assert isinstance(hold, HoldStage)
-        regulation = hold.regulation
-    assert regulation is not None
     out: dict[str, Any] = {
         "mode": "pipeline" if pipeline else "regulate",
         "loop": report.as_dict(),
         "backend": stats,
-        "degenerate_normals": regulation.degenerate_normals,
-        "cycle_time_ms": percentiles(times),
+        "degenerate_normals": _regulation_of(stages).degenerate_normals,
+        "cycle_time_ms": percentiles(np.asarray(stopper.cycle_times) * 1e3),
     }
     if trace:
         out["trace"] = traced
         out["cycle_times_s"] = list(stopper.cycle_times)
     return out
+
+
+@contextlib.contextmanager
+def _signals_set(stopped: threading.Event) -> Iterator[None]:
+    """While the block runs, SIGINT and SIGTERM set ``stopped`` (the loop then ends with its
+    exit ramp) instead of raising; only the main thread can set signal handlers, elsewhere
+    nothing changes."""
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stopped.set())
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _first_estimate(backend: Backend, hand: HandModel, estimator: ContactEstimator) -> None:
+    """Check the robot's first reading and estimate contacts from it once: wholehand's kernels
+    load when built, but a third-party estimator's load in its first call (~0.1-0.2 s each),
+    which must not fall in a cycle."""
+    first, warm = backend.observe(), HandKinematics(hand)
+    check_observation(first, hand.nq, hand.nv)
+    warm.update(first.q, first.wMb)
+    assert first.wMo is not None
+    estimator.estimate(warm, first.wMo)
+
+
+def _regulation_of(stages: dict[str, Stage] | Stage) -> ForceRegulation:
+    """The force regulation of a controller's stages (a hand alone's, or the pipeline's
+    hold stage's)."""
+    if isinstance(stages, ForceRegulation):
+        return stages
+    assert isinstance(stages, dict)
+    hold = stages[REGULATE]
+    assert isinstance(hold, HoldStage)
+    return hold.regulation

@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from wholehand.cli.main import main
 from wholehand.grasps.optimized import OPEN_ANGLE, closing_torques
 from wholehand.grasps.store import Grasp, load_grasps
-from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisParams, SynthesisState
+from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisState
+from wholehand.grasps.synthesis_params import SynthesisParams
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import time
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -310,18 +311,12 @@ class _WorkingSet:
     def optimal(self, x: FloatArray, detail: str) -> AllocationSolution:
         """The solution of a round that violates no left-out row (or of the full problem)."""
         viol, rel = _violations(self.qp, x[: self.qp.n_lambda], self.t_val, self.z_worst)
-        return AllocationSolution(
-            x=x,
-            status="optimal",
-            rounds=self.rounds,
-            n_rows=self.t_in.size + self.n_in.size,
-            iterations=self.iterations,
+        return self._outcome(
+            x,
+            "optimal",
+            detail,
             violation=viol,
             relative_violation=rel,
-            detail=detail,
-            solver_time=self.solver_ns * 1e-9,
-            torque_sel=self.t_in,
-            null_sel=self.n_in,
             torque_values=self.t_val,
             null_values=self.z_val,
             n_edges=self.qp.n_lambda if self.e_mask is None else int(self.e_mask.sum()),
@@ -334,36 +329,41 @@ class _WorkingSet:
             return self.deadline()
         if res.x is not None and np.isfinite(res.x).all():
             return None
-        return AllocationSolution(
-            x=None,
-            status=res.status if res.x is None else "failed",
-            rounds=self.rounds,
-            n_rows=self.t_in.size + self.n_in.size,
-            iterations=self.iterations,
-            violation=np.inf,
-            detail=res.detail,
-            solver_time=self.solver_ns * 1e-9,
-            torque_sel=self.t_in,
-            null_sel=self.n_in,
-        )
+        return self._outcome(None, res.status if res.x is None else "failed", res.detail)
 
     def deadline(self) -> AllocationSolution:
         """The outcome of a solve stopped by its deadline; the row values are those at
         :attr:`x_relaxed` (empty without it)."""
-        return AllocationSolution(
-            x=None,
-            status="deadline",
-            rounds=self.rounds,
-            n_rows=self.t_in.size + self.n_in.size,
-            iterations=self.iterations,
-            violation=np.inf,
-            detail="deadline passed before the solution was exact",
-            solver_time=self.solver_ns * 1e-9,
-            torque_sel=self.t_in,
-            null_sel=self.n_in,
+        return self._outcome(
+            None,
+            "deadline",
+            "deadline passed before the solution was exact",
             torque_values=self.t_val,
             null_values=self.z_val,
             x_relaxed=self.x_relaxed,
+        )
+
+    def _outcome(
+        self,
+        x: FloatArray | None,
+        status: str,
+        detail: str,
+        violation: float = np.inf,
+        **more: Any,
+    ) -> AllocationSolution:
+        """An outcome with the rounds' tallies and last selections, and the fields ``more``."""
+        return AllocationSolution(
+            x=x,
+            status=status,
+            rounds=self.rounds,
+            n_rows=self.t_in.size + self.n_in.size,
+            iterations=self.iterations,
+            violation=violation,
+            detail=detail,
+            solver_time=self.solver_ns * 1e-9,
+            torque_sel=self.t_in,
+            null_sel=self.n_in,
+            **more,
         )
 
 

@@ -26,7 +26,8 @@ from wholehand.grasps.generate import (
 )
 from wholehand.grasps.store import Grasp
 from wholehand.grasps.styles import with_close_torque
-from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisParams, SynthesisResult
+from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisResult
+from wholehand.grasps.synthesis_params import SynthesisParams
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.objects import ObjectModel

@@ -7,6 +7,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
 if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
     from wholehand.grasps.checks import GraspCheck
     from wholehand.models.hand import HandModel
     from wholehand.models.objects import ObjectModel
@@ -79,7 +82,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "import",
         help="convert grasp files of DexGraspNet, Dexonomy or BODex to this hand's format",
     )
-    p.add_argument("files", nargs="+", help="the .npy files (pickled: open only files you trust)")
+    p.add_argument(
+        "files", nargs="+", help="the .npy files (read without running anything they name)"
+    )
     p.add_argument("--format", required=True, choices=("dexgraspnet", "dexonomy", "bodex"))
     p.add_argument("--hand", default="allegro_right", help="shipped hand name or hand folder")
     p.add_argument("--object", required=True, help="the object the grasps are of")
@@ -255,13 +260,13 @@ def _how_it_ended(args: argparse.Namespace, found: int, info: dict[str, object])
     return note
 
 
-def _cmd_import(args: argparse.Namespace) -> int:
+def _import_options(
+    args: argparse.Namespace,
+) -> tuple[dict[str, str], npt.NDArray[np.float64] | None, list[str] | None]:
+    """``grasps import``'s joint map, root offset (4, 4) and joint names, checked."""
     from wholehand.errors import ConfigError
-    from wholehand.grasps.importers import import_grasps, pose_matrix
-    from wholehand.grasps.store import grasp_file, object_key, save_grasps
-    from wholehand.models.hand import load_hand
+    from wholehand.grasps.importers import pose_matrix, pose_problem
 
-    hand = load_hand(args.hand)
     joint_map = {}
     for pair in filter(None, (args.joint_map or "").split(",")):
         theirs, sep, ours = pair.partition("=")
@@ -278,8 +283,29 @@ def _cmd_import(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--root-offset: {args.root_offset!r} is not seven numbers 'x y z qw qx qy qz'"
             )
+        problem = pose_problem(values, "pose")
+        if problem:
+            raise ConfigError(f"--root-offset: {args.root_offset!r} is not a pose: {problem}")
         offset = pose_matrix(values)
     names = [n.strip() for n in (args.joint_names or "").split(",") if n.strip()] or None
+    return joint_map, offset, names
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    from wholehand.errors import ConfigError
+    from wholehand.grasps.importers import import_grasps
+    from wholehand.grasps.store import grasp_file, object_key, save_grasps
+    from wholehand.models.hand import load_hand
+    from wholehand.models.object_catalogue import load_object
+
+    if not (args.object_scale > 0 and args.object_scale < float("inf")):
+        raise ConfigError(
+            f"--object-scale {args.object_scale}: give the mesh scale the grasps were made at, "
+            "a positive number (default 1)"
+        )
+    load_object(args.object)  # an object that does not exist is named before any file is read
+    hand = load_hand(args.hand)
+    joint_map, offset, names = _import_options(args)
     grasps, record = import_grasps(
         hand,
         args.files,

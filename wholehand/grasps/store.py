@@ -269,5 +269,17 @@ def save_grasps(
             for g in grasps
         ],
     }
-    path.write_text(json.dumps(payload, indent=1) + "\n")
+    try:
+        text = json.dumps(payload, indent=1, allow_nan=False)
+    except ValueError:
+        bad = [
+            g.id
+            for g in grasps
+            if not (np.isfinite(g.oMb).all() and np.isfinite(list(g.q.values())).all())
+        ]
+        raise ConfigError(
+            f"{path}: grasps {bad or '(their extra fields)'} hold a value that is not finite; "
+            "a grasp file is strict JSON, nothing was written"
+        ) from None
+    path.write_text(text + "\n")
     return path

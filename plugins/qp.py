@@ -49,6 +49,11 @@ from wholehand.allocation.solve import (
     solve_allocation,
 )
 from wholehand.allocation.solvers import make_solver
+from wholehand.allocation.solvers.dual_active_set import (
+    DUAL_ACTIVE_SET,
+    FALLBACK_SOLVER,
+    solve_dual_active_set,
+)
 from wholehand.allocation.warm_start import (
     WarmStart,
     rows_of_joints,
@@ -122,7 +127,11 @@ class QPAllocator(Allocator):
         self.options = SolveOptions.of(options, owner)
         """The checked solve options (``deadline_after_miss`` resolved)."""
         self._missed = False  # the last allocation ran out of time
-        self.qp_solver = make_solver(self.options.solver, self.options.solver_settings, owner)
+        self._dual_active_set = self.options.solver == DUAL_ACTIVE_SET
+        # The dual active-set method solves the structured problem itself; the dense solver
+        # then serves where it fails (FALLBACK_SOLVER), with the user's settings.
+        dense = FALLBACK_SOLVER if self._dual_active_set else self.options.solver
+        self.qp_solver = make_solver(dense, self.options.solver_settings, owner)
         self._warm = WarmStart(match_radius=self.options.match_radius)
         self.counts: Counter[AllocationStatus] = Counter()
         """Allocations per status since construction (or :meth:`reset`)."""
@@ -226,17 +235,7 @@ class QPAllocator(Allocator):
         qp = build_allocation_qp(
             contacts, J_world, p_com, self.params, owner, external_wrench, tau_bias
         )
-        kwargs = self._warm_kwargs(qp, contacts) if self.options.warm_start else {}
-        budget = self.options.deadline_after_miss if self._missed else self.options.deadline
-        deadline_ns = None if budget is None else t0 + int(budget * SOLVE_SHARE * 1e9)
-        sol = solve_allocation(
-            qp,
-            self.qp_solver,
-            screening=self.options.screening,
-            screen_tol=self.options.screen_tol,
-            deadline_ns=deadline_ns,
-            **kwargs,
-        )
+        sol = self._solve(qp, contacts, t0)
         self.last_solution = sol
         dt = _since(t0)
         if sol.status == "deadline":
@@ -268,6 +267,29 @@ class QPAllocator(Allocator):
             wrench=wrench,
             solve_time=dt,
             solver_time=sol.solver_time,
+        )
+
+    def _solve(self, qp: AllocationQP, contacts: ContactSet, t0: int) -> AllocationSolution:
+        """The cycle's solution: by the dual active-set method where it is chosen (the dense
+        fallback solver where it fails), else by screening with the dense solver."""
+        warm = self.options.warm_start
+        if self._dual_active_set:
+            free, rows, scale = self._warm.dual_start(qp, contacts) if warm else (None,) * 3
+            dual = solve_dual_active_set(qp, free, rows, scale)
+            if dual.solution.x is not None:
+                self._warm.keep_sides(qp, dual.y, dual.null_scale)
+            if dual.solution.status in ("optimal", "infeasible"):
+                return dual.solution
+        kwargs = self._warm_kwargs(qp, contacts) if warm else {}
+        budget = self.options.deadline_after_miss if self._missed else self.options.deadline
+        deadline_ns = None if budget is None else t0 + int(budget * SOLVE_SHARE * 1e9)
+        return solve_allocation(
+            qp,
+            self.qp_solver,
+            screening=self.options.screening,
+            screen_tol=self.options.screen_tol,
+            deadline_ns=deadline_ns,
+            **kwargs,
         )
 
     # --------------------------------------------------------------------------------------------

@@ -37,7 +37,11 @@ from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 
 # Native adapters plus every qpsolvers backend through the generic adapter.
-SOLVERS = [*NATIVE_SOLVERS, *(f"qpsolvers:{s}" for s in qpsolvers.available_solvers)]
+SOLVERS = [
+    "dual_active_set",
+    *NATIVE_SOLVERS,
+    *(f"qpsolvers:{s}" for s in qpsolvers.available_solvers),
+]
 
 TOL = 1e-6  # constraint tolerance of accepted solutions [N, N*m]
 

@@ -151,6 +151,15 @@ class ActuationNullSpace:
         Z[k + idx[tail] - nh, tail] = 1.0
         return self._apply_q(Z, "N")
 
+    def householder(self) -> tuple[FloatArray, FloatArray] | None:
+        """``(qr, tau)``: the Householder QR of ``J_act``'s nonzero columns as LAPACK's
+        ``dgeqrf`` leaves it ((m, k) Fortran order, (k,)), whose ``Q``'s last ``dim`` columns
+        are ``N_u`` (full column rank); None where the basis is held otherwise (rank deficient,
+        or not taller than wide)."""
+        if self._qr is None or self._tau is None or self._head is not None:
+            return None
+        return self._qr, self._tau
+
     def basis(self) -> FloatArray:
         """The explicit (m, dim) basis ``N_u`` (allocates (m, m); not for the control loop)."""
         return self.columns(np.arange(self.dim))

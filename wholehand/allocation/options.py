@@ -26,7 +26,11 @@ class SolveOptions:
     """How an allocator solves its QP (module docstring)."""
 
     solver: str = DEFAULT_SOLVER
-    """QP solver name, see :func:`wholehand.allocation.solvers.available_solvers`."""
+    """QP solver name, see :func:`wholehand.allocation.solvers.available_solvers`.
+    ``"dual_active_set"``: the solver built for this QP
+    (:mod:`~wholehand.allocation.solvers.dual_active_set`; warm-started from the last cycle's
+    support and active rows, DAQP where it fails), which needs no screening: ``screening``,
+    ``screen_edges``, ``screen_tol`` and ``deadline`` apply to the DAQP fallback alone."""
     solver_settings: Mapping[str, Any] | None = None
     """Solver settings on top of the adapter's tight defaults."""
     warm_start: bool = True

@@ -310,7 +310,7 @@ class _WorkingSet:
 
     def optimal(self, x: FloatArray, detail: str) -> AllocationSolution:
         """The solution of a round that violates no left-out row (or of the full problem)."""
-        viol, rel = _violations(self.qp, x[: self.qp.n_lambda], self.t_val, self.z_worst)
+        viol, rel = violations(self.qp, x[: self.qp.n_lambda], self.t_val, self.z_worst)
         return self._outcome(
             x,
             "optimal",
@@ -432,7 +432,7 @@ def _edges_to_add(
     return priced_edges(qp.G_lam, qp.T_lam, t_in, null, y, e_mask, screen_tol)
 
 
-def _violations(
+def violations(
     qp: AllocationQP, lam: FloatArray, torque_values: FloatArray, null_worst: float
 ) -> tuple[float, float]:
     """The largest constraint violation at ``lambda`` [N or N*m] and the largest relative one
@@ -476,6 +476,7 @@ def rows_at_bounds(
 
 __all__ = [
     "FEAS_TOL",
+    "violations",
     "ActiveSet",
     "SCREEN_TOL",
     "AllocationSolution",

@@ -21,7 +21,7 @@ committed study uses.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import numba
 import numpy as np
@@ -29,8 +29,13 @@ import numpy.typing as npt
 
 from wholehand.jit import CACHE
 
+if TYPE_CHECKING:
+    from wholehand.allocation.problem import AllocationQP
+    from wholehand.contacts.base import ContactSet
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 
 MATCH_RADIUS: float = 0.005
 """Contacts on the same link closer than this across cycles are the same contact [m]."""
@@ -52,12 +57,59 @@ class WarmStart:
     """Joint indices whose torque rows were binding."""
     null_rows: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
     """Consistency-row indices that were binding."""
+    sides: tuple[int, IntArray, npt.NDArray[np.int8], npt.NDArray[np.int8]] | None = None
+    """The dual active-set solver's active rows and at which bound (+1 lower, -1 upper): the
+    minimum squeeze's, the torque rows' by joint index (joints (k,), sides (k,)) and every
+    consistency row's by index ((n_null,)); None: none kept."""
+    null_scale: FloatArray | None = None
+    """(n_null,) the consistency rows' norms the dual active-set solver learnt."""
 
     def clear(self) -> None:
         """Forget everything."""
         self.p_world = self.link = self.lam = None
         self.torque_dofs = np.zeros(0, dtype=np.intp)
         self.null_rows = np.zeros(0, dtype=np.intp)
+        self.sides = None
+        self.null_scale = None
+
+    def keep_sides(self, qp: AllocationQP, y: FloatArray, null_scale: FloatArray) -> None:
+        """Keep which rows were active in the dual active-set solution of ``qp`` (its rows'
+        multipliers ``y``, in the order of
+        :func:`~wholehand.allocation.solvers.dual_active_set.allocation_rows`) and the
+        consistency rows' norms it learnt."""
+        self.null_scale = null_scale
+        side = np.sign(y).astype(np.int8)
+        n_t = qp.torque_rows.size
+        torque = side[1 : 1 + n_t]
+        held = np.flatnonzero(torque)
+        self.sides = (int(side[0]), qp.dofs[qp.torque_rows[held]], torque[held], side[1 + n_t :])
+
+    def dual_start(
+        self, qp: AllocationQP, contacts: ContactSet
+    ) -> tuple[BoolArray | None, npt.NDArray[np.int8] | None, FloatArray | None]:
+        """The dual active-set solver's start for ``qp``: the edge weights that carried force
+        last cycle (matched by contact; a new contact's start at zero), last cycle's active
+        rows (the torque rows by joint; the consistency rows while the contacts sit on the
+        same links) and, on the same links, the consistency rows' norms; Nones without a
+        previous cycle."""
+        if self.lam is None:
+            return None, None, None
+        lam0, _ = warm_edge_weights(self.match(contacts.p_world, contacts.link), self.lam)
+        free = (lam0 > 0.0) & np.isfinite(lam0)
+        n_t = qp.torque_rows.size
+        rows = np.zeros(1 + n_t + qp.n_null, dtype=np.int8)
+        same = self.same_links(contacts.link)
+        if self.sides is not None:
+            squeeze, joints, torque_sides, null_sides = self.sides
+            rows[0] = squeeze
+            if joints.size:
+                side_of = np.zeros(qp.n_v, dtype=np.int8)
+                side_of[joints] = torque_sides
+                rows[1 : 1 + n_t] = side_of[qp.dofs[qp.torque_rows]]
+            if null_sides.size == qp.n_null and same:
+                rows[1 + n_t :] = null_sides
+        scale = self.null_scale if self.sides is not None and same else None
+        return free.ravel(), rows, scale
 
     def match(self, p_world: FloatArray, link: IntArray) -> IntArray:
         """(N,) index of the previous contact each current one continues, -1 for new ones."""

@@ -281,7 +281,8 @@ def run_allocation_benchmark(
 
     Args:
         contact_counts: Numbers of contacts N.
-        solvers: Solver names (default: the natively driven ones that are installed).
+        solvers: Solver names (default: ``dual_active_set`` and the natively driven ones that
+            are installed).
         cycles: Timed cycles per (solver, N, mode).
         warmup: Untimed cycles before them.
         seed: Seed of the problems and jitter.
@@ -300,9 +301,9 @@ def run_allocation_benchmark(
         per solver and N), ``speedup`` (per N: best direct p50 / best allocator p50, counting
         only solvers that solved every cycle) and ``plot`` (PNG path or None).
     """
-    from wholehand.allocation.solvers import NATIVE_SOLVERS
+    from wholehand.allocation.solvers import NATIVE_SOLVERS, STRUCTURED_SOLVERS
 
-    names = list(solvers) if solvers is not None else list(NATIVE_SOLVERS)
+    names = list(solvers) if solvers is not None else [*STRUCTURED_SOLVERS, *NATIVE_SOLVERS]
     extra = dict(allocator_kwargs or {})
     configs: list[tuple[str, bool, bool]] = [(s, True, False) for s in names]
     if "daqp" in names:

@@ -1,6 +1,9 @@
 """QP solver adapters, one per module, and their registry (as qpsolvers keeps its own).
 
-Solvers are named by a string. ``"daqp"``, ``"osqp"`` and ``"piqp"`` are driven through their own
+Solvers are named by a string. ``"dual_active_set"`` is the project's own solver of the
+structured allocation QP (:mod:`~wholehand.allocation.solvers.dual_active_set`), chosen through
+the QP allocator's :class:`~wholehand.allocation.options.SolveOptions` rather than built here as
+a dense adapter. ``"daqp"``, ``"osqp"`` and ``"piqp"`` are driven through their own
 Python APIs: a persistent DAQP model per problem shape, OSQP without the wrapper's conversions,
 PIQP's sparse KKT solver (the qpsolvers wrappers add per-cycle conversions; ``wholehand bench
 allocate`` compares them). Any other name in ``qpsolvers.available_solvers``, and
@@ -33,6 +36,9 @@ for _cls, _module in ((DaqpSolver, "daqp"), (OsqpSolver, "osqp"), (PiqpSolver, "
 DEFAULT_SOLVER: str = "daqp"
 """Fastest exact solver on the benchmark (``wholehand bench allocate``)."""
 
+STRUCTURED_SOLVERS: tuple[str, ...] = ("dual_active_set",)
+"""Solvers of the structured allocation QP, which the QP allocator drives itself."""
+
 
 def _qpsolvers_available() -> list[str]:
     try:
@@ -46,7 +52,7 @@ def available_solvers() -> list[str]:
     """Every solver name :func:`make_solver` accepts in this environment."""
     generic = _qpsolvers_available()
     plain = [s for s in generic if s not in NATIVE_SOLVERS]
-    return [*NATIVE_SOLVERS, *plain, *(f"qpsolvers:{s}" for s in generic)]
+    return [*STRUCTURED_SOLVERS, *NATIVE_SOLVERS, *plain, *(f"qpsolvers:{s}" for s in generic)]
 
 
 def make_solver(
@@ -62,6 +68,12 @@ def make_solver(
     """
     generic = _qpsolvers_available()
     solver: QPSolver | None = None
+    if name in STRUCTURED_SOLVERS:
+        raise ConfigError(
+            f"{owner}: solver {name!r} solves the structured allocation QP and is chosen in the "
+            f"QP allocator's options (SolveOptions(solver={name!r})), not built as a dense QP "
+            f"adapter; dense solvers: {', '.join(available_solvers()[len(STRUCTURED_SOLVERS) :])}"
+        )
     if isinstance(name, str):
         base = name.removeprefix("qpsolvers:")
         if name in NATIVE_SOLVERS:
@@ -93,6 +105,7 @@ __all__ = [
     "QPResult",
     "QPSolver",
     "QpsolversSolver",
+    "STRUCTURED_SOLVERS",
     "available_solvers",
     "make_solver",
 ]

@@ -16,6 +16,7 @@ from wholehand_plugins.mesh_sdf.reference import sdf_query, top_k_per_link
 
 from wholehand.bench.contacts import grasp_like_states
 from wholehand.errors import ConfigError
+from wholehand.grasps.store import load_grasps
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
@@ -102,8 +103,9 @@ def assert_matches_reference(hand, obj, contacts, kin, wMo, d_thresh, k, links=N
 @pytest.mark.parametrize("obj_name", ["cube", "sphere", "tight_sphere"])
 @pytest.mark.parametrize("k", [1, 5, 7])
 def test_estimator_equals_numpy_reference(allegro, request, obj_name, k):
+    """The paper's selection (no hysteresis) against brute force, state after state."""
     obj = request.getfixturevalue(obj_name)
-    est = MeshSDFEstimator(allegro, obj, d_thresh=0.01, k=k)
+    est = MeshSDFEstimator(allegro, obj, d_thresh=0.01, k=k, hysteresis=0.0)
     kin = HandKinematics(allegro)
     total = 0
     for q, wMb, wMo in random_states(allegro, obj, seed=k):
@@ -119,7 +121,7 @@ def test_estimator_equals_numpy_reference(allegro, request, obj_name, k):
 def test_samples_outside_the_grid_are_looked_up(allegro, tight_sphere):
     """The tight grid case does exercise the outside rule: some samples of clusters that pass
     the cull lie outside the grid box, and the reference still agrees (test above)."""
-    est = MeshSDFEstimator(allegro, tight_sphere)
+    est = MeshSDFEstimator(allegro, tight_sphere, hysteresis=0.0)
     kin = HandKinematics(allegro)
     lo, hi = tight_sphere.sdf.bounds
     outside_near = 0
@@ -139,7 +141,7 @@ def test_samples_outside_the_grid_are_looked_up(allegro, tight_sphere):
 def test_links_filter_equals_reference(allegro, sphere, k):
     tips = [allegro.link_names[i] for i in np.flatnonzero(allegro.link_fingertip)]
     links = [*tips, allegro.palm_link]
-    est = MeshSDFEstimator(allegro, sphere, d_thresh=0.015, k=k, links=links)
+    est = MeshSDFEstimator(allegro, sphere, d_thresh=0.015, k=k, links=links, hysteresis=0.0)
     kin = HandKinematics(allegro)
     allowed = {allegro.link_index(name) for name in links}
     for q, wMb, wMo in random_states(allegro, sphere, seed=10 + k):
@@ -234,7 +236,7 @@ def test_kernel_ties_keep_row_order(k):
     n_clusters = start.size
     centre = np.array([p_joint[cluster == c].mean(axis=0) for c in np.unique(cluster)])
     eye = np.eye(4)
-    p_world, n_world, got_link, distance = kernels.mesh_sdf_contacts(
+    p_world, n_world, got_link, distance, got_rows = kernels.mesh_sdf_contacts(
         eye,
         eye,
         np.eye(3)[None],
@@ -248,13 +250,77 @@ def test_kernel_ties_keep_row_order(k):
         *kernels.grid_arguments(grid),
         0.0,
         k,
+        np.zeros(link.size, dtype=np.bool_),
+        0.0,
     )
     rows = top_k_per_link(link, np.full(link.size, -0.001), k)
     np.testing.assert_array_equal(rows, np.sort(rows))  # row order within each link
     np.testing.assert_array_equal(got_link, link[rows])
+    np.testing.assert_array_equal(got_rows, rows)
     np.testing.assert_array_equal(p_world, p_joint[rows])
     np.testing.assert_array_equal(distance, np.float32(-0.001))
     assert np.all(np.isfinite(n_world))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_kept_samples_keep_their_place_unless_one_is_closer_by_the_margin(seed):
+    """On a grid whose distance is the x coordinate, the kernel's selection equals a stable
+    top-K by ``distance - hysteresis * kept`` computed here, whatever was kept."""
+    x = np.arange(6) * 0.01
+    grid = SignedDistanceGrid(
+        origin=np.zeros(3), spacing=0.01, values=np.broadcast_to(x[:, None, None], (6, 6, 6))
+    )
+    rng = np.random.default_rng(seed)
+    link = np.repeat([0, 2], [9, 7])
+    p_joint = rng.uniform(0.0, 0.05, (link.size, 3))
+    p_joint[:, 0] = rng.uniform(0.0, 0.012, link.size)  # distances 0..12 mm
+    kept = rng.random(link.size) < 0.4
+    hysteresis, k, d_thresh = rng.uniform(0.0, 0.004), int(rng.integers(1, 5)), 0.01
+    start = np.r_[0, 9, link.size].astype(np.intp)
+    centre = np.array([p_joint[:9].mean(axis=0), p_joint[9:].mean(axis=0)])
+    eye = np.eye(4)
+    *_, distance, rows = kernels.mesh_sdf_contacts(
+        eye, eye, np.eye(3)[None], np.zeros((1, 3)), p_joint, link, start, centre,
+        np.ones(2), np.zeros(2, dtype=np.intp), *kernels.grid_arguments(grid),
+        d_thresh, k, kept, hysteresis,
+    )  # fmt: skip
+    d = p_joint[:, 0]
+    candidate = np.flatnonzero(d < d_thresh)
+    key = d[candidate] - hysteresis * kept[candidate]
+    want = candidate[top_k_per_link(link[candidate], key, k)]
+    np.testing.assert_array_equal(rows, want)
+    np.testing.assert_allclose(distance, d[want], atol=1e-7)  # float32 grid
+
+
+def test_the_estimator_keeps_a_held_grasps_points_under_tracker_noise(allegro, cube):
+    """A held cube whose tracked pose jitters by 0.2 mm and 0.2 deg: the paper's re-selection
+    swaps points in almost every cycle, the 1 mm margin in a few; reset() forgets."""
+    grasp = load_grasps("allegro_right", "077_rubiks_cube")[0]
+    kin = HandKinematics(allegro)
+    kin.update(grasp.q_array(allegro))
+    wMo = grasp.object_pose(allegro.wMb)
+    changes = {}
+    for margin in (0.0, 0.001):
+        est = MeshSDFEstimator(allegro, cube, hysteresis=margin)
+        rng = np.random.default_rng(0)
+        changed, previous = 0, None
+        for _ in range(100):
+            noise = pose_from_xyz_rpy(rng.normal(0, 2e-4, 3), rng.normal(0, np.radians(0.2), 3))
+            est.estimate(kin, wMo @ noise)
+            rows = set(est.rows.tolist())
+            changed += previous is not None and rows != previous
+            previous = rows
+        changes[margin] = changed
+        est.reset()
+        assert est.rows.size == 0 and not est._kept.any()
+    assert changes[0.0] >= 60
+    assert changes[0.001] <= changes[0.0] // 3, changes
+
+
+def test_a_bad_hysteresis_is_named(allegro, cube):
+    for bad in (-0.001, 0.01, float("nan")):
+        with pytest.raises(ConfigError, match="hysteresis must be >= 0 and below d_thresh"):
+            MeshSDFEstimator(allegro, cube, hysteresis=bad)
 
 
 def test_unit_normals_flags_degenerate_ones() -> None:

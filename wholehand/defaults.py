@@ -20,6 +20,13 @@ D_THRESH: float = 0.01
 K_PER_LINK: int = 5
 """Maximum number of contacts kept per link, closest to the surface first."""
 
+CONTACT_HYSTERESIS: float = 0.001
+"""How much closer to the surface [m] a hand sample must be than one a link kept last cycle to
+take its place among the link's K contacts. Not in the paper, whose top-K is re-selected each
+cycle: there a finger rolling by a fraction of the sample spacing swaps its points (up to
+17 mm apart), which moves the consistency rows and loses the QP's warm start. 0 restores the
+paper's selection."""
+
 # --- Force allocation (Sec. III-C, IV) ----------------------------------------------------------
 MU: float = 0.7
 """Static friction coefficient of the linearised friction pyramid [-]."""

@@ -31,6 +31,12 @@ class MeshSDFEstimator(ContactEstimator):
     candidates, at most ``k`` per link, closest first; normals come from the SDF gradient at the
     kept points only.
 
+    Hysteresis: a sample selected last cycle keeps its place unless a candidate of its link is
+    more than ``hysteresis`` closer to the surface (it still drops out past ``d_thresh``), so
+    the contacts, and with them the QP and its warm start, do not jump between neighbouring
+    samples from one cycle to the next. The estimator remembers last cycle's samples;
+    :meth:`reset` forgets them.
+
     Culling (exact, it never drops a candidate): the samples of each link are grouped into
     clusters of about ``CLUSTER_SIZE`` points with a bounding sphere each. The SDF is
     1-Lipschitz, so a cluster whose centre lies farther than ``d_thresh + radius + 2 * spacing``
@@ -50,6 +56,8 @@ class MeshSDFEstimator(ContactEstimator):
         d_thresh: contact threshold on the signed distance [m].
         k: maximum contacts per link.
         links: optional link names to restrict candidates to (e.g. the fingertip links).
+        hysteresis: margin [m] by which a new sample must be closer than a kept one to take its
+            place (:data:`wholehand.defaults.CONTACT_HYSTERESIS`; 0: the paper's selection).
     """
 
     def __init__(
@@ -59,9 +67,16 @@ class MeshSDFEstimator(ContactEstimator):
         d_thresh: float = defaults.D_THRESH,
         k: int = defaults.K_PER_LINK,
         links: list[str] | None = None,
+        hysteresis: float = defaults.CONTACT_HYSTERESIS,
     ) -> None:
         if not d_thresh > 0.0:
             raise ConfigError(f"MeshSDFEstimator: d_thresh must be > 0 [m], got {d_thresh!r}")
+        if not 0.0 <= hysteresis < d_thresh:
+            raise ConfigError(
+                f"MeshSDFEstimator: hysteresis must be >= 0 and below d_thresh = {d_thresh} "
+                f"[m], got {hysteresis!r}"
+            )
+        self.hysteresis = float(hysteresis)
         if int(k) != k or k < 1:
             raise ConfigError(f"MeshSDFEstimator: k must be an integer >= 1, got {k!r}")
         self.hand, self.obj = hand, obj
@@ -112,8 +127,16 @@ class MeshSDFEstimator(ContactEstimator):
         assert np.array_equal(self._joint, self._cluster_joint[self._cluster])
         self._grid = grid_arguments(self.sdf)
         self._n_joints = int(hand.model.njoints)
+        self._kept = np.zeros(len(self._p), dtype=np.bool_)
+        self.rows: IntArray = np.zeros(0, dtype=np.intp)
+        """Sample rows of the last cycle's contacts (the estimator's own numbering)."""
         # Load the compiled kernel now (milliseconds on its first call), not in a cycle.
         self._kernel(HandKinematics(hand), np.eye(4))
+        self.reset()
+
+    def reset(self) -> None:
+        self._kept[self.rows] = False
+        self.rows = np.zeros(0, dtype=np.intp)
 
     @property
     def n_clusters(self) -> int:
@@ -130,7 +153,10 @@ class MeshSDFEstimator(ContactEstimator):
                 f"({kinematics.bRj.shape[0]} joints) given to an estimator built for hand "
                 f"{self.hand.name!r} ({self._n_joints} joints)"
             )
-        p_world, n_world, link, distance = self._kernel(kinematics, wMo)
+        p_world, n_world, link, distance, rows = self._kernel(kinematics, wMo)
+        self._kept[self.rows] = False
+        self._kept[rows] = True
+        self.rows = rows
         hand = self.hand
         return ContactSet(
             p_world=p_world,
@@ -144,8 +170,9 @@ class MeshSDFEstimator(ContactEstimator):
 
     def _kernel(
         self, kinematics: HandKinematics, wMo: FloatArray
-    ) -> tuple[FloatArray, FloatArray, IntArray, FloatArray]:
-        """Points, normals, links and distances of the kept contacts (the compiled pass)."""
+    ) -> tuple[FloatArray, FloatArray, IntArray, FloatArray, IntArray]:
+        """Points, normals, links, distances and sample rows of the selected contacts (the
+        compiled pass)."""
         return mesh_sdf_contacts(
             np.ascontiguousarray(wMo),
             np.ascontiguousarray(kinematics.wMb),
@@ -160,4 +187,6 @@ class MeshSDFEstimator(ContactEstimator):
             *self._grid,
             self.d_thresh,
             self.k,
+            self._kept,
+            self.hysteresis,
         )

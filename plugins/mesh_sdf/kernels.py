@@ -232,15 +232,23 @@ def _joint_poses_in_object(
 
 @numba.njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _flush(
-    top: FloatArray, n_top: int, link: int, sel: FloatArray, sel_link: IntArray, n_sel: int
+    top: FloatArray,
+    n_top: int,
+    link: int,
+    sel: FloatArray,
+    sel_link: IntArray,
+    sel_row: IntArray,
+    n_sel: int,
 ) -> int:
-    """Append the ``n_top`` best points of ``link`` (rows of ``top``: distance, x, y, z) to the
-    selection ``sel`` (M, 3), ``sel_link`` (M,) holding ``n_sel`` rows; returns the new count."""
+    """Append the ``n_top`` best points of ``link`` (rows of ``top``: ranking key, x, y, z,
+    sample row) to the selection ``sel`` (M, 3), ``sel_link`` (M,), ``sel_row`` (M,) holding
+    ``n_sel`` rows; returns the new count."""
     for m in range(n_top):
         sel[n_sel, 0] = top[m, 1]
         sel[n_sel, 1] = top[m, 2]
         sel[n_sel, 2] = top[m, 3]
         sel_link[n_sel] = link
+        sel_row[n_sel] = np.intp(top[m, 4])
         n_sel += 1
     return n_sel
 
@@ -262,16 +270,19 @@ def mesh_sdf_contacts(  # noqa: C901 - one compiled pass over the samples
     geom: FloatArray,
     d_thresh: float,
     k: int,
-) -> tuple[FloatArray, FloatArray, IntArray, FloatArray]:
+    kept: BoolArray,
+    hysteresis: float,
+) -> tuple[FloatArray, FloatArray, IntArray, FloatArray, IntArray]:
     """One cycle of :class:`MeshSDFEstimator`: contacts of the hand samples with the object SDF.
 
     Samples are stored sorted by cluster, clusters by link, so each cluster is a contiguous row
     range and each link's rows are contiguous; a cluster's samples share its joint. Per cluster:
     its centre is moved to the object frame; if its SDF value is not below its reach the cluster
     is skipped, else each of its samples is moved and looked up, and one with distance below
-    ``d_thresh`` is inserted into the current link's top-K buffer (kept sorted by distance; ties
-    keep the earlier row, as a stable sort). When the link changes, the buffer is appended to
-    the selection. The kept points then get the SDF gradient and are moved to the world frame.
+    ``d_thresh`` is inserted into the current link's top-K buffer, ranked by its distance less
+    ``hysteresis`` if the sample was ``kept`` last cycle (kept sorted by that key; ties keep the
+    earlier row, as a stable sort). When the link changes, the buffer is appended to the
+    selection. The kept points then get the SDF gradient and are moved to the world frame.
 
     Args:
         wMo: (4, 4) object pose in the world (a checked rigid transform).
@@ -287,19 +298,24 @@ def mesh_sdf_contacts(  # noqa: C901 - one compiled pass over the samples
         values, dims, geom: the SDF grid (module docstring).
         d_thresh: contact threshold on the signed distance [m].
         k: maximum contacts per link (>= 1).
+        kept: (P,) the samples selected last cycle.
+        hysteresis: how much closer [m] a new sample must be to displace a kept one (0: the
+            paper's plain top-K by distance).
 
     Returns:
-        ``(p_world, n_world, link, distance)``, new arrays of N rows (at most k per link)
-        ordered by link then distance: (N, 3) points on the hand [m] and (N, 3) unit outward
-        object normals, world frame; (N,) link indices; (N,) signed distances [m].
+        ``(p_world, n_world, link, distance, row)``, new arrays of N rows (at most k per link)
+        ordered by link then ranking key: (N, 3) points on the hand [m] and (N, 3) unit outward
+        object normals, world frame; (N,) link indices; (N,) signed distances [m]; (N,) the
+        rows of the selected samples (for ``kept`` next cycle).
     """
     shape, g = grid_tuples(dims, geom)
     R, t = _joint_poses_in_object(wMo, wMb, bRj, bp_j)
     # Links are sorted, so at most (last - first + 1) of them hold points.
     n_links = point_link[-1] - point_link[0] + 1 if point_link.shape[0] else 0
-    top = np.empty((k, 4))  # the current link's best points: distance [m], x, y, z [m]
+    top = np.empty((k, 5))  # the current link's best points: key [m], x, y, z [m], row
     sel = np.empty((n_links * k, 3))  # selected object-frame points [m]
     sel_link = np.empty(n_links * k, dtype=np.intp)
+    sel_row = np.empty(n_links * k, dtype=np.intp)
     n_sel = 0
     cur_link = -1
     n_top = 0
@@ -317,7 +333,7 @@ def mesh_sdf_contacts(  # noqa: C901 - one compiled pass over the samples
         for r in range(cluster_start[c], cluster_start[c + 1]):
             link = point_link[r]
             if link != cur_link:
-                n_sel = _flush(top, n_top, cur_link, sel, sel_link, n_sel)
+                n_sel = _flush(top, n_top, cur_link, sel, sel_link, sel_row, n_sel)
                 cur_link = link
                 n_top = 0
             px, py, pz = p_joint[r, 0], p_joint[r, 1], p_joint[r, 2]
@@ -327,6 +343,8 @@ def mesh_sdf_contacts(  # noqa: C901 - one compiled pass over the samples
             d = sdf_value(values, shape, g, x, y, z)
             if not d < d_thresh:
                 continue
+            if kept[r]:
+                d -= hysteresis
             if n_top < k:
                 pos = n_top
                 n_top += 1
@@ -335,18 +353,20 @@ def mesh_sdf_contacts(  # noqa: C901 - one compiled pass over the samples
             else:
                 continue
             while pos > 0 and top[pos - 1, 0] > d:  # insertion sort, stable
-                for col in range(4):
+                for col in range(5):
                     top[pos, col] = top[pos - 1, col]
                 pos -= 1
             top[pos, 0] = d
             top[pos, 1] = x
             top[pos, 2] = y
             top[pos, 3] = z
-    n_sel = _flush(top, n_top, cur_link, sel, sel_link, n_sel)
+            top[pos, 4] = r
+    n_sel = _flush(top, n_top, cur_link, sel, sel_link, sel_row, n_sel)
 
     p_world = np.empty((n_sel, 3))
     n_world = np.empty((n_sel, 3))
     link_out = np.empty(n_sel, dtype=np.intp)
+    row_out = np.empty(n_sel, dtype=np.intp)
     distance = np.empty(n_sel)
     for i in range(n_sel):
         x, y, z = sel[i, 0], sel[i, 1], sel[i, 2]
@@ -355,5 +375,6 @@ def mesh_sdf_contacts(  # noqa: C901 - one compiled pass over the samples
             p_world[i, a] = wMo[a, 0] * x + wMo[a, 1] * y + wMo[a, 2] * z + wMo[a, 3]
             n_world[i, a] = wMo[a, 0] * gx + wMo[a, 1] * gy + wMo[a, 2] * gz
         link_out[i] = sel_link[i]
+        row_out[i] = sel_row[i]
         distance[i] = d
-    return p_world, n_world, link_out, distance
+    return p_world, n_world, link_out, distance, row_out

@@ -13,8 +13,12 @@ Per stage it reports p50/p99/p99.9/max: ``estimate`` (kinematics and contact est
 ``qp_solver`` (inside the QP solver's calls) and ``qp_other`` (building the problems and the
 allocator's own work, Python mostly), ``rest`` (Jacobians, normal checks, the torque) and
 ``step`` (the whole stage), how many QPs took longer than ``deadline`` (the allocator's
-deadline would have stopped them), and the most cycles in a row that gave no torque (the loop
-would have held the last feasible one: ``longest_hold_cycles``).
+deadline would have stopped them), the most cycles in a row that gave no torque (the loop
+would have held the last feasible one: ``longest_hold_cycles``), and in how many cycles the
+estimator's selected samples changed (``selection_changes``: cycles whose contacts jumped, which
+moves the consistency rows and costs the QP its warm start; estimators that say which samples
+they selected, as ``mesh_sdf`` does). ``estimator_params`` apply to the replay only, so that
+two settings are compared on the same states.
 """
 
 from __future__ import annotations
@@ -70,7 +74,8 @@ def replay(
     step; returns per-cycle durations [ns] of ``step``, ``estimate``, ``qp`` and ``qp_solver``
     (:attr:`~wholehand.allocation.base.Allocation.solver_time`) and the
     commanded torques ``tau`` (rows, n_v) [N*m] (NaN where the stage gave none), and the
-    stage's statuses."""
+    stage's statuses; ``changed`` (rows,) says where the estimator's selected samples differ
+    from the cycle before."""
     a = record.arrays()
     rows = a["q"].shape[0]
     poses_b, poses_o = record_poses(record)
@@ -79,6 +84,8 @@ def replay(
     out = {key: np.zeros(rows, dtype=np.int64) for key in ("step", "estimate", "qp", "qp_solver")}
     statuses: Counter[str] = Counter()
     taus = np.full((rows, hand.nv), np.nan)
+    changed = np.zeros(rows, dtype=bool)
+    previous: set[int] | None = None
     dt = 1.0 / float(record.meta.get("control_rate", 200.0))
     for i in range(rows):
         q = a["q"][i]
@@ -98,7 +105,12 @@ def replay(
         statuses[output.status] += 1
         if output.command is not None:
             taus[i] = output.command.tau
-    return {**out, "tau": taus}, statuses
+        selected = getattr(stage.estimator, "rows", None)
+        if selected is not None:
+            now_rows = set(selected.tolist())
+            changed[i] = previous is not None and now_rows != previous
+            previous = now_rows
+    return {**out, "tau": taus, "changed": changed}, statuses
 
 
 def longest_run(flags: np.ndarray) -> int:
@@ -116,6 +128,7 @@ def run_worst_case_benchmark(
     allocator: str = "qp",
     allocator_params: dict[str, Any] | None = None,
     deadline: float = QP_DEADLINE,
+    estimator_params: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run the trials, keep the lost ones, replay their states (module docstring)."""
     hand_model = load_hand(hand)
@@ -123,6 +136,7 @@ def run_worst_case_benchmark(
     lost = []
     statuses: Counter[str] = Counter()
     longest_hold = 0
+    changes = 0
     for name in objects:
         obj = load_object(name)
         for g in grasps:
@@ -138,12 +152,19 @@ def run_worst_case_benchmark(
             if record.held_throughout:
                 continue
             lost.append({"object": name, "grasp": g, "cycles": len(record.rows["t"])})
-            est = registry.load("contact_estimators", estimator, hand=hand_model, obj=obj)
+            est = registry.load(
+                "contact_estimators",
+                estimator,
+                hand=hand_model,
+                obj=obj,
+                **dict(estimator_params or {}),
+            )
             alloc = load_allocator(allocator, hand_model, dict(allocator_params or {}))
             stage = ForceRegulation(hand_model, obj, est, alloc)
             durations, seen = replay(record, hand_model, obj, stage)
             statuses.update(seen)
             longest_hold = max(longest_hold, longest_run(np.isnan(durations["tau"][:, 0])))
+            changes += int(durations["changed"].sum())
             for key in times:
                 times[key].append(durations[key])
     if not lost:
@@ -157,6 +178,7 @@ def run_worst_case_benchmark(
         "estimator": estimator,
         "allocator": allocator,
         "allocator_params": allocator_params or {},
+        "estimator_params": estimator_params or {},
         "lost_trials": lost,
         "cycles": int(cat["step"].size),
         "stages": {
@@ -170,6 +192,7 @@ def run_worst_case_benchmark(
         "statuses": dict(statuses),
         "qp_over_deadline": int((cat["qp"] > deadline * 1e9).sum()),
         "longest_hold_cycles": longest_hold,
+        "selection_changes": changes,
         "deadline_ms": deadline * 1e3,
         "machine": provenance(),
     }

@@ -53,6 +53,8 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
     from wholehand.bench.cycle import run_cycle_benchmark
 
     options: dict[str, object] = {}
+    if args.solver is not None:
+        options["solver"] = args.solver
     if args.qp_deadline is not None:
         options["deadline"] = args.qp_deadline
     if args.qp_deadline_after_miss is not None:
@@ -70,6 +72,7 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
             estimator=args.estimator,
             allocator=args.allocator,
             allocator_params=params,
+            estimator_params={} if args.hysteresis is None else {"hysteresis": args.hysteresis},
         )
         print(json.dumps(worst, indent=2))
         return 0
@@ -251,6 +254,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--screen-edges",
         action="store_true",
         help="the QP allocator screens the pyramid-edge weights too",
+    )
+    p.add_argument(
+        "--solver",
+        default=None,
+        help="the QP allocator's solver (default daqp; dual_active_set: the one built for this QP)",
+    )
+    p.add_argument(
+        "--hysteresis",
+        type=float,
+        default=None,
+        metavar="M",
+        help="--worst: the estimator's contact hysteresis in the replay [m] (0: the paper's "
+        "selection; default 0.001); the trials keep the default, so settings compare on the "
+        "same states",
     )
     p.add_argument("--estimator", default="mesh_sdf")
     p.add_argument("--allocator", default="qp")

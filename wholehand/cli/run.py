@@ -63,6 +63,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--d-thresh", type=float, default=None, help="contact threshold [m] (default 0.01)"
     )
+    p.add_argument(
+        "--hysteresis",
+        type=float,
+        default=None,
+        metavar="M",
+        help="mesh_sdf: how much closer [m] a new sample must be to displace a contact a link "
+        "kept last cycle (default 0.001; 0: the paper's selection)",
+    )
     p.add_argument("--gravity", action="store_true", help="turn gravity on (off in the paper)")
     p.add_argument(
         "--sdf-spacing",
@@ -215,7 +223,9 @@ def _trial_spec(args: argparse.Namespace) -> TrialSpec:
     if not (math.isfinite(args.rate) and args.rate > 0.0):
         raise ConfigError(f"--rate {args.rate} must be a finite rate > 0 [Hz]")
     est_params = {
-        k: v for k, v in {"k": args.k, "d_thresh": args.d_thresh}.items() if v is not None
+        k: v
+        for k, v in {"k": args.k, "d_thresh": args.d_thresh, "hysteresis": args.hysteresis}.items()
+        if v is not None
     }
     obj = args.object or "077_rubiks_cube"
     if args.grasps:

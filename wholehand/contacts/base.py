@@ -181,3 +181,7 @@ class ContactEstimator(abc.ABC):
             wMo: (4, 4) pose of the object frame in the world.
             stamp: Time of the state [s], copied into the result.
         """
+
+    def reset(self) -> None:  # noqa: B027 - an optional hook, stateless estimators keep it
+        """Forget what earlier cycles left (the contacts kept for the next selection); called
+        after warm-up calls, so that the first cycle of a grasp starts afresh."""

@@ -341,6 +341,7 @@ def _first_estimate(backend: Backend, hand: HandModel, estimator: ContactEstimat
     warm.update(first.q, first.wMb)
     assert first.wMo is not None
     estimator.estimate(warm, first.wMo)
+    estimator.reset()
 
 
 def _regulation_of(stages: dict[str, Stage] | Stage) -> ForceRegulation:

@@ -269,6 +269,7 @@ def _episode_stages(
     warm, first = HandKinematics(hand), scene.backend.observe()
     warm.update(first.q, first.wMb)
     estimator.estimate(warm, scene.wMo)
+    estimator.reset()
     # Passed only when asked for, so that a reacher without the option still loads.
     avoid = {"self_collision": True} if spec.self_collision else {}
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table, **avoid)

@@ -137,7 +137,8 @@ class QPAllocator(Allocator):
         """Allocations per status since construction (or :meth:`reset`)."""
         self.last_solution: AllocationSolution | None = None
         """Solver outcome of the last cycle that reached the solver, for debugging."""
-        load_kernels(self.params, self.qp_solver)  # here, not in the first control cycle
+        # Here, not in the first control cycle.
+        load_kernels(self.params, self.qp_solver, self._dual_active_set)
 
     # --------------------------------------------------------------------------------------------
     def reset(self) -> None:

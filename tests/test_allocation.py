@@ -260,7 +260,9 @@ def test_edge_screening_keeps_the_problems_small_near_a_loss() -> None:
 
 
 @pytest.mark.parametrize(
-    "params", [{}, {"screen_edges": True}, {"screening": False}], ids=["rows", "edges", "full"]
+    "params",
+    [{}, {"screen_edges": True}, {"screening": False}, {"solver": "dual_active_set"}],
+    ids=["rows", "edges", "full", "dual active set"],
 )
 def test_a_built_allocator_loads_no_kernel_while_allocating(params: dict[str, Any]) -> None:
     """Every kernel version a cycle uses is loaded when the allocator is built, including those

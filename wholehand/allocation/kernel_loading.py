@@ -16,9 +16,12 @@ from wholehand.allocation.warm_start import matched_contacts, rows_of_joints, wa
 from wholehand.contacts.base import ContactSet
 
 
-def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSolution:
+def load_kernels(
+    params: AllocationParams, solver: QPSolver, dual_active_set: bool = False
+) -> AllocationSolution:
     """Run every compiled kernel of building and solving the allocation QP once, then forget
-    the solver's state; returns the solution of the synthetic problem it solved.
+    the solver's state; returns the solution of the synthetic problem it solved. With
+    ``dual_active_set`` the dual active-set solver's kernel too.
 
     A kernel's first call in a process loads its machine code (tens of milliseconds for all of
     them, seconds when it is compiled); allocators call this at construction so that this
@@ -67,6 +70,10 @@ def load_kernels(params: AllocationParams, solver: QPSolver) -> AllocationSoluti
     priced_edges(
         qp.G_lam, qp.T_lam, every_t, qp.null_rows(some_n), y, np.zeros(qp.n_lambda, bool), 0.0
     )
+    if dual_active_set:
+        from wholehand.allocation.solvers.dual_active_set import solve_dual_active_set
+
+        solve_dual_active_set(qp)
     solver.reset()
     return sol
 

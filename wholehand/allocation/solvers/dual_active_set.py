@@ -45,7 +45,12 @@ MAX_STEPS: int = 2000
 _STATUS = {OPTIMAL: "optimal", INFEASIBLE: "infeasible", NUMERICAL: "failed"}
 
 
-_NO_QR = (np.zeros((0, 0), order="F"), np.zeros(0))
+VERIFY_TOL: float = 1e-6
+"""Largest relative violation (:attr:`AllocationSolution.relative_violation`) of a solution the
+method calls optimal that is passed on; past it the solve counts as failed (rounding on a
+nearly infeasible problem), and the allocator asks its fallback solver."""
+
+_NO_QR = (np.zeros((0, 0)), np.zeros(0))
 
 
 def allocation_rows(
@@ -68,7 +73,9 @@ def allocation_rows(
     A = np.ascontiguousarray(np.concatenate(dense))
     lo = np.concatenate(([qp.params.f_n_min], t_lo, np.full(qp.n_null, -eps)))
     hi = np.concatenate(([np.inf], t_hi, np.full(qp.n_null, eps)))
-    return A, _NO_QR if qr is None else qr, lo, hi
+    # C order, as the empty stand-in: one compiled kernel for both paths.
+    house = _NO_QR if qr is None else (np.ascontiguousarray(qr[0]), qr[1])
+    return A, house, lo, hi
 
 
 class DualSolution(NamedTuple):
@@ -163,6 +170,10 @@ def solve_dual_active_set(
     x = np.concatenate((lam, qp.G_lam @ lam + qp.w_ext))
     null_worst = float(np.abs(null_values).max(initial=0.0)) - qp.params.eps_margin
     worst, relative = violations(qp, lam, torque_values, null_worst)
+    if not relative <= VERIFY_TOL:
+        detail = f"dual active set: inaccurate (relative violation {relative:.2g})"
+        failed = AllocationSolution(None, "failed", 1, m - 1, steps, worst, relative, detail)
+        return DualSolution(failed, y, scale[A.shape[0] :])
     solution = AllocationSolution(
         x=x,
         status="optimal",

@@ -45,12 +45,16 @@ BoolArray = npt.NDArray[np.bool_]
 
 OPTIMAL, INFEASIBLE, ITERATION_LIMIT, NUMERICAL = 0, 1, 2, 3
 """Status codes of :func:`dual_active_set` (the last: the factor could not be kept positive
-definite even when rebuilt; the caller solves another way)."""
+definite even when rebuilt, or the multipliers diverged; the caller solves another way)."""
 
 _DEPENDENT = 1e-9
 """``z . n <= _DEPENDENT |n_F|^2`` means ``p`` depends on the active constraints (the least
 true value is about ``|n_F|^2 / (sigma_max^2 + reg)``, the rounding about ``eps |n_F|^2 /
 reg``)."""
+
+DIVERGED = 1e9
+"""A multiplier past this [N or N*m per unit] means the steps diverge, as they do on an
+infeasible problem whose infeasibility rounding hides: the solve stops as :data:`NUMERICAL`."""
 
 REFRESH_EVERY = 64
 """Updates of the factor after which it is rebuilt from scratch at the next new constraint."""
@@ -520,6 +524,9 @@ def dual_active_set(  # noqa: C901 - one compiled solve
                     u_bound[j] -= t * r_bound[j]
             u_p += t
             updates += 1
+            if u_p > DIVERGED:
+                status = NUMERICAL
+                break
             ok = True
             if t == t2:  # p joins the active set
                 if p_bound:

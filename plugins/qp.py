@@ -52,6 +52,7 @@ from wholehand.allocation.solvers import make_solver
 from wholehand.allocation.solvers.dual_active_set import (
     DUAL_ACTIVE_SET,
     FALLBACK_SOLVER,
+    MAX_STEPS,
     solve_dual_active_set,
 )
 from wholehand.allocation.warm_start import (
@@ -66,6 +67,13 @@ if TYPE_CHECKING:
 
 FloatArray = npt.NDArray[np.float64]
 
+
+STEP_NS_START: float = 5000.0
+"""The dual active-set solver's time per step [ns] assumed until it is measured."""
+STEP_SAMPLE: int = 8
+"""Solves of fewer steps do not update the measured time per step (fixed costs dominate)."""
+STEP_GAIN: float = 0.2
+"""Weight of each new measurement in the time per step's running average."""
 
 SOLVE_SHARE: float = 0.75
 """Share of the deadline (:attr:`~wholehand.allocation.options.SolveOptions.deadline`) the
@@ -128,6 +136,7 @@ class QPAllocator(Allocator):
         """The checked solve options (``deadline_after_miss`` resolved)."""
         self._missed = False  # the last allocation ran out of time
         self._dual_active_set = self.options.solver == DUAL_ACTIVE_SET
+        self._step_ns = STEP_NS_START  # the dual active-set solver's measured time per step
         # The dual active-set method solves the structured problem itself; the dense solver
         # then serves where it fails (FALLBACK_SOLVER), with the user's settings.
         dense = FALLBACK_SOLVER if self._dual_active_set else self.options.solver
@@ -273,17 +282,13 @@ class QPAllocator(Allocator):
     def _solve(self, qp: AllocationQP, contacts: ContactSet, t0: int) -> AllocationSolution:
         """The cycle's solution: by the dual active-set method where it is chosen (the dense
         fallback solver where it fails), else by screening with the dense solver."""
-        warm = self.options.warm_start
-        if self._dual_active_set:
-            free, rows, scale = self._warm.dual_start(qp, contacts) if warm else (None,) * 3
-            dual = solve_dual_active_set(qp, free, rows, scale)
-            if dual.solution.x is not None:
-                self._warm.keep_sides(qp, dual.y, dual.null_scale)
-            if dual.solution.status in ("optimal", "infeasible"):
-                return dual.solution
-        kwargs = self._warm_kwargs(qp, contacts) if warm else {}
         budget = self.options.deadline_after_miss if self._missed else self.options.deadline
         deadline_ns = None if budget is None else t0 + int(budget * SOLVE_SHARE * 1e9)
+        if self._dual_active_set:
+            sol = self._solve_dual(qp, contacts, deadline_ns)
+            if sol is not None:
+                return sol
+        kwargs = self._warm_kwargs(qp, contacts) if self.options.warm_start else {}
         return solve_allocation(
             qp,
             self.qp_solver,
@@ -292,6 +297,42 @@ class QPAllocator(Allocator):
             deadline_ns=deadline_ns,
             **kwargs,
         )
+
+    def _solve_dual(
+        self, qp: AllocationQP, contacts: ContactSet, deadline_ns: int | None
+    ) -> AllocationSolution | None:
+        """The dual active-set solution, or None where the fallback solver must answer. Under
+        a deadline the solve gets the steps that fit in the time left at its measured time per
+        step; one stopped by them is a ``"deadline"`` solution."""
+        start = self._warm.dual_start(qp, contacts) if self.options.warm_start else (None,) * 3
+        max_steps = MAX_STEPS
+        if deadline_ns is not None:
+            left = deadline_ns - time.perf_counter_ns()
+            max_steps = min(MAX_STEPS, int(max(left, 0) / self._step_ns))
+        try:
+            dual = solve_dual_active_set(qp, *start, max_steps=max_steps)
+        except Exception:  # the loop must not raise: the fallback solver answers
+            return None
+        sol = dual.solution
+        if sol.iterations >= STEP_SAMPLE:
+            per_step = sol.solver_time * 1e9 / sol.iterations
+            self._step_ns += STEP_GAIN * (per_step - self._step_ns)
+        if sol.x is not None:
+            self._warm.keep_sides(qp, dual.y, dual.null_scale)
+        if sol.status in ("optimal", "infeasible"):
+            return sol
+        if max_steps < MAX_STEPS and sol.iterations >= max_steps:
+            return AllocationSolution(
+                None,
+                "deadline",
+                1,
+                sol.n_rows,
+                sol.iterations,
+                np.inf,
+                detail="deadline passed before the solution was exact",
+                solver_time=sol.solver_time,
+            )
+        return None
 
     # --------------------------------------------------------------------------------------------
     def _warm_kwargs(self, qp: AllocationQP, contacts: ContactSet) -> dict[str, Any]:

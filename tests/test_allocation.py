@@ -312,7 +312,7 @@ class _DeadlineOnSecondSolve:
 
 def test_a_deadline_cycle_hands_its_progress_to_the_next() -> None:
     cs, J, com = near_loss()
-    alloc = QPAllocator(options=SolveOptions(screen_edges=True, deadline=60.0))
+    alloc = QPAllocator(options=SolveOptions(solver="daqp", screen_edges=True, deadline=60.0))
     alloc.qp_solver = _DeadlineOnSecondSolve()  # type: ignore[assignment]
     first = alloc.allocate(cs, J, com)
     assert first.status is AllocationStatus.DEADLINE and first.tau is None
@@ -323,7 +323,7 @@ def test_a_deadline_cycle_hands_its_progress_to_the_next() -> None:
     assert warm.lam is not None
     np.testing.assert_array_equal(warm.lam.ravel(), sol.x_relaxed[: 4 * len(cs)])
     assert warm.torque_dofs.size + warm.null_rows.size > 0
-    exact = QPAllocator(options=SolveOptions(screen_edges=True)).allocate(cs, J, com)
+    exact = QPAllocator(options=SolveOptions(solver="daqp", screen_edges=True)).allocate(cs, J, com)
     alloc.qp_solver = make_solver("daqp")
     again = alloc.allocate(cs, J, com)
     assert again.fresh
@@ -365,7 +365,7 @@ class _TimeLimits:
 
 def test_the_solver_gets_its_share_of_the_deadline() -> None:
     cs, J, com = near_loss()
-    alloc = QPAllocator(options=SolveOptions(deadline=10.0))
+    alloc = QPAllocator(options=SolveOptions(solver="daqp", deadline=10.0))
     alloc.qp_solver = solver = _TimeLimits()  # type: ignore[assignment]
     assert alloc.allocate(cs, J, com).fresh
     # Each round's limit is what is left of SOLVE_SHARE of the budget once it is built.
@@ -391,7 +391,8 @@ class _MissFirst(_TimeLimits):
 
 def test_the_allocation_after_a_missed_deadline_gets_the_longer_budget() -> None:
     cs, J, com = near_loss()
-    alloc = QPAllocator(options=SolveOptions(deadline=10.0, deadline_after_miss=30.0))
+    options = SolveOptions(solver="daqp", deadline=10.0, deadline_after_miss=30.0)
+    alloc = QPAllocator(options=options)
     alloc.qp_solver = solver = _MissFirst()  # type: ignore[assignment]
     assert alloc.allocate(cs, J, com).status is AllocationStatus.DEADLINE
     assert 10.0 * SOLVE_SHARE - 0.5 < solver.limits[0] <= 10.0 * SOLVE_SHARE
@@ -721,7 +722,7 @@ def test_solver_failure_and_nan_input_give_no_torque() -> None:
     p_nan[0, 2] = np.nan
     out = alloc.allocate(dataclasses.replace(cs, p_world=p_nan), J, com)
     assert out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
-    starved = QPAllocator(options=SolveOptions(solver_settings={"iter_limit": 1}))
+    starved = QPAllocator(options=SolveOptions(solver="daqp", solver_settings={"iter_limit": 1}))
     out = starved.allocate(cs, J, com)
     assert out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
     assert alloc.allocate(cs, J, com).ok
@@ -761,7 +762,8 @@ def test_the_feasibility_tolerance_is_relative_to_each_limit(scale: float) -> No
     lever, scaled): an answer 0.1 % over the limits is inaccurate at every scale, one 0.001 %
     over is accepted at every scale (an absolute tolerance gets one end wrong)."""
     cs, J, com = antipodal(lever=0.01)
-    params = {"f_n_min": 10.0 * scale, "tau_max": 0.05 * scale, "options": {"warm_start": False}}
+    options = {"solver": "daqp", "warm_start": False}
+    params = {"f_n_min": 10.0 * scale, "tau_max": 0.05 * scale, "options": options}
     for excess, status in ((1e-3, AllocationStatus.INACCURATE), (1e-5, AllocationStatus.OK)):
         alloc = QPAllocator(**params)
         alloc.qp_solver = Inflated(alloc.qp_solver, excess)  # type: ignore[assignment]
@@ -867,7 +869,7 @@ def test_bad_solver_settings_raise_at_construction(solver: str) -> None:
 
 def test_solver_exception_in_the_loop_becomes_a_status() -> None:
     cs, J, com = antipodal()
-    alloc = QPAllocator()
+    alloc = QPAllocator(options=SolveOptions(solver="daqp"))
     first = alloc.allocate(cs, J, com)
 
     def boom(*args: Any) -> None:

@@ -147,7 +147,9 @@ def test_the_iteration_limit_fails_and_the_allocator_falls_back_to_daqp(monkeypa
 
     monkeypatch.setattr(
         "wholehand_plugins.qp.solve_dual_active_set",
-        lambda qp, free, rows, scale: das.solve_dual_active_set(qp, free, rows, max_steps=5),
+        lambda qp, free, rows, scale, max_steps: das.solve_dual_active_set(
+            qp, free, rows, max_steps=5
+        ),
     )
     cs, J, com = near_loss()
     alloc = QPAllocator(options=SolveOptions(solver="dual_active_set"))
@@ -186,3 +188,28 @@ def test_the_consistency_rows_norms_are_learnt_where_formed():
     np.testing.assert_allclose(scale[learnt], true[learnt], rtol=1e-12)
     again = solve_dual_active_set(qp, null_scale=scale)
     assert again.solution.status == "optimal"
+
+
+def test_an_exception_in_the_solver_falls_back_to_daqp(monkeypatch):
+    def boom(*args, **kwargs):
+        raise RuntimeError("kernel crashed")
+
+    monkeypatch.setattr("wholehand_plugins.qp.solve_dual_active_set", boom)
+    cs, J, com = antipodal()
+    out = QPAllocator().allocate(cs, J, com)
+    assert out.ok and out.solver == "dual_active_set"
+
+
+def test_a_deadline_budgets_the_steps_by_their_measured_time():
+    """Past the time left at the measured time per step the solve stops as a deadline cycle
+    (no torque; the loop keeps the last one); with time to spare it is exact, and the measured
+    time per step follows the solves."""
+    cs, J, com = near_loss()
+    hurried = QPAllocator(options=SolveOptions(deadline=1e-9, warm_start=False))
+    out = hurried.allocate(cs, J, com)
+    assert out.status is AllocationStatus.DEADLINE and out.tau is None
+    assert hurried.last_solution.status == "deadline"
+    relaxed = QPAllocator(options=SolveOptions(deadline=60.0, warm_start=False))
+    before = relaxed._step_ns
+    assert relaxed.allocate(cs, J, com).fresh
+    assert relaxed.last_solution.iterations > 100 and relaxed._step_ns != before

@@ -455,7 +455,8 @@ def test_position_and_torque_groups_share_the_loop(allegro, cube):
     thumb = _thumb_dofs(allegro)
     assert len(thumb) == 4
     q_thumb = grasp.q_array(allegro)[thumb]
-    stage = ThumbHeldRegulation(regulation(allegro, cube), thumb, q_thumb)
+    # The paper's contact selection: the 0.05 rad tracking bound below was set on it.
+    stage = ThumbHeldRegulation(regulation(allegro, cube, hysteresis=0.0), thumb, q_thumb)
     seen = Last()
     ControlLoop(backend, allegro, cube, stage, observers=[seen]).run(0.5)
     cycle = seen.cycles[-1]

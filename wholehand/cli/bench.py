@@ -258,7 +258,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--solver",
         default=None,
-        help="the QP allocator's solver (default daqp; dual_active_set: the one built for this QP)",
+        help="the QP allocator's solver (default dual_active_set, the one built for this QP; "
+        "daqp, osqp, piqp, ...)",
     )
     p.add_argument(
         "--hysteresis",

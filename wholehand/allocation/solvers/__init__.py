@@ -33,8 +33,9 @@ for _cls, _module in ((DaqpSolver, "daqp"), (OsqpSolver, "osqp"), (PiqpSolver, "
         continue
     NATIVE_SOLVERS[_cls.name] = _cls
 
-DEFAULT_SOLVER: str = "daqp"
-"""Fastest exact solver on the benchmark (``wholehand bench allocate``)."""
+DEFAULT_SOLVER: str = "dual_active_set"
+"""The allocators' solver: the structured one, fastest where it matters, near a loss
+(``wholehand bench cycle --worst``; docs/results.md)."""
 
 STRUCTURED_SOLVERS: tuple[str, ...] = ("dual_active_set",)
 """Solvers of the structured allocation QP, which the QP allocator drives itself."""

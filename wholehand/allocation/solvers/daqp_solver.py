@@ -1,4 +1,4 @@
-"""DAQP through its own API (dense dual active set; the default solver)."""
+"""DAQP through its own API (dense dual active set; the dual active-set solver's fallback)."""
 
 from __future__ import annotations
 

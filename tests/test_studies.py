@@ -825,3 +825,43 @@ def test_tiny_rate_study_runs_its_rates(tmp_path):
     assert set(by_rate) == {30.0, 1000.0}
     assert by_rate[1000.0]["cycles"] == pytest.approx(by_rate[30.0]["cycles"] * 1000 / 30, rel=0.05)
     assert result.plot_path.is_file() and result.summary["enough_rate"][0]["method"] == "qp"
+
+
+def test_a_second_run_on_a_folder_in_use_is_refused_with_the_holder_named(tmp_path, capsys):
+    """One writer per folder: while another process holds it, a run is refused (its journal
+    untouched); once that process is killed, a run goes ahead."""
+    import signal
+    import subprocess
+    import sys
+
+    from wholehand.cli.main import main
+
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / JOURNAL_NAME).write_text('{"index": 0}\n')
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, pathlib\n"
+            "from wholehand.studies.folder_lock import study_folder_lock\n"
+            "with study_folder_lock(pathlib.Path(sys.argv[1])):\n"
+            "    print('held', flush=True); sys.stdin.read()\n",
+            str(folder),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        args = ["study", "perturbation", "--size", "tiny", "--out", str(folder), "--limit", "0"]
+        assert main([*args, "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert f"is in use by another study run (pid {holder.pid} on " in err
+        assert (folder / JOURNAL_NAME).read_text() == '{"index": 0}\n'
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    assert main([*args, "--no-progress"]) == 0  # the killed holder left no stale lock
+    assert (folder / JOURNAL_NAME).read_text() == ""  # a fresh run, 0 trials this time

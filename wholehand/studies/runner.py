@@ -42,6 +42,7 @@ from wholehand.studies.base import (
 from wholehand.studies.consistency import net_force_row
 from wholehand.studies.dexgraspbench import load_test_row
 from wholehand.studies.executors import execute
+from wholehand.studies.folder_lock import study_folder_lock
 from wholehand.studies.grasp_synthesis import generation_row
 from wholehand.studies.models import model
 from wholehand.studies.reach import episode_row
@@ -320,52 +321,53 @@ def run_study(
             f"--hand {hand}`"
         )
     folder = _output_folder(study, out, hand, grasps)
-    done: dict[int, dict[str, Any]] = {}
-    from_csv: list[dict[str, Any]] = []
-    from_journal: list[dict[str, Any]] = []
-    if resume:
-        from_csv, from_journal = _resumed_rows(study, folder, jobs, done)
-    n_reused = len(done)
-    todo = [job for job in execution_order(jobs) if job.index not in done]
-    if limit is not None:
-        todo = todo[: int(limit)]
-    journal = open_journal(folder / JOURNAL_NAME, fresh=not resume)
-    # Keep every row of trials.csv in the journal: trials.csv is rewritten below.
-    _journal_csv_rows(journal, from_csv, from_journal)
-    started = time.perf_counter()
-    with _terminate_as_interrupt() as termination:
-        interrupted = _run_journaled(
-            study.name, todo, journal, done, termination, executor, workers, progress, address
-        )
-        rows = [done[i] for i in sorted(done)]
-        summary = {
-            "study": study.name,
-            "provenance": provenance(),
-            "description": study.description,
-            "hand": str(hand),
-            "grasps": "stored" if grasps is None else str(grasps),
-            "only": {k: list(v) for k, v in (only or {}).items()},
-            "size": size,
-            "seed": seed,
-            "complete": len(rows) == len(jobs),
-            "n_planned": len(jobs),
-            "n_trials": len(rows),
-            "n_reused": n_reused,
-            "n_errors": sum(1 for r in rows if r.get("error")),
-            "executor": executor,
-            "wall_time_s": time.perf_counter() - started,
-            **study.summarise(rows),
-        }
-        result = _write_outputs(study, rows, summary, folder, interrupted)
-        if not summary["complete"]:
-            why = "interrupted" if interrupted else f"limit {limit}"
-            print(
-                f"study {study.name}: {len(rows)} of {len(jobs)} trials finished ({why}); "
-                f"partial results in {folder}. Continue with:\n"
-                f"  {continue_command(study, folder, size, seed, hand, methods, grasps, only)}",
-                file=sys.stderr,
+    with study_folder_lock(folder):
+        done: dict[int, dict[str, Any]] = {}
+        from_csv: list[dict[str, Any]] = []
+        from_journal: list[dict[str, Any]] = []
+        if resume:
+            from_csv, from_journal = _resumed_rows(study, folder, jobs, done)
+        n_reused = len(done)
+        todo = [job for job in execution_order(jobs) if job.index not in done]
+        if limit is not None:
+            todo = todo[: int(limit)]
+        journal = open_journal(folder / JOURNAL_NAME, fresh=not resume)
+        # Keep every row of trials.csv in the journal: trials.csv is rewritten below.
+        _journal_csv_rows(journal, from_csv, from_journal)
+        started = time.perf_counter()
+        with _terminate_as_interrupt() as termination:
+            interrupted = _run_journaled(
+                study.name, todo, journal, done, termination, executor, workers, progress, address
             )
-        return result
+            rows = [done[i] for i in sorted(done)]
+            summary = {
+                "study": study.name,
+                "provenance": provenance(),
+                "description": study.description,
+                "hand": str(hand),
+                "grasps": "stored" if grasps is None else str(grasps),
+                "only": {k: list(v) for k, v in (only or {}).items()},
+                "size": size,
+                "seed": seed,
+                "complete": len(rows) == len(jobs),
+                "n_planned": len(jobs),
+                "n_trials": len(rows),
+                "n_reused": n_reused,
+                "n_errors": sum(1 for r in rows if r.get("error")),
+                "executor": executor,
+                "wall_time_s": time.perf_counter() - started,
+                **study.summarise(rows),
+            }
+            result = _write_outputs(study, rows, summary, folder, interrupted)
+            if not summary["complete"]:
+                why = "interrupted" if interrupted else f"limit {limit}"
+                print(
+                    f"study {study.name}: {len(rows)} of {len(jobs)} trials finished ({why}); "
+                    f"partial results in {folder}. Continue with:\n"
+                    f"  {continue_command(study, folder, size, seed, hand, methods, grasps, only)}",
+                    file=sys.stderr,
+                )
+            return result
 
 
 def _run_journaled(

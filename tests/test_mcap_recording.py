@@ -153,3 +153,76 @@ def test_a_recording_path_that_cannot_be_written_is_named(tmp_path):
     blocker.write_text("")
     with pytest.raises(ConfigError, match=r"cannot write the recording .*file/run.mcap"):
         run_trial(TrialSpec(protocol_params=QUICK), observers=[McapRecorder(blocker / "run.mcap")])
+
+
+@pytest.mark.parametrize("fraction", [0.3, 0.6, 0.95])
+def test_a_recording_cut_short_is_read_up_to_the_cut(recorded, tmp_path, fraction, capsys):
+    """A crash or a full disk leaves no footer: the cycles before the cut read back exactly
+    as they were recorded, and the reader says the file was cut."""
+    from wholehand.cli.main import main
+
+    path, record = recorded
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * fraction)])
+    again = read_mcap_record(cut)
+    n = len(again.rows["t"])
+    assert 0 < n < len(record.rows["t"])
+    assert "was cut short" in again.meta["cut_short"]
+    for key in ("q", "tau", "p_object", "stage"):
+        np.testing.assert_array_equal(np.asarray(again.rows[key]), np.asarray(record.rows[key][:n]))
+    assert main(["view", str(cut), "--plot", str(tmp_path / "p.png")]) == 0
+    assert "warning: " in capsys.readouterr().err and (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_damaged_empty_foreign_and_misnamed_files_are_named(tmp_path):
+    import zipfile
+
+    from mcap.writer import Writer
+
+    cases = {
+        "empty.mcap": (b"", "is empty"),
+        "garbage.mcap": (bytes(range(256)) * 8, "is no MCAP file: it starts with"),
+    }
+    for name, (content, message) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(ConfigError, match=message):
+            read_mcap_record(tmp_path / name)
+    with zipfile.ZipFile(tmp_path / "run.mcap", "w") as z:  # a .npz run record, misnamed
+        z.writestr("q.npy", b"")
+    with pytest.raises(ConfigError, match="a zip or .npz file, a run record"):
+        read_mcap_record(tmp_path / "run.mcap")
+    foreign = tmp_path / "foreign.mcap"
+    with open(foreign, "wb") as f:  # another tool's JSON-encoded recording
+        writer = Writer(f)
+        writer.start(profile="", library="other")
+        schema = writer.register_schema(name="Foo", encoding="jsonschema", data=b"{}")
+        channel = writer.register_channel(topic="/foo", message_encoding="json", schema_id=schema)
+        writer.add_message(channel_id=channel, log_time=1, publish_time=1, data=b'{"a": 1}')
+        writer.finish()
+    with pytest.raises(ConfigError, match="no wholehand recording: its messages are not ROS 2"):
+        read_mcap_record(foreign)
+    cut_foreign = tmp_path / "cut_foreign.mcap"
+    cut_foreign.write_bytes(foreign.read_bytes()[:-40])
+    with pytest.raises(ConfigError, match="are 'json', not ROS 2 CDR"):
+        read_mcap_record(cut_foreign)
+
+
+def test_run_says_when_its_recording_stopped(tmp_path, monkeypatch, capsys):
+    from wholehand.cli.main import main
+    from wholehand.hardware import mcap_recording
+
+    write = mcap_recording.McapWriter.write
+    calls = {"n": 0}
+
+    def full_disk(self, topic, message, t):
+        calls["n"] += 1
+        if calls["n"] > 50:
+            raise OSError(28, "No space left on device")
+        write(self, topic, message, t)
+
+    monkeypatch.setattr(mcap_recording.McapWriter, "write", full_disk)
+    path = tmp_path / "r.mcap"
+    main(["run", "--theta", "0", "--record", str(path)])
+    out = capsys.readouterr().out
+    assert f"recording: {path} STOPPED at t = " in out and "No space left on device" in out

@@ -77,10 +77,11 @@ def _cmd_reach(args: argparse.Namespace) -> int:
     spec = _episode_spec(args)
     mcap = bool(args.record) and Path(args.record).suffix == ".mcap"
     recording = bool(args.record_html) or (bool(args.record) and not mcap)
-    summary = run_episode(spec, record=recording, observers=_observers(args, spec, mcap))
+    observers = _observers(args, spec, mcap)
+    summary = run_episode(spec, record=recording, observers=observers)
     record = summary.pop("record", None)
     if mcap:
-        print(f"recording: {args.record}")
+        print(observers[0].report())  # the recorder comes first
     elif args.record:
         print(f"run record: {record.save(Path(args.record))}")
     if args.record_html:

@@ -184,14 +184,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     spec = _trial_spec(args)
     observers = [live_view(spec, args.view_every)] if args.view else []
+    recorder = None
     if args.record:
         from wholehand.hardware.mcap_recording import McapRecorder
 
-        observers.append(McapRecorder(args.record, {"spec": dataclasses.asdict(spec)}))
+        recorder = McapRecorder(args.record, {"spec": dataclasses.asdict(spec)})
+        observers.append(recorder)
     if args.protocol == "dexgraspbench":
         return _load_test(args, spec, observers)
     record = run_trial(spec, obj=_object(spec.object, args.sdf_spacing), observers=observers)
     _write_outputs(args, record)
+    if recorder is not None:
+        print(recorder.report())
     summary = summarise(record)
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -259,8 +263,6 @@ def _write_outputs(args: argparse.Namespace, record: RunRecord) -> None:
     """Save the run, its HTML animation and its plot where the options ask."""
     if args.save:
         print(f"run record: {record.save(Path(args.save))}")
-    if args.record:
-        print(f"recording: {args.record}")
     if args.record_html:
         from wholehand.viz.replay import write_html
 

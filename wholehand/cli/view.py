@@ -45,9 +45,14 @@ def _read_record(path: Path) -> RunRecord:
             "or `--record run.mcap`"
         )
     if path.suffix == ".mcap":
+        import sys
+
         from wholehand.hardware.mcap_replay import read_mcap_record
 
-        return read_mcap_record(path)
+        record = read_mcap_record(path)
+        if record.meta.get("cut_short"):
+            print(f"warning: {record.meta['cut_short']}", file=sys.stderr)
+        return record
     return RunRecord.load(path)
 
 

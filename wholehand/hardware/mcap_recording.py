@@ -275,6 +275,16 @@ class McapRecorder(Observer):
         self.stopped = ""
         """Why the recording stopped early ("" while it runs or when it ran to the end)."""
 
+    def report(self) -> str:
+        """One line for the user: where the recording is, and whether and why it stopped
+        before the run ended (the file then holds the run up to then)."""
+        if not self.stopped:
+            return f"recording: {self.path}"
+        return (
+            f"recording: {self.path} STOPPED at {self.stopped}; it holds the run up to then "
+            "(`wholehand view` reads it to the cut)"
+        )
+
     def on_start(self, loop: ControlLoop) -> None:
         self._loop = loop
         hand = self.hand = loop.hand

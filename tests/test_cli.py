@@ -224,3 +224,26 @@ def test_a_reader_that_leaves_early_gets_no_traceback():
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and "rc=0" in run.stderr, run.stderr
     assert "Traceback" not in run.stderr and "BrokenPipeError" not in run.stderr, run.stderr
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["hw-sim", "--settle", "-1"], "argument --settle: -1 is not a time > 0 [s]"),
+        (["control", "--duration", "-1"], "argument --duration: -1 is not a time > 0 [s]"),
+        (["control", "--qp-deadline", "nan"], "argument --qp-deadline: nan is not a time >= 0"),
+        (["hw-sim", "--wait", "0"], "argument --wait: 0 is not a time > 0 [s]"),
+        (["grasps", "generate", "--object", "x", "--count", "0"], "--count: 0 is not a whole"),
+        (["grasps", "generate", "--object", "x", "--count", "-2"], "--count: -2 is not a whole"),
+        (["grasps", "generate", "--object", "x", "--seed", "-1"], "--seed: -1 is not a whole"),
+        (["grasps", "generate", "--object", "x", "--max-candidates", "-3"], "-3 is not a whole"),
+        (["grasps", "generate", "--object", "x", "--count", "two"], "'two' is not a whole"),
+    ],
+)
+def test_numbers_are_checked_before_anything_starts(argv, message, capsys):
+    """Times, counts and seeds are checked when the command line is parsed: before a
+    controller joins the network or a generator builds a model."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err

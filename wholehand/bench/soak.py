@@ -278,7 +278,7 @@ def run_soak(
     exceptions: list[str] = []
     started = time.perf_counter()
     try:
-        loop.run((cycles - 0.5) / rate)
+        loop.run(cycles / rate)  # cycle k runs at k / rate: cycles 0 .. cycles - 1
     except Exception as err:  # noqa: BLE001 - counted: the soak's first requirement
         exceptions.append(f"{type(err).__name__}: {err}")
     wall = time.perf_counter() - started

@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
+from wholehand.cli.arguments import count, natural
+
 if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
@@ -54,9 +56,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="the object rests on a table and the hand comes from above; written to the "
         "style's on_table/ folder",
     )
-    p.add_argument("--count", type=int, default=10)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-candidates", type=int, default=400, help="give up after this many")
+    p.add_argument("--count", type=count, default=10, help="grasps to keep (>= 1)")
+    p.add_argument("--seed", type=natural, default=0)
+    p.add_argument(
+        "--max-candidates", type=count, default=400, help="give up after this many (>= 1)"
+    )
     p.add_argument(
         "--require-hold",
         type=float,

@@ -9,6 +9,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from wholehand.cli.arguments import natural, positive_seconds, seconds
+
 
 def _config(args: argparse.Namespace) -> Any:
     from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
@@ -177,7 +179,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "the whole pipeline on an arm-hand, force regulation of a held grasp on a hand alone",
     )
     _endpoints(p)
-    p.add_argument("--duration", type=float, help="stop after this many seconds (default: never)")
+    p.add_argument(
+        "--duration", type=positive_seconds, help="stop after this many seconds (default: never)"
+    )
     p.add_argument("--estimator", default="mesh_sdf")
     p.add_argument("--allocator", default="qp")
     p.add_argument("--reacher", default="mink", help="reacher plug-in (an arm-hand's pipeline)")
@@ -195,14 +199,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--qp-deadline",
-        type=float,
+        type=seconds,
         default=0.002,
         help="time budget of one allocation [s] (0: none); past it the last feasible "
         "torque is kept",
     )
     p.add_argument(
         "--qp-deadline-after-miss",
-        type=float,
+        type=positive_seconds,
         help="time budget of an allocation right after a missed one [s], at least "
         "--qp-deadline (default: 1.5 times it)",
     )
@@ -215,20 +219,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     _endpoints(p)
     p.add_argument(
-        "--duration", type=float, help="arm-hand: longest episode [s] (default: the episode's)"
+        "--duration",
+        type=positive_seconds,
+        help="arm-hand: longest episode [s] (default: the episode's)",
     )
     p.add_argument(
         "--away",
         nargs=2,
-        type=float,
+        type=seconds,
         metavar=("START", "DURATION"),
         help="arm-hand: the person carries the object out of the workspace at START s and back "
         "after DURATION s (instead of the perturbations)",
     )
-    p.add_argument("--grasp", type=int, default=0, help="stored power grasp index")
+    p.add_argument("--grasp", type=natural, default=0, help="stored power grasp index")
     p.add_argument("--theta", type=float, default=0.0, help="protocol pull [deg]; 0: loads only")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--latency", type=float, default=0.033, help="pose latency [s]")
+    p.add_argument("--seed", type=natural, default=0)
+    p.add_argument("--latency", type=seconds, default=0.033, help="pose latency [s]")
     p.add_argument("--noise-mm", type=float, default=0.0)
     p.add_argument("--noise-deg", type=float, default=0.0)
     p.add_argument(
@@ -246,13 +252,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--command-timeout",
-        type=float,
+        type=positive_seconds,
         default=0.1,
         help="the drives hold the last torque this long [s], then zero",
     )
     p.add_argument("--gravity", action="store_true")
-    p.add_argument("--wait", type=float, default=60.0, help="wait this long for a controller [s]")
+    p.add_argument(
+        "--wait", type=positive_seconds, default=60.0, help="wait this long for a controller [s]"
+    )
     p.add_argument("--quick", action="store_true", help="shorter protocol phases")
-    p.add_argument("--settle", type=float, help="settle phase before the loads [s]")
+    p.add_argument("--settle", type=positive_seconds, help="settle phase before the loads [s]")
     p.add_argument("--save", help="save the run record (.npz) for `wholehand view`")
     p.set_defaults(func=_cmd_hw_sim)

@@ -1,0 +1,33 @@
+"""Argument types that check a number when the command line is parsed, before a command joins
+a network, builds a model or starts a run: a bad value is argparse's one-line error (exit 2)
+naming the option and what it takes."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def _number(kind: type, test: Callable[[float], bool], want: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {want}") from None
+        if not (math.isfinite(value) and test(value)):
+            raise argparse.ArgumentTypeError(f"{text} is not {want}")
+        return value
+
+    parse.__name__ = want  # argparse names the type by it in its messages
+    return parse
+
+
+seconds = _number(float, lambda v: v >= 0.0, "a time >= 0 [s]")
+"""A finite time of at least zero [s]."""
+positive_seconds = _number(float, lambda v: v > 0.0, "a time > 0 [s]")
+"""A finite time above zero [s]."""
+count = _number(int, lambda v: v >= 1, "a whole number >= 1")
+"""A whole number of at least one."""
+natural = _number(int, lambda v: v >= 0, "a whole number >= 0")
+"""A whole number of at least zero (a seed, an index)."""

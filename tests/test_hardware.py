@@ -242,13 +242,48 @@ LIMITS = SafetyLimits(
 )
 
 
-def test_stale_joints_give_zero_torque_at_once():
-    guard = TorqueGuard([0.2, 0.2], LIMITS)
+def test_stale_joints_hold_the_torque_then_ramp_it_by_age_then_zero():
+    """The graded rule: past joint_timeout the last torque is held (the loop's, computed on a
+    stale state, is not sent); past joint_hold it ramps to zero by the state's age over
+    joint_ramp; past that, zero. A fresh state resumes from the torque sent last."""
+    guard = TorqueGuard([0.2, 0.2], LIMITS)  # timeout 0.05, then held 0.1, ramped over 0.25
     guard.start_from(np.array([0.1, -0.1]), 0.0)
-    tau, status = guard.filter(np.array([0.1, -0.1]), 0.01, joint_age=0.06, pose_age=0.0)
-    assert status == "joints_stale" and not tau.any()
-    tau, _ = guard.filter(np.array([0.1, -0.1]), 0.02, joint_age=np.inf, pose_age=0.0)
-    assert not tau.any()
+    tau, status = guard.filter(np.array([0.1, -0.1]), 0.01, joint_age=0.0, pose_age=0.0)
+    assert status == "ok"
+    for now, age, want, rule in [
+        (0.06, 0.06, [0.1, -0.1], "joints_late"),  # a 100 ms gap keeps the grasp
+        (0.11, 0.11, [0.1, -0.1], "joints_late"),
+        (0.15, 0.15, [0.1, -0.1], "joints_late"),
+        (0.20, 0.20, [0.08, -0.08], "joints_stale"),  # 0.05 of the 0.25 s ramp
+        (0.275, 0.275, [0.05, -0.05], "joints_stale"),
+        (0.40, 0.40, [0.0, 0.0], "joints_stale"),
+        (0.41, 0.41, [0.0, 0.0], "joints_lost"),
+    ]:
+        tau, status = guard.filter(np.array([0.2, 0.2]), now, joint_age=age, pose_age=0.0)
+        assert status == rule, (age, status)
+        np.testing.assert_allclose(tau, want, atol=1e-12)
+    tau, status = guard.filter(np.array([0.2, 0.2]), 0.42, joint_age=0.0, pose_age=0.0)
+    assert status == "rate_limited"
+    np.testing.assert_allclose(tau, [0.02, 0.02])  # from zero at 2 N*m/s over 10 ms
+    # A short gap, then fresh states: the held torque, then regulation from it.
+    guard.filter(np.array([0.05, 0.05]), 0.5, 0.0, 0.0)
+    held, status = guard.filter(np.array([0.2, 0.2]), 0.58, joint_age=0.08, pose_age=0.0)
+    assert status == "joints_late"
+    tau, _ = guard.filter(np.array([0.2, 0.2]), 0.59, joint_age=0.0, pose_age=0.0)
+    np.testing.assert_allclose(tau, held + 0.02)
+
+
+def test_no_joint_state_yet_gives_zero_torque():
+    guard = TorqueGuard([0.2, 0.2], LIMITS)
+    tau, status = guard.filter(np.array([0.1, -0.1]), 0.0, joint_age=np.inf, pose_age=0.0)
+    assert status == "joints_lost" and not tau.any()
+
+
+def test_the_stale_joint_times_are_checked():
+    with pytest.raises(ConfigError, match="joint_hold must be a time >= 0"):
+        SafetyLimits(joint_hold=-0.1)
+    with pytest.raises(ConfigError, match="joint_ramp must be a time > 0"):
+        SafetyLimits(joint_ramp=0.0)
 
 
 def test_stale_pose_holds_then_ramps_to_zero_and_a_fresh_pose_resumes():
@@ -550,7 +585,7 @@ def test_backend_with_no_joint_state_sends_zero_and_wait_names_the_topic(allegro
     with Ros2Backend(allegro, None, config) as b:
         assert np.isnan(b.observe().q).all()  # the loop's bad_state
         b.apply(Command.torques(np.full(allegro.nv, 0.2)))
-        assert b.guard.counts == {"joints_stale": 1}
+        assert b.guard.counts == {"joints_lost": 1}
         with pytest.raises(ConfigError, match="no joint state on '/joint_states'.*zenoh connect"):
             b.wait_for_streams(0.1)
 

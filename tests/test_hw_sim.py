@@ -159,7 +159,7 @@ def test_controller_and_double_as_clients_of_a_router_hold_the_grasp(endpoint, t
 
 
 def test_the_drives_count_a_step_to_zero_as_a_stop_not_a_torque_rate():
-    """The guard's ``joints_stale`` rule zeroes the torque at once: a stop, by design. The
+    """The guard's ``joints_lost`` rule zeroes the torque at once: a stop, by design. The
     double's drives measure the torque rate between one controller's commands without it."""
     from wholehand.hardware.double import RemoteTorque
     from wholehand.hardware.messages import encode_array

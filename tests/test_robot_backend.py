@@ -276,22 +276,30 @@ def test_every_exit_holds_the_arm_and_ramps_the_hand_torques_to_zero(rig, setup)
     assert backend.guard.counts["exit"] == len(ramp)
 
 
-def test_a_joint_state_without_an_arm_joint_stops_the_hand_and_holds_the_arm(rig, setup):
+def test_a_joint_state_without_an_arm_joint_holds_then_stops_the_hand_and_holds_the_arm(rig, setup):
+    """Joint states rejected (an arm joint missing): past joint_timeout (0.1 s here) the hand's
+    last torque is held for joint_hold (0.1 s), then ramped to zero over joint_ramp (0.25 s);
+    the arm's last target is sent again throughout."""
     clock = RunAheadClock()
     robot, backend, q, _ = setup(clock=clock)
     command = _holding_and_moving(rig, q, 0.1)
     _send(backend, command, 5)
     last_target = backend.arm_guard.last.copy()
+    held = robot.torques[-1].copy()
     robot.leave_out = "joint3"
     _until(lambda: backend.rejected["missing_joint"] > 0)
-    clock.advance(0.15)  # the last good joint state is now past joint_timeout (0.1 s)
-    n_torque, n_arm = len(robot.torques), len(robot.arm)
-    backend.apply(command)
-    _until(lambda: len(robot.torques) > n_torque and len(robot.arm) > n_arm)
-    assert not robot.torques[-1].any()
     order = _model_to_order(rig, ARM_ORDER)
-    np.testing.assert_array_equal(robot.arm[-1], last_target[order])
-    assert backend.guard.counts["joints_stale"] >= 1
+    sent = []
+    for advance, rule in [(0.15, "joints_late"), (0.35, "joints_lost")]:
+        clock.advance(advance)  # the last good joint state: 0.15 s, then 0.5 s old
+        n_torque, n_arm = len(robot.torques), len(robot.arm)
+        backend.apply(command)
+        _until(lambda n_t=n_torque, n_a=n_arm: len(robot.torques) > n_t and len(robot.arm) > n_a)
+        np.testing.assert_array_equal(robot.arm[-1], last_target[order])
+        assert backend.guard.counts[rule] >= 1
+        sent.append(robot.torques[-1].copy())
+    np.testing.assert_array_equal(sent[0], held)  # 0.15 s: the grasp's torque, held
+    assert not sent[1].any()  # 0.5 s: past the ramp, zero
     assert "joint3" in backend.last_rejection
 
 

@@ -77,7 +77,8 @@ def test_the_controller_reaches_grasps_and_regulates_through_the_perturbations_o
     assert robot["malformed_commands"] == 0 and robot["arm_messages"] > 500, seen
     assert robot["max_torque_rate_Nm_s"] <= 20.0 * 1.05, seen
     guard = ctl["backend"]["guard"]
-    stops = sum(guard.get(rule, 0) for rule in ("joints_stale", "exit", "stop", "watchdog"))
+    rules = ("joints_lost", "exit", "stop", "watchdog")
+    stops = sum(guard.get(rule, 0) for rule in rules)
     assert robot["stops_to_zero"] <= stops, seen  # every jump to zero is a safety rule's
     assert ctl["loop"]["n_errors"] == 0, seen
     backend = ctl["backend"]

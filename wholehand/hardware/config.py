@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
+from wholehand.errors import ConfigError
 from wholehand.reaching.workspace import Workspace
 
 Reliability = Literal["reliable", "best_effort"]
@@ -39,7 +40,15 @@ class SafetyLimits:
     """The safety rules' times and rates (see :mod:`wholehand.hardware.guard`)."""
 
     joint_timeout: float = 0.05
-    """A joint state older than this [s] -> zero torque."""
+    """A joint state older than this [s]: the loop's torque is not sent, the last one is held
+    (``joints_late``)."""
+    joint_hold: float = 0.1
+    """How long past ``joint_timeout`` the torque is held [s]; then it ramps linearly to zero
+    over ``joint_ramp`` (``joints_stale``). Within the two a held grasp survives a gap in the
+    joint states (a busy computer, a lost message)."""
+    joint_ramp: float = 0.25
+    """Duration of that ramp [s]; past ``joint_timeout + joint_hold + joint_ramp``, and while no
+    joint state has come at all, zero torque (``joints_lost``)."""
     pose_timeout: float = 0.2
     """An object pose older than this [s] -> the last torque held, then ramped to zero."""
     pose_ramp: float = 0.5
@@ -54,6 +63,12 @@ class SafetyLimits:
     exit_ramp: float = 0.5
     """On every exit of the controller (its end, Ctrl-C, SIGTERM, a fault of the loop) the hand
     torques ramp to zero over this time [s] while the arm holds its position."""
+
+    def __post_init__(self) -> None:
+        if not self.joint_hold >= 0.0:
+            raise ConfigError(f"[safety] joint_hold must be a time >= 0 [s], got {self.joint_hold}")
+        if not self.joint_ramp > 0.0:
+            raise ConfigError(f"[safety] joint_ramp must be a time > 0 [s], got {self.joint_ramp}")
 
 
 @dataclass(frozen=True)

@@ -68,7 +68,9 @@ Schema (times in s, rates in Hz, torques in N*m; every key optional, defaults be
                                     # paper's handling); "receipt": the time it arrived
 
     [safety]
-    joint_timeout = 0.05            # joint state older than this -> zero torque
+    joint_timeout = 0.05            # joint state older than this -> hold the last torque
+    joint_hold = 0.1                # ... for this long, then ramp it to zero
+    joint_ramp = 0.25               # over this time; past it (or no joint state) zero torque
     pose_timeout = 0.2              # object pose older than this -> hold, then ramp to zero
     pose_ramp = 0.5                 # time of that ramp to zero
     torque_rate = 20.0              # largest torque change per second [N*m/s]

@@ -3,8 +3,15 @@
 Every torque command the hardware backend sends passes :meth:`TorqueGuard.filter`, which applies,
 in this order (the names are the statuses it counts):
 
-1. ``joints_stale``: no joint state, or the newest is older than ``joint_timeout`` -> zero
-   torque at once (the hand's state is unknown, so no torque is safe but none).
+1. The joint states' age, graded: older than ``joint_timeout``, the loop's torque (computed on
+   a stale state) is not sent and the torque sent last is held (``joints_late``) for
+   ``joint_hold``; then the held torque ramps linearly to zero over ``joint_ramp``, by the
+   state's age (``joints_stale``); past that, or with no joint state yet, zero
+   (``joints_lost``). A fresh
+   state resumes regulation from the torque sent last (rate-limited). Holding first is what
+   the drives themselves do when commands stop (a command timeout), and what ros2_control's
+   controllers do implicitly (they keep commanding from the last state read); zeroing at once
+   drops a held object on every gap of a busy computer.
 2. ``pose_stale``: the newest object pose is older than ``pose_timeout`` -> the torque sent last
    is held and ramped linearly to zero over ``pose_ramp``; a fresh pose ends the ramp.
 3. ``clamped``: every joint's torque within its limit ``tau_max``.
@@ -56,6 +63,7 @@ class TorqueGuard:
         self.t_last = 0.0
         self._ramp_from: FloatArray | None = None
         self._ramp_start = 0.0
+        self._held: FloatArray | None = None  # the torque held since the joint states stopped
 
     def start_from(self, effort: FloatArray | None, now: float) -> None:
         """Take the measured effort (n_v,) [N*m] (None: zero) as the torque sent last, so that
@@ -74,7 +82,9 @@ class TorqueGuard:
         limits = self.limits
         if not joint_age <= limits.joint_timeout:
             self._ramp_from = None
-            return self._sent(np.zeros_like(self.tau_max), now, "joints_stale")
+            held, status = self._without_joints(joint_age)
+            return self._sent(held, now, status)
+        self._held = None
         self.start_from(None, now)
         if not pose_age <= limits.pose_timeout:
             return self._sent(self._ramp(now), now, "pose_stale")
@@ -90,6 +100,19 @@ class TorqueGuard:
         if not (limited == out).all():
             status = "rate_limited"
         return self._sent(limited, now, status)
+
+    def _without_joints(self, joint_age: float) -> tuple[FloatArray, str]:
+        """The torque and status while the joint states are ``joint_age`` [s] old (past
+        ``joint_timeout``): held, ramped by age, or zero (module docstring)."""
+        limits = self.limits
+        if self._held is None:
+            self._held = np.zeros_like(self.tau_max) if self.last is None else self.last
+        past_hold = joint_age - limits.joint_timeout - limits.joint_hold
+        if not past_hold <= limits.joint_ramp:
+            return np.zeros_like(self.tau_max), "joints_lost"
+        if past_hold <= 0.0:
+            return self._held, "joints_late"
+        return self._held * (1.0 - past_hold / limits.joint_ramp), "joints_stale"
 
     def watchdog(self, now: float) -> FloatArray:
         """The torque the watchdog sends when the loop is late: the last torque ramped to zero

@@ -285,3 +285,13 @@ def test_a_mesh_path_files_its_grasps_by_its_stem_however_it_is_written(tmp_path
     assert grasp_file("allegro_right", "./meshes/box.stl") == by_name
     assert grasp_file("allegro_right", absolute) == by_name
     assert grasp_file("allegro_right", "077_rubiks_cube").name == "077_rubiks_cube.json"
+
+
+def test_a_misspelt_grasp_style_is_named_with_the_styles_there_are():
+    from wholehand.errors import ConfigError
+    from wholehand.grasps.store import load_grasps
+
+    with pytest.raises(ConfigError, match="no grasp style 'precison' .* did you mean 'precision'"):
+        load_grasps("allegro_right", "077_rubiks_cube", "precison")
+    with pytest.raises(ConfigError, match="Generate some with .*--type gripper"):
+        load_grasps("allegro_right", "077_rubiks_cube", "gripper")  # a new style: generate it

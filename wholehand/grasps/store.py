@@ -185,6 +185,24 @@ def _joint_angles(raw: Any, where: str) -> dict[str, float]:
     return out
 
 
+def _check_style(hand: str | Path, style: str) -> None:
+    """Name a grasp style the hand has no grasps of when it is close to one it has (a typo)."""
+    import difflib
+
+    folder = hand_grasps_dir(hand)
+    if not folder.is_dir():
+        return
+    styles = ["power", *(p.name for p in folder.iterdir() if p.is_dir() and p.name != "on_table")]
+    if style in styles:
+        return
+    close = difflib.get_close_matches(style, styles, n=1, cutoff=0.75)
+    if close:
+        raise ConfigError(
+            f"no grasp style {style!r} for this hand: did you mean {close[0]!r}? Its grasps "
+            f"are of the styles {sorted(styles)}"
+        )
+
+
 def load_grasps(
     path_or_hand: str | Path, obj: str | None = None, style: str = "power", on_table: bool = False
 ) -> list[Grasp]:
@@ -194,6 +212,7 @@ def load_grasps(
     if not path.is_file():
         if obj is None:
             raise ConfigError(f"no grasp file {path}; check the path")
+        _check_style(path_or_hand, style)
         stored = sorted(p.stem for p in path.parent.glob("*.json"))
         kind = f"{style} grasps{' on a table' if on_table else ''}"
         raise ConfigError(

@@ -403,3 +403,16 @@ def test_a_reach_recording_shows_hand_object_and_table_in_chromium(tmp_path, han
     rows, cols = np.nonzero(grey | teal)
     h, w = img.shape[:2]
     assert 0.1 * h < rows.mean() < 0.9 * h and 0.1 * w < cols.mean() < 0.9 * w
+
+
+def test_view_of_a_record_naming_an_unknown_hand_names_the_file(tmp_path, record, capsys):
+    import copy
+
+    from wholehand.cli.main import main
+
+    other = copy.copy(record)  # the fixture is shared: a copy names the unknown hand
+    other.meta = {**record.meta, "spec": {**record.meta.get("spec", {}), "hand": "no_such_hand"}}
+    path = other.save(tmp_path / "rec.npz")
+    assert main(["view", str(path), "--html", str(tmp_path / "v.html")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: no hand named 'no_such_hand'" in err and "Traceback" not in err

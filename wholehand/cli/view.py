@@ -57,7 +57,17 @@ def _read_record(path: Path) -> RunRecord:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
+    from wholehand.errors import ConfigError
+
     record = _read_record(Path(args.record))
+    try:
+        return _show(args, record)
+    except ConfigError as err:  # the hand or object the record names, say
+        raise ConfigError(f"{args.record}: {err}") from err
+
+
+def _show(args: argparse.Namespace, record: RunRecord) -> int:
+    """Write the files the options ask for, or replay ``record`` live."""
     if args.plot:
         from wholehand.viz.plots import plot_run
 

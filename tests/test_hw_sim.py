@@ -182,3 +182,20 @@ def test_the_drives_count_a_step_to_zero_as_a_stop_not_a_torque_rate():
     assert drives.max_rate == pytest.approx(2.0) and drives.stops == 1
     send(0.1, 15)  # 0.1 N*m in 5 ms from zero: 20 N*m/s, a rate
     assert drives.max_rate == pytest.approx(20.0) and drives.stops == 1
+
+
+def test_ctrl_c_of_the_double_writes_its_summary_without_a_traceback(endpoint, tmp_path):
+    """SIGINT while the double waits for a controller: it ends, writes its summary (0 cycles,
+    interrupted) and exits 130, as `control` does."""
+    sim = wholehand("hw-sim", "--quick", "--listen", endpoint, "--json", str(tmp_path / "s.json"))
+    try:
+        wait_for_line(sim, "waiting for a controller's first command")
+        sim.send_signal(signal.SIGINT)
+        _, err = sim.communicate(timeout=60)
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+    assert sim.returncode == 130, err
+    assert "Traceback" not in err and "stopped by a signal after 0 cycles" in err
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["interrupted"] is True and summary["cycles"] == 0

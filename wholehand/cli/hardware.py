@@ -105,10 +105,19 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
         gravity=args.gravity,
         protocol_params=params,
     )
-    summary, record = run_double(spec, _config(args), args.wait, observers=_recorders(args, spec))
+    summary, record = run_double(
+        spec,
+        _config(args),
+        args.wait,
+        observers=_recorders(args, spec),
+        announce=lambda line: print(line, file=sys.stderr, flush=True),
+    )
     if args.save:
         record.save(args.save)
     _write(summary, args.json, {k: v for k, v in summary.items() if k != "arrivals"})
+    if summary["interrupted"]:
+        print(f"hw-sim: stopped by a signal after {summary['cycles']} cycles", file=sys.stderr)
+        return 130
     return 0 if summary["held"] else 1
 
 

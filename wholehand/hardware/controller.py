@@ -14,12 +14,10 @@ each safety rule acted.
 
 from __future__ import annotations
 
-import contextlib
 import inspect
-import signal
 import threading
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -36,6 +34,7 @@ from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig
 from wholehand.hardware.inputs import model_joint_name
+from wholehand.hardware.stopping import signals_set
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.gate import ObservationGate
 from wholehand.loop.regulation import AllocateEvery, EstimateAt, ForceRegulation
@@ -280,7 +279,7 @@ def run_controller(
     stopper = _StopWhen(stopped, stop)
     announcer = [] if announce is None else [_AnnounceTransitions(announce)]
     watchers: list[Observer] = [stopper, *announcer, *observers]
-    with _signals_set(stopped):
+    with signals_set(stopped):
         with registry.load(
             "backends", "ros2", hand=hand, obj=obj, config=config, trace=trace
         ) as backend:
@@ -314,22 +313,6 @@ def run_controller(
         out["trace"] = traced
         out["cycle_times_s"] = list(stopper.cycle_times)
     return out
-
-
-@contextlib.contextmanager
-def _signals_set(stopped: threading.Event) -> Iterator[None]:
-    """While the block runs, SIGINT and SIGTERM set ``stopped`` (the loop then ends with its
-    exit ramp) instead of raising; only the main thread can set signal handlers, elsewhere
-    nothing changes."""
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: stopped.set())
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def _first_estimate(backend: Backend, hand: HandModel, estimator: ContactEstimator) -> None:

@@ -40,6 +40,7 @@ from wholehand.hardware.messages import (
     encode_pose,
 )
 from wholehand.hardware.node import open_transport
+from wholehand.hardware.stopping import StopOnEvent, signals_set
 from wholehand.hardware.transport import SampleMeta, TopicPublisher
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossMonitor
@@ -248,8 +249,11 @@ def run_double(
     hand: HandModel | None = None,
     obj: ObjectModel | None = None,
     observers: Sequence[Observer] = (),
+    announce: Callable[[str], None] | None = None,
 ) -> tuple[dict[str, Any], RunRecord]:
     """Play the robot: wait for the first torque command, then run the protocol in real time.
+    SIGINT and SIGTERM end the wait or the run early (``interrupted`` in the summary);
+    ``announce`` gets a line when the double starts waiting.
 
     Returns:
         A JSON-ready summary (``held``, ``lost_at``, message counts, ``max_torque_step``,
@@ -294,6 +298,7 @@ def run_double(
         loss = GraspLossMonitor(hand, obj, stop_on_loss=False)
         recorder = Recorder(loss, driver, {"hw_sim": spec.__dict__})
         pacer = RealTimePacer()
+        stopped = threading.Event()  # Ctrl-C or SIGTERM: the run ends and its summary is written
         tracking: dict[str, Any] = {"rate_hz": config.object_pose_rate, "latency_s": spec.latency}
         if spec.noise_mm or spec.noise_deg:
             tracking.update(noise_mm=spec.noise_mm, noise_deg=spec.noise_deg, noise_seed=spec.seed)
@@ -306,7 +311,7 @@ def run_double(
             drives,
             rate=rate,
             filters=tracking_filters(tracking, obj.com),
-            observers=[driver, loss, recorder, publisher, *observers, pacer],
+            observers=[driver, loss, recorder, publisher, *observers, pacer, StopOnEvent(stopped)],
         )
         # Everything is built and the compiled checks loaded (~0.2 s on their first call)
         # before the wait: the streams go on without a gap when it ends.
@@ -315,16 +320,23 @@ def run_double(
         kinematics.update(first.q, first.wMb)
         assert first.wMo is not None
         loss.check.held(kinematics, first.wMo)
-        commanded = lambda: drives.received > 0  # noqa: E731
-        wait_for_command(backend, commanded, joints, poses, names, config, wait_for_controller)
-        run_start = time.time_ns()
-        report = loop.run(protocol.duration)
-        run_end = time.time_ns()
+        commanded = lambda: drives.received > 0 or stopped.is_set()  # noqa: E731
+        with signals_set(stopped):
+            if announce is not None:
+                announce(
+                    f"hw-sim: publishing {hand.name}'s state, waiting for a controller's first "
+                    "command (Ctrl-C stops)"
+                )
+            wait_for_command(backend, commanded, joints, poses, names, config, wait_for_controller)
+            run_start = time.time_ns()
+            report = loop.run(0.0 if stopped.is_set() else protocol.duration)
+            run_end = time.time_ns()
         commands.close()
     finally:
         transport.close()
     statuses = dict(report.status_counts)
     summary = {
+        "interrupted": stopped.is_set(),
         "held": loss.lost_at is None,
         "lost_at": loss.lost_at,
         "cycles": report.cycles,

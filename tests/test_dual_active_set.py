@@ -7,7 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_allocation import CASES, antipodal, check_allocation, near_loss, objective
+from test_allocation import (
+    CASES,
+    _case_problems,
+    antipodal,
+    check_allocation,
+    near_loss,
+    objective,
+)
 from wholehand_plugins.qp import QPAllocator
 
 from wholehand.allocation.base import AllocationStatus
@@ -21,14 +28,9 @@ from wholehand.bench.allocate import synthetic_grasp
 
 
 def _problems() -> list[tuple[str, AllocationQP]]:
-    out = []
-    for n, seed, tmax in CASES:
-        cs, J, com = synthetic_grasp(seed, n).cycle()
-        params = AllocationParams.checked("test", tau_max=tmax)
-        out.append((f"synthetic {n}/{seed}/{tmax}", build_allocation_qp(cs, J, com, params)))
+    out = _case_problems()  # the synthetic grasps and the recorded near-loss cycle
     cs, J, com = near_loss()
     params = AllocationParams.checked("test")
-    out.append(("near loss", build_allocation_qp(cs, J, com, params)))
     rng = np.random.default_rng(4)
     weight = np.array([0.0, 0.0, -2.5, 0.01, -0.02, 0.0])  # a weight off the COM
     bias = rng.uniform(-0.05, 0.05, J.shape[2])

@@ -129,7 +129,8 @@ def test_reading_names_a_missing_or_foreign_file(tmp_path):
         read_mcap_record(other)
 
 
-def test_a_failing_recording_stops_itself_not_the_run(tmp_path, monkeypatch):
+def _disk_full_after(messages: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The recorder's writes fail as on a full disk after ``messages`` messages."""
     from wholehand.hardware import mcap_recording
 
     calls = {"n": 0}
@@ -137,11 +138,15 @@ def test_a_failing_recording_stops_itself_not_the_run(tmp_path, monkeypatch):
 
     def full_disk(self, topic, message, t):
         calls["n"] += 1
-        if calls["n"] > 50:
+        if calls["n"] > messages:
             raise OSError(28, "No space left on device")
         write(self, topic, message, t)
 
     monkeypatch.setattr(mcap_recording.McapWriter, "write", full_disk)
+
+
+def test_a_failing_recording_stops_itself_not_the_run(tmp_path, monkeypatch):
+    _disk_full_after(50, monkeypatch)
     recorder = McapRecorder(tmp_path / "run.mcap")
     record = run_trial(TrialSpec(protocol_params=QUICK), observers=[recorder])
     assert record.meta["loop"]["n_errors"] == 0 and len(record.rows["t"]) > 100
@@ -210,18 +215,8 @@ def test_damaged_empty_foreign_and_misnamed_files_are_named(tmp_path):
 
 def test_run_says_when_its_recording_stopped(tmp_path, monkeypatch, capsys):
     from wholehand.cli.main import main
-    from wholehand.hardware import mcap_recording
 
-    write = mcap_recording.McapWriter.write
-    calls = {"n": 0}
-
-    def full_disk(self, topic, message, t):
-        calls["n"] += 1
-        if calls["n"] > 50:
-            raise OSError(28, "No space left on device")
-        write(self, topic, message, t)
-
-    monkeypatch.setattr(mcap_recording.McapWriter, "write", full_disk)
+    _disk_full_after(50, monkeypatch)
     path = tmp_path / "r.mcap"
     main(["run", "--theta", "0", "--record", str(path)])
     out = capsys.readouterr().out

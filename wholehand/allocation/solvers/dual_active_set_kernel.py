@@ -37,6 +37,15 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.allocation.solvers.implicit_rows import implicit_values, row
+from wholehand.allocation.solvers.split_factor import (
+    backward,
+    column,
+    drop_row,
+    factor,
+    forward,
+    rank_one,
+)
 from wholehand.jit import CACHE
 
 FloatArray = npt.NDArray[np.float64]
@@ -58,193 +67,6 @@ infeasible problem whose infeasibility rounding hides: the solve stops as :data:
 
 REFRESH_EVERY = 64
 """Updates of the factor after which it is rebuilt from scratch at the next new constraint."""
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _rank_one(L: FloatArray, start: int, dim: int, v: FloatArray, sigma: float) -> bool:
-    """``L L^T += sigma v v^T`` on the trailing block ``[start:dim, start:dim]`` (``v`` indexed
-    the same way; overwritten); False if a downdate loses positive definiteness."""
-    for k in range(start, dim):
-        lkk = L[k, k]
-        r2 = lkk * lkk + sigma * v[k] * v[k]
-        if not r2 > 1e-300:
-            return False
-        r = np.sqrt(r2)
-        c = r / lkk
-        s = v[k] / lkk
-        L[k, k] = r
-        for i in range(k + 1, dim):
-            L[i, k] = (L[i, k] + sigma * s * v[i]) / c
-            v[i] = c * v[i] - s * L[i, k]
-    return True
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _forward(L: FloatArray, dim: int, b: FloatArray) -> None:
-    """``b = L^-1 b`` in place (leading ``dim``)."""
-    for i in range(dim):
-        v = b[i]
-        for k in range(i):
-            v -= L[i, k] * b[k]
-        b[i] = v / L[i, i]
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _backward(L: FloatArray, dim: int, b: FloatArray) -> None:
-    """``b = L^-T b`` in place (leading ``dim``)."""
-    for i in range(dim - 1, -1, -1):
-        v = b[i]
-        for k in range(i + 1, dim):
-            v -= L[k, i] * b[k]
-        b[i] = v / L[i, i]
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _factor(
-    L: FloatArray, G: FloatArray, Aact: FloatArray, k: int, F: IntArray, nf: int, reg: float
-) -> bool:
-    """Build ``T`` (module docstring) for the free weights ``F[:nf]`` and the active rows'
-    signed coefficients ``Aact[:k]`` in ``L`` and factor it in place; False if it is not
-    positive definite."""
-    dim = 6 + k
-    for a in range(dim):
-        for b in range(a + 1):
-            s = 0.0
-            for i in range(nf):
-                j = F[i]
-                ca = G[a, j] if a < 6 else Aact[a - 6, j]
-                cb = G[b, j] if b < 6 else Aact[b - 6, j]
-                s += ca * cb
-            s /= reg
-            if a == b and a < 6:
-                s += 1.0
-            L[a, b] = s
-    for j in range(dim):
-        d = L[j, j]
-        for i in range(j):
-            d -= L[j, i] * L[j, i]
-        if not d > 0.0:
-            return False
-        d = np.sqrt(d)
-        L[j, j] = d
-        for i in range(j + 1, dim):
-            v = L[i, j]
-            for q in range(j):
-                v -= L[i, q] * L[j, q]
-            L[i, j] = v / d
-    return True
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _column(G: FloatArray, Aact: FloatArray, k: int, j: int, scale: float, out: FloatArray) -> None:
-    """``out[:6 + k] = scale * [g_j; a_Rj]``: weight ``j``'s column of ``C``."""
-    for a in range(6):
-        out[a] = scale * G[a, j]
-    for q in range(k):
-        out[6 + q] = scale * Aact[q, j]
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _drop_row(L: FloatArray, dim: int, p: int, work: FloatArray) -> bool:
-    """Remove row and column ``p`` of ``T`` from its factor (``dim`` -> ``dim - 1``)."""
-    for i in range(p + 1, dim):
-        work[i - 1] = L[i, p]
-    for i in range(p + 1, dim):
-        for q in range(p):
-            L[i - 1, q] = L[i, q]
-        for q in range(p + 1, i + 1):
-            L[i - 1, q - 1] = L[i, q]
-    return _rank_one(L, p, dim - 1, work, 1.0)
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _implicit_values(
-    qr: FloatArray,
-    tau: FloatArray,
-    W: FloatArray,
-    act_idx: IntArray,
-    x: FloatArray,
-    f: FloatArray,
-    out: FloatArray,
-) -> None:
-    """``out[:mq - kq] = N_u^T f_act(x)``: every consistency value, ``N_u`` the columns of the
-    Householder ``Q`` (``qr``, ``tau`` as LAPACK's ``dgeqrf`` leaves them) past the first ``kq``;
-    ``f`` (mq,) is scratch."""
-    mq, kq = qr.shape
-    for a in range(act_idx.size):
-        i = act_idx[a]
-        for d in range(3):
-            s = 0.0
-            for e in range(4):
-                s += W[i, d, e] * x[4 * i + e]
-            f[3 * a + d] = s
-    for i in range(kq):  # Q^T f = H_k ... H_1 f
-        s = f[i]
-        for q in range(i + 1, mq):
-            s += qr[q, i] * f[q]
-        s *= tau[i]
-        f[i] -= s
-        for q in range(i + 1, mq):
-            f[q] -= s * qr[q, i]
-    for r in range(mq - kq):
-        out[r] = f[kq + r]
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _implicit_row(
-    qr: FloatArray,
-    tau: FloatArray,
-    W: FloatArray,
-    act_idx: IntArray,
-    r: int,
-    scale: float,
-    u: FloatArray,
-    out: FloatArray,
-) -> None:
-    """``out = scale * (N_u^T W_act)[r]``: consistency row ``r`` on the edge weights, from
-    ``N_u[:, r] = Q e_(kq + r)``; ``u`` (mq,) is scratch."""
-    mq, kq = qr.shape
-    for q in range(mq):
-        u[q] = 0.0
-    u[kq + r] = 1.0
-    for i in range(kq - 1, -1, -1):  # Q u = H_1 ... H_k u
-        s = u[i]
-        for q in range(i + 1, mq):
-            s += qr[q, i] * u[q]
-        s *= tau[i]
-        u[i] -= s
-        for q in range(i + 1, mq):
-            u[q] -= s * qr[q, i]
-    for j in range(out.size):
-        out[j] = 0.0
-    for a in range(act_idx.size):
-        i = act_idx[a]
-        for e in range(4):
-            s = 0.0
-            for d in range(3):
-                s += u[3 * a + d] * W[i, d, e]
-            out[4 * i + e] = scale * s
-
-
-@numba.njit(cache=CACHE, nogil=True)
-def _row(
-    A: FloatArray,
-    qr: FloatArray,
-    tau: FloatArray,
-    W: FloatArray,
-    act_idx: IntArray,
-    r: int,
-    scale: float,
-    u: FloatArray,
-    out: FloatArray,
-) -> None:
-    """``out = scale * row r`` of the problem: a dense row of ``A`` or a consistency row."""
-    md = A.shape[0]
-    if r < md:
-        for j in range(out.size):
-            out[j] = scale * A[r, j]
-    else:
-        _implicit_row(qr, tau, W, act_idx, r - md, scale, u, out)
 
 
 @numba.njit(cache=CACHE, nogil=True)
@@ -341,13 +163,13 @@ def dual_active_set(  # noqa: C901 - one compiled solve
         if rows0[r] != 0:
             act[k] = r
             sign[r] = 1.0 if rows0[r] > 0 else -1.0
-            _row(A, qr, tau, W, act_idx, r, sign[r], scratch, Aact[k])
+            row(A, qr, tau, W, act_idx, r, sign[r], scratch, Aact[k])
             k += 1
-    if not _factor(L, G, Aact, k, F, nf, reg):
+    if not factor(L, G, Aact, k, F, nf, reg):
         for q in range(k):  # the warm rows depend on each other here: start without them
             sign[act[q]] = 0.0
         k = 0
-        if not _factor(L, G, Aact, k, F, nf, reg):
+        if not factor(L, G, Aact, k, F, nf, reg):
             return x, np.zeros(m), np.zeros(n), NUMERICAL, steps
     while True:
         dim = 6 + k
@@ -356,8 +178,8 @@ def dual_active_set(  # noqa: C901 - one compiled solve
         for q in range(k):
             r = act[q]
             mu[6 + q] = sign[r] * (lo[r] if sign[r] > 0.0 else hi[r])
-        _forward(L, dim, mu)
-        _backward(L, dim, mu)
+        forward(L, dim, mu)
+        backward(L, dim, mu)
         for j in range(n):
             r_bound[j] = 0.0
         for a in range(dim):
@@ -389,25 +211,25 @@ def dual_active_set(  # noqa: C901 - one compiled solve
         if leave_row:
             u_row[act[leave]] = 0.0
             sign[act[leave]] = 0.0
-            ok = _drop_row(L, dim, 6 + leave, col)
+            ok = drop_row(L, dim, 6 + leave, col)
             for q in range(leave, k - 1):
                 act[q] = act[q + 1]
                 Aact[q] = Aact[q + 1]
             k -= 1
         else:
-            _column(G, Aact, k, leave, inv_sqrt_reg, col)
-            ok = _rank_one(L, 0, dim, col, 1.0)
+            column(G, Aact, k, leave, inv_sqrt_reg, col)
+            ok = rank_one(L, 0, dim, col, 1.0)
             is_free[leave] = True
             u_bound[leave] = 0.0
             F[nf] = leave
             nf += 1
-        if not ok and not _factor(L, G, Aact, k, F, nf, reg):
+        if not ok and not factor(L, G, Aact, k, F, nf, reg):
             return x, np.zeros(m), np.zeros(n), NUMERICAL, steps
 
     status = ITERATION_LIMIT
     while steps < max_iter:
         if updates >= REFRESH_EVERY:
-            if not _factor(L, G, Aact, k, F, nf, reg):
+            if not factor(L, G, Aact, k, F, nf, reg):
                 status = NUMERICAL
                 break
             updates = 0
@@ -418,7 +240,7 @@ def dual_active_set(  # noqa: C901 - one compiled solve
                 s += A[r, F[i]] * x[F[i]]
             values[r] = s
         if m > md:
-            _implicit_values(qr, tau, W, act_idx, x, scratch, values[md:])
+            implicit_values(qr, tau, W, act_idx, x, scratch, values[md:])
         best = tol
         p = -1
         p_bound = False
@@ -445,7 +267,7 @@ def dual_active_set(  # noqa: C901 - one compiled solve
             s_p = x[p]
         else:
             s_p = p_sign * (values[p] - (lo[p] if p_sign > 0.0 else hi[p]))
-            _row(A, qr, tau, W, act_idx, p, p_sign, scratch, prow)
+            row(A, qr, tau, W, act_idx, p, p_sign, scratch, prow)
             if p >= md:  # learn the row's norm for the next choices (and cycles)
                 row_scale[p] = max(np.sqrt(np.dot(prow, prow)), 1e-300)
         u_p = 0.0
@@ -454,7 +276,7 @@ def dual_active_set(  # noqa: C901 - one compiled solve
             dim = 6 + k
             # mu = T^-1 C_F n_F / reg (forward half kept in y_last), z_F = (n_F - C_F^T mu) / reg.
             if p_bound:
-                _column(G, Aact, k, p, 1.0 / reg, mu)
+                column(G, Aact, k, p, 1.0 / reg, mu)
                 nn = 1.0
             else:
                 nn = 0.0
@@ -469,13 +291,13 @@ def dual_active_set(  # noqa: C901 - one compiled solve
                         for i in range(nf):
                             s += Aact[a - 6, F[i]] * prow[F[i]]
                     mu[a] = s / reg
-            _forward(L, dim, mu)
+            forward(L, dim, mu)
             yy = 0.0
             for a in range(dim):
                 y_last[a] = mu[a]
                 yy += mu[a] * mu[a]
             zn = nn / reg - yy  # z . n, and the new diagonal of L if p joins as a row
-            _backward(L, dim, mu)
+            backward(L, dim, mu)
             # r_j = n_j - [g_j; a_Rj] . mu for every weight; z_F = r_F / reg on the free ones.
             for j in range(n):
                 r_bound[j] = 0.0 if p_bound else prow[j]
@@ -530,8 +352,8 @@ def dual_active_set(  # noqa: C901 - one compiled solve
             ok = True
             if t == t2:  # p joins the active set
                 if p_bound:
-                    _column(G, Aact, k, p, inv_sqrt_reg, col)
-                    ok = _rank_one(L, 0, dim, col, -1.0)
+                    column(G, Aact, k, p, inv_sqrt_reg, col)
+                    ok = rank_one(L, 0, dim, col, -1.0)
                     is_free[p] = False
                     x[p] = 0.0
                     u_bound[p] = u_p
@@ -549,13 +371,13 @@ def dual_active_set(  # noqa: C901 - one compiled solve
                     sign[p] = p_sign
                     u_row[p] = u_p
                     k += 1
-                if not ok and not _factor(L, G, Aact, k, F, nf, reg):
+                if not ok and not factor(L, G, Aact, k, F, nf, reg):
                     status = NUMERICAL
                 break
             # A constraint leaves; the same p goes on.
             if drop_bound:
-                _column(G, Aact, k, drop, inv_sqrt_reg, col)
-                ok = _rank_one(L, 0, dim, col, 1.0)
+                column(G, Aact, k, drop, inv_sqrt_reg, col)
+                ok = rank_one(L, 0, dim, col, 1.0)
                 is_free[drop] = True
                 u_bound[drop] = 0.0
                 x[drop] = 0.0
@@ -565,12 +387,12 @@ def dual_active_set(  # noqa: C901 - one compiled solve
                 r = act[drop]
                 u_row[r] = 0.0
                 sign[r] = 0.0
-                ok = _drop_row(L, dim, 6 + drop, col)
+                ok = drop_row(L, dim, 6 + drop, col)
                 for q in range(drop, k - 1):
                     act[q] = act[q + 1]
                     Aact[q] = Aact[q + 1]
                 k -= 1
-            if not ok and not _factor(L, G, Aact, k, F, nf, reg):
+            if not ok and not factor(L, G, Aact, k, F, nf, reg):
                 status = NUMERICAL
                 break
             if steps >= max_iter:

@@ -925,6 +925,12 @@ def test_benchmark_runs_and_writes_plot(tmp_path: Any) -> None:
     for n, row in report["speedup"].items():
         direct = next(r for r in report["direct"] if r["n_contacts"] == int(n))
         assert row["ratio"] == round(direct["p50_us"] / report["best"][n]["p50_us"], 2)
+        # The paper lab's form (forces and wrench as variables, OSQP), p50 and p99.
+        paper = next(r for r in report["paper_form"] if r["n_contacts"] == int(n))
+        assert paper["solver"] == "osqp" and paper["n"] == 3
+        best = report["best"][n]
+        assert row["paper_ratio_p50"] == round(paper["p50_us"] / best["p50_us"], 2)
+        assert row["paper_ratio_p99"] == round(paper["p99_us"] / best["p99_us"], 2)
     assert N_EDGES == 4
 
 
@@ -1149,3 +1155,25 @@ def test_loading_the_kernels_solves_a_problem_with_every_row_kind(solver: str, a
     sol = load_kernels(params, make_solver(solver))
     assert sol.status == "optimal" and sol.violation < 1e-6
     assert sol.torque_sel.size > 0 and sol.null_sel.size == 1  # torque and consistency rows
+
+
+@pytest.mark.parametrize("case", CASES[:3])
+def test_the_paper_labs_form_has_the_allocations_optimum(case: tuple[int, int, float]) -> None:
+    """The baseline of `bench allocate`: forces and the wrench as variables, the wrench as
+    equality rows, solved by OSQP, reaches the residual wrench of the allocator's optimum, up to
+    what the two ridges may move it: reg/2 of the squared norms of the two solutions (on the
+    forces there, on the edge weights here)."""
+    from wholehand.allocation.reference import paper_lab_problem
+
+    n, seed, tmax = case
+    cs, J, com = synthetic_grasp(seed, n).cycle()
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test", tau_max=tmax))
+    problem = paper_lab_problem(qp)
+    sol = qpsolvers.solve_problem(problem, solver="osqp", **settings_for("osqp"))
+    assert sol.found
+    f, w = sol.x[: 3 * qp.n_contacts], sol.x[3 * qp.n_contacts :]
+    np.testing.assert_allclose(w, qp.G @ f + qp.w_ext, atol=1e-6)
+    best, ref = reference(qp)
+    lam = ref.x[: qp.n_lambda]
+    ridges = 0.5 * qp.params.reg * float(f @ f + lam @ lam)
+    assert 0.5 * float(w @ w) == pytest.approx(best, abs=ridges + 1e-7)

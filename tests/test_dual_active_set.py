@@ -87,6 +87,8 @@ def test_cold_solves_meet_the_kkt_conditions_and_daqps_optimum(name, qp):
         assert objective(qp, lam) == pytest.approx(best, rel=1e-7, abs=1e-10)
     np.testing.assert_allclose(qp.tau(lam), qp.tau(reference.x[: qp.n_lambda]), atol=1e-6)
     np.testing.assert_allclose(sol.x[qp.n_lambda :], qp.G_lam @ lam + qp.w_ext)
+    np.testing.assert_allclose(sol.torque_values, qp.T_lam @ lam, atol=1e-12)
+    np.testing.assert_allclose(sol.null_values, qp.null_values(lam), atol=1e-9)
     assert sol.relative_violation < 1e-7
 
 
@@ -121,6 +123,7 @@ def test_implicit_consistency_rows_equal_formed_ones():
     empty = (np.zeros((0, 0), order="F"), np.zeros(0))
     formed = dual_active_set(*args, dense, *empty, qp.W, qp.act_idx, lo, hi, norms, *start)
     assert implicit[3] == formed[3] == 0 and implicit[4] == formed[4]
+    np.testing.assert_allclose(implicit[5], dense @ implicit[0], atol=1e-9)  # the rows' values
     np.testing.assert_allclose(implicit[0], formed[0], rtol=0, atol=1e-6)
     np.testing.assert_allclose(implicit[1], formed[1], atol=1e-6)
 

@@ -109,3 +109,23 @@ def direct_problem(qp: AllocationQP, reg: float | None = None) -> qpsolvers.Prob
     lb = np.tile([0.0, -np.inf, -np.inf], n)
     q = qp.G.T @ qp.w_ext
     return qpsolvers.Problem(P, q, np.vstack(rows), np.concatenate(h), lb=lb)
+
+
+def paper_lab_problem(qp: AllocationQP) -> qpsolvers.Problem:
+    """The form the paper's lab solves with OSQP: local forces ``f`` (3N,) and the residual
+    wrench ``w`` (6,) as variables, ``w = G f + w_ext`` as six equality rows, ``min 1/2
+    ||w||^2 + reg/2 ||f||^2``, and the rows of :func:`direct_problem` on ``f`` (friction,
+    squeeze, torques, consistency); sparse, for OSQP. The baseline of ``wholehand bench
+    allocate``, never used in the control loop.
+    """
+    import qpsolvers
+
+    direct = direct_problem(qp)
+    assert direct.G is not None and direct.h is not None and direct.lb is not None
+    n_f = 3 * qp.n_contacts
+    P = spa.diags(np.r_[np.full(n_f, qp.params.reg), np.ones(N_WRENCH)], format="csc")
+    G_in = spa.hstack([spa.csc_matrix(direct.G), spa.csc_matrix((direct.G.shape[0], N_WRENCH))])
+    A_eq = spa.hstack([spa.csc_matrix(qp.G), -spa.eye(N_WRENCH)], format="csc")
+    lb = np.r_[direct.lb, np.full(N_WRENCH, -np.inf)]
+    q = np.zeros(n_f + N_WRENCH)
+    return qpsolvers.Problem(P, q, G_in.tocsc(), direct.h, A_eq, -qp.w_ext, lb)

@@ -26,6 +26,11 @@ rows per contact, every torque and consistency row) and solved by each installed
 solver, timed over the same warm sequence from the contacts to the solution (building the
 problem included, as for the allocator). ``speedup`` gives, per N, the best direct time over the
 best allocator time (p50).
+
+The paper's baseline (``paper_form``): the form the paper's lab solves with
+OSQP, forces and residual wrench as variables with the wrench as equality rows
+(:func:`~wholehand.allocation.reference.paper_lab_problem`), timed the same way; ``speedup``
+gives the best allocator's p50 and p99 against it.
 """
 
 from __future__ import annotations
@@ -238,13 +243,17 @@ def _time_direct(
     cycles: int,
     warmup: int,
     seed: int,
+    form: str = "direct",
 ) -> dict[str, Any]:
+    """The ``form`` (``direct``: :func:`~wholehand.allocation.reference.direct_problem`;
+    ``paper``: :func:`~wholehand.allocation.reference.paper_lab_problem`) built and solved by
+    ``solver`` over the warm sequence, timed from the contacts to the solution."""
     import warnings
 
     import qpsolvers
 
     from wholehand.allocation.problem import build_allocation_qp
-    from wholehand.allocation.reference import direct_problem
+    from wholehand.allocation.reference import direct_problem, paper_lab_problem
     from wholehand.allocation.solvers.qpsolvers_solver import QpsolversSolver
     from wholehand.timing import percentiles_us
 
@@ -255,7 +264,8 @@ def _time_direct(
     found = 0
     for i, (contacts, J, com) in enumerate(inputs):
         t0 = time.perf_counter_ns()
-        problem = direct_problem(build_allocation_qp(contacts, J, com, params))
+        qp = build_allocation_qp(contacts, J, com, params)
+        problem = paper_lab_problem(qp) if form == "paper" else direct_problem(qp)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             sol = qpsolvers.solve_problem(problem, solver=solver, **settings)
@@ -316,7 +326,7 @@ def run_allocation_benchmark(
         for row in _allocator_rows(int(n), configs, extra, cycles, warmup, seed)
     ]
     best = _best_warm(results, contact_counts)
-    direct, speedup = _direct_rows(
+    direct, paper, speedup = _direct_rows(
         contact_counts, direct_solvers, extra, best, cycles, warmup, seed
     )
     report: dict[str, Any] = {
@@ -333,6 +343,7 @@ def run_allocation_benchmark(
         "results": results,
         "best": best,
         "direct": direct,
+        "paper_form": paper,
         "speedup": speedup,
         "plot": None,
     }
@@ -400,14 +411,15 @@ def _direct_rows(
     cycles: int,
     warmup: int,
     seed: int,
-) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """The direct form timed per installed solver of ``direct_solvers`` and contact count,
-    and per count the best direct p50 over the best allocator's (solvers that solved every
-    cycle only)."""
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, Any]]:
+    """The direct form timed per installed solver of ``direct_solvers`` and contact count, the
+    paper's form with OSQP per count, and per count the best direct p50 and the paper form's
+    p50 and p99 over the best allocator's (direct: solvers that solved every cycle only)."""
     direct: list[dict[str, Any]] = []
+    paper_rows: list[dict[str, Any]] = []
     speedup: dict[str, Any] = {}
     if not direct_solvers:
-        return direct, speedup
+        return direct, paper_rows, speedup
     import qpsolvers
 
     from wholehand.allocation.problem import AllocationParams
@@ -431,7 +443,17 @@ def _direct_rows(
                 "direct_p50_us": d["p50_us"],
                 "ratio": round(d["p50_us"] / best[str(n)]["p50_us"], 2),
             }
-    return direct, speedup
+        if "osqp" in qpsolvers.available_solvers and str(n) in best:
+            paper = _time_direct(grasp, "osqp", params, cycles, warmup, seed, form="paper")
+            b = best[str(n)]
+            paper_rows.append({"solver": "osqp", "n_contacts": int(n)} | paper)
+            speedup[str(n)] = speedup.get(str(n), {}) | {
+                "paper_form_p50_us": paper["p50_us"],
+                "paper_form_p99_us": paper["p99_us"],
+                "paper_ratio_p50": round(paper["p50_us"] / b["p50_us"], 2),
+                "paper_ratio_p99": round(paper["p99_us"] / b["p99_us"], 2),
+            }
+    return direct, paper_rows, speedup
 
 
 def _plot(results: list[dict[str, Any]], path: Path) -> Path:

@@ -141,7 +141,7 @@ def solve_dual_active_set(
     m = lo.size
     active = np.zeros(m, np.int8) if rows is None else np.ascontiguousarray(rows, np.int8)
     scale = _row_scales(qp, A, m, null_scale)
-    lam, y, _, code, steps = dual_active_set(
+    lam, y, _, code, steps, values = dual_active_set(
         np.ascontiguousarray(qp.G_lam),
         qp.w_ext,
         qp.params.reg,
@@ -160,8 +160,7 @@ def solve_dual_active_set(
     )
     solver_time = (time.perf_counter_ns() - t0) * 1e-9
     n_t = qp.torque_rows.size
-    torque_values = qp.T_lam @ lam
-    null_values = qp.null_values(lam)
+    torque_values, null_values = values[1 : 1 + n_t], values[1 + n_t :]
     status = _STATUS.get(code, "failed")
     if status != "optimal":
         detail = "iteration limit" if code not in _STATUS else f"dual active set: {status}"

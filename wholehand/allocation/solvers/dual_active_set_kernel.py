@@ -86,7 +86,7 @@ def dual_active_set(  # noqa: C901 - one compiled solve
     rows0: npt.NDArray[np.int8],
     tol: float,
     max_iter: int,
-) -> tuple[FloatArray, FloatArray, FloatArray, int, int]:
+) -> tuple[FloatArray, FloatArray, FloatArray, int, int, FloatArray]:
     """Solve the QP of the module docstring.
 
     The rows are ``A``'s (md, n) dense ones, then the ``mq - kq`` consistency rows
@@ -113,10 +113,11 @@ def dual_active_set(  # noqa: C901 - one compiled solve
         max_iter: steps before giving up.
 
     Returns:
-        ``(x, y, z, status, steps)``: (n,) the solution; (m,) the rows' multipliers (> 0 at the
-        lower bound, < 0 at the upper one, 0 inactive) and (n,) the bounds' (>= 0), with
-        ``H x + G^T w = A^T y + z`` (``H = G^T G + reg I``); :data:`OPTIMAL`,
-        :data:`INFEASIBLE`, :data:`ITERATION_LIMIT` or :data:`NUMERICAL`; the steps taken.
+        ``(x, y, z, status, steps, values)``: (n,) the solution; (m,) the rows' multipliers
+        (> 0 at the lower bound, < 0 at the upper one, 0 inactive) and (n,) the bounds' (>= 0),
+        with ``H x + G^T w = A^T y + z`` (``H = G^T G + reg I``); :data:`OPTIMAL`,
+        :data:`INFEASIBLE`, :data:`ITERATION_LIMIT` or :data:`NUMERICAL`; the steps taken;
+        (m,) every row's value at ``x`` (when optimal).
     """
     n = G.shape[1]
     md = A.shape[0]
@@ -142,7 +143,7 @@ def dual_active_set(  # noqa: C901 - one compiled solve
         if is_free[j]:
             F[nf] = j
             nf += 1
-    L = np.zeros((6 + m, 6 + m))
+    L = np.empty((6 + m, 6 + m))  # only its leading lower triangle is ever written or read
     mu = np.empty(6 + m)
     y_last = np.empty(6 + m)
     col = np.empty(6 + m)
@@ -170,7 +171,7 @@ def dual_active_set(  # noqa: C901 - one compiled solve
             sign[act[q]] = 0.0
         k = 0
         if not factor(L, G, Aact, k, F, nf, reg):
-            return x, np.zeros(m), np.zeros(n), NUMERICAL, steps
+            return x, np.zeros(m), np.zeros(n), NUMERICAL, steps, np.zeros(m)
     while True:
         dim = 6 + k
         for a in range(6):
@@ -224,7 +225,7 @@ def dual_active_set(  # noqa: C901 - one compiled solve
             F[nf] = leave
             nf += 1
         if not ok and not factor(L, G, Aact, k, F, nf, reg):
-            return x, np.zeros(m), np.zeros(n), NUMERICAL, steps
+            return x, np.zeros(m), np.zeros(n), NUMERICAL, steps, np.zeros(m)
 
     status = ITERATION_LIMIT
     while steps < max_iter:
@@ -406,4 +407,4 @@ def dual_active_set(  # noqa: C901 - one compiled solve
     for j in range(n):
         if not is_free[j]:
             z[j] = u_bound[j]
-    return x, y, z, status, steps
+    return x, y, z, status, steps, values

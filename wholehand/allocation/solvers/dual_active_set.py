@@ -5,9 +5,9 @@ equality) and pay near a loss for its size: ~200 edge weights, most of them zero
 and up to ~125 consistency rows, few of them binding. This one solves the problem in the edge
 weights alone (:mod:`~wholehand.allocation.solvers.dual_active_set_kernel`): Goldfarb and
 Idnani's dual active-set method over the weights that carry force, the objective's rank-6
-structure used through a 6x6 matrix, and a warm start from the weights that carried force last
-cycle (matched by contact). It starts from zero force, so it needs no feasible point, and it
-reports the multipliers of every constraint.
+structure used through a Cholesky factor of size 6 plus the active rows, and a warm start from
+the weights and rows that were active last cycle (matched by contact). It starts from zero
+force, so it needs no feasible point, and it reports the multipliers of every constraint.
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ from wholehand.allocation.solvers.dual_active_set_kernel import (
 )
 
 FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
 
 DUAL_ACTIVE_SET = "dual_active_set"

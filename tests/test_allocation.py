@@ -32,7 +32,8 @@ from wholehand.allocation.reference import direct_problem, solved_problem
 from wholehand.allocation.solve import binding_rows, dense_qp, solve_allocation
 from wholehand.allocation.solvers import NATIVE_SOLVERS, available_solvers, make_solver
 from wholehand.allocation.solvers.base import DenseQP, QPResult
-from wholehand.bench.allocate import run_allocation_benchmark, synthetic_grasp
+from wholehand.bench.allocate import run_allocation_benchmark
+from wholehand.bench.synthetic_grasps import synthetic_grasp
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError
 

@@ -24,7 +24,7 @@ from wholehand.allocation.solve import solve_allocation
 from wholehand.allocation.solvers import make_solver
 from wholehand.allocation.solvers.dual_active_set import allocation_rows, solve_dual_active_set
 from wholehand.allocation.solvers.dual_active_set_kernel import dual_active_set
-from wholehand.bench.allocate import synthetic_grasp
+from wholehand.bench.synthetic_grasps import synthetic_grasp
 
 
 def _problems() -> list[tuple[str, AllocationQP]]:

@@ -20,7 +20,7 @@ from wholehand.allocation.options import SolveOptions
 from wholehand.allocation.problem import AllocationParams, build_allocation_qp
 from wholehand.allocation.reference import direct_problem, solved_problem
 from wholehand.backends.command import Command
-from wholehand.bench.allocate import synthetic_grasp
+from wholehand.bench.synthetic_grasps import synthetic_grasp
 from wholehand.errors import ConfigError
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.models.gravity import GravityCompensation

@@ -309,8 +309,14 @@ class QPAllocator(Allocator):
         if deadline_ns is not None:
             left = deadline_ns - time.perf_counter_ns()
             max_steps = min(MAX_STEPS, int(max(left, 0) / self._step_ns))
+        limited = max_steps < MAX_STEPS  # by the deadline
         try:
             dual = solve_dual_active_set(qp, *start, max_steps=max_steps)
+            if dual.solution.status == "failed" and start[0] is not None:
+                # A warm start that rounding led astray: a cold solve, with the steps left.
+                max_steps -= dual.solution.iterations
+                if max_steps > 0:
+                    dual = solve_dual_active_set(qp, max_steps=max_steps)
         except Exception:  # the loop must not raise: the fallback solver answers
             return None
         sol = dual.solution
@@ -321,7 +327,7 @@ class QPAllocator(Allocator):
             self._warm.keep_sides(qp, dual.y, dual.null_scale)
         if sol.status in ("optimal", "infeasible"):
             return sol
-        if max_steps < MAX_STEPS and sol.iterations >= max_steps:
+        if limited and sol.iterations >= max_steps:
             return AllocationSolution(
                 None,
                 "deadline",

@@ -5,6 +5,8 @@ wrong, infeasible problems and the iteration limit."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from test_allocation import (
@@ -12,19 +14,30 @@ from test_allocation import (
     _case_problems,
     antipodal,
     check_allocation,
+    contact_set,
     near_loss,
     objective,
 )
 from wholehand_plugins.qp import QPAllocator
 
+import wholehand.allocation.solvers.dual_active_set as das_module
 from wholehand.allocation.base import AllocationStatus
 from wholehand.allocation.options import SolveOptions
 from wholehand.allocation.problem import AllocationParams, AllocationQP, build_allocation_qp
 from wholehand.allocation.solve import solve_allocation
 from wholehand.allocation.solvers import make_solver
-from wholehand.allocation.solvers.dual_active_set import allocation_rows, solve_dual_active_set
-from wholehand.allocation.solvers.dual_active_set_kernel import dual_active_set
+from wholehand.allocation.solvers.dual_active_set import (
+    allocation_rows,
+    infeasibility_certificate,
+    solve_dual_active_set,
+)
+from wholehand.allocation.solvers.dual_active_set_kernel import (
+    DIVERGED,
+    NUMERICAL,
+    dual_active_set,
+)
 from wholehand.bench.synthetic_grasps import synthetic_grasp
+from wholehand.contacts.base import ContactSet
 
 
 def _problems() -> list[tuple[str, AllocationQP]]:
@@ -218,3 +231,116 @@ def test_a_deadline_budgets_the_steps_by_their_measured_time():
     before = relaxed._step_ns
     assert relaxed.allocate(cs, J, com).fresh
     assert relaxed.last_solution.iterations > 100 and relaxed._step_ns != before
+
+
+def _farkas_ray(qp: AllocationQP) -> np.ndarray | None:
+    """A ray proving ``qp`` infeasible, found independently by scipy's LP: signed row
+    multipliers ``y`` (> 0 at a lower bound, < 0 at an upper one) with ``A^T y <= 0`` and
+    ``lo . y+ + hi . y- = 1``; None when no ray exists (the problem is feasible)."""
+    from scipy.optimize import linprog
+
+    A, lo, hi = dense_rows(qp)
+    low, up = np.flatnonzero(np.isfinite(lo)), np.flatnonzero(np.isfinite(hi))
+    # Variables: y+ on the finite lower bounds, y- on the finite upper ones, both >= 0.
+    ray_rows = np.hstack((A[low].T, -A[up].T))  # A^T y <= 0, so the bounds' z = -A^T y >= 0
+    gap = np.r_[lo[low], -hi[up]]
+    res = linprog(
+        np.zeros(gap.size),
+        A_ub=ray_rows,
+        b_ub=np.zeros(qp.n_lambda),
+        A_eq=gap[None],
+        b_eq=[1.0],
+        bounds=(0, None),
+        method="highs",
+    )
+    if res.status != 0:
+        return None
+    y = np.zeros(lo.size)
+    y[low] += res.x[: low.size]
+    y[up] -= res.x[low.size :]
+    return y
+
+
+def test_a_farkas_ray_certifies_infeasibility_and_nothing_certifies_a_feasible_problem():
+    cs, J, com = antipodal(lever=1.0)  # infeasible: the squeeze needs more than the limits
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test"))
+    A, _, lo, hi = allocation_rows(qp)
+    y = _farkas_ray(qp)
+    assert y is not None
+    z = -dense_rows(qp)[0].T @ y  # the bounds' multipliers that close A^T y + z = 0
+    assert (z >= -1e-12).all()
+    assert infeasibility_certificate(qp, A, lo, hi, y, np.maximum(z, 0.0))
+    assert not infeasibility_certificate(qp, A, lo, hi, -y, np.maximum(-z, 0.0))
+    assert not infeasibility_certificate(qp, A, lo, hi, 0.0 * y, 0.0 * z)
+    # A feasible problem has no ray, and its optimal multipliers are none.
+    feasible = dict(PROBLEMS)["near loss"]
+    assert _farkas_ray(feasible) is None
+    A, _, lo, hi = allocation_rows(feasible)
+    sol, y, _ = solve_dual_active_set(feasible)
+    G = feasible.G_lam
+    lam = sol.x[: feasible.n_lambda]
+    z = G.T @ (G @ lam + feasible.w_ext) + feasible.params.reg * lam - dense_rows(feasible)[0].T @ y
+    assert not infeasibility_certificate(feasible, A, lo, hi, y, np.maximum(z, 0.0))
+
+
+def _kernel(qp: AllocationQP) -> tuple:
+    """The compiled solve, cold, exactly as :func:`solve_dual_active_set` calls it."""
+    A, qr, lo, hi = allocation_rows(qp)
+    scale = das_module._row_scales(qp, A, lo.size, None)
+    n, m = qp.n_lambda, lo.size
+    G = np.ascontiguousarray(qp.G_lam)
+    start = (np.zeros(n, bool), np.zeros(m, np.int8), das_module.TOL, das_module.MAX_STEPS)
+    return dual_active_set(
+        G, qp.w_ext, qp.params.reg, A, *qr, qp.W, qp.act_idx, lo, hi, scale, *start
+    )
+
+
+def diverging() -> tuple[ContactSet, np.ndarray, np.ndarray]:
+    """A recorded cycle whose problem is infeasible although rounding hides it from the dual
+    active-set steps (the extra-large clamp pulled by 90 deg, 2 contacts, ``wholehand bench
+    cycle --worst``): its multipliers diverge instead of meeting a dependent constraint."""
+    d = np.load(Path(__file__).parent / "data" / "diverging_allocation.npz")
+    cs = contact_set(d["p_world"], d["n_world"], d["link"], d["link_actuated"], d["link_fingertip"])
+    return cs, d["J_world"], d["p_com_world"]
+
+
+def test_diverging_multipliers_are_certified_infeasible_without_the_fallback(monkeypatch):
+    cs, J, com = diverging()
+    qp = build_allocation_qp(cs, J, com, AllocationParams.checked("test"))
+    A, _, lo, hi = allocation_rows(qp)
+    lam, y, z, code, _, _ = _kernel(qp)
+    assert code == NUMERICAL and np.abs(y).max() > DIVERGED  # the steps diverged
+    assert infeasibility_certificate(qp, A, lo, hi, y, z)
+    assert _farkas_ray(qp) is not None  # an LP agrees: no edge weights meet the rows
+    sol, _, _ = solve_dual_active_set(qp)
+    assert sol.status == "infeasible" and sol.x is None and "certified" in sol.detail
+    daqp = solve_allocation(qp, make_solver("daqp"))
+    assert daqp.status == "infeasible"
+
+    def no_fallback(*args, **kwargs):
+        raise AssertionError("the fallback solver was asked")
+
+    monkeypatch.setattr("wholehand_plugins.qp.solve_allocation", no_fallback)
+    out = QPAllocator().allocate(cs, J, com)
+    assert out.status is AllocationStatus.INFEASIBLE and out.tau is None
+
+
+def test_a_warm_start_that_fails_is_retried_cold_before_the_fallback(monkeypatch):
+    import wholehand.allocation.solvers.dual_active_set as das
+
+    calls: list[bool] = []
+
+    def led_astray(qp, free=None, rows=None, scale=None, max_steps=das.MAX_STEPS):
+        calls.append(free is not None)
+        if free is not None:  # the warm solve fails as rounding can make it
+            return das.solve_dual_active_set(qp, max_steps=1)
+        return das.solve_dual_active_set(qp, max_steps=max_steps)
+
+    monkeypatch.setattr("wholehand_plugins.qp.solve_dual_active_set", led_astray)
+    cs, J, com = near_loss()
+    alloc = QPAllocator()
+    assert alloc.allocate(cs, J, com).fresh  # cold: no previous cycle
+    out = alloc.allocate(cs, J, com)
+    assert calls == [False, True, False]
+    assert out.fresh and "dual active set" in alloc.last_solution.detail
+    check_allocation(out, cs, J, com, alloc.params)

@@ -23,6 +23,7 @@ from wholehand.allocation.solution import AllocationSolution
 from wholehand.allocation.solve import violations
 from wholehand.allocation.solvers.dual_active_set_kernel import (
     INFEASIBLE,
+    ITERATION_LIMIT,
     NUMERICAL,
     OPTIMAL,
     dual_active_set,
@@ -42,6 +43,11 @@ MAX_STEPS: int = 2000
 """Steps before the solve gives up (cold solves near a loss take a few hundred)."""
 
 _STATUS = {OPTIMAL: "optimal", INFEASIBLE: "infeasible", NUMERICAL: "failed"}
+
+CERTIFICATE_TOL: float = 1e-6
+"""Tolerance of :func:`infeasibility_certificate` (as OSQP's test of primal infeasibility):
+``|A^T y + z|`` at most this much of the multipliers' size, and the bounds' gap ``b`` at
+least this much of it [N or N*m per unit multiplier]."""
 
 
 VERIFY_TOL: float = 1e-6
@@ -109,6 +115,37 @@ def _row_scales(
     return out
 
 
+def infeasibility_certificate(
+    qp: AllocationQP,
+    A: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+    tol: float = CERTIFICATE_TOL,
+) -> bool:
+    """True when the multipliers ``y`` (m,) of :func:`allocation_rows`' rows (> 0 at a lower
+    bound, < 0 at an upper one) and ``z`` (n,) >= 0 of the bounds ``lambda >= 0`` prove that no
+    edge weights meet the rows (Farkas): with every row scaled to unit norm, ``A^T y + z = 0``
+    and ``b = lo . y+ + hi . y- > 0``, each within ``tol`` of the largest multiplier. For any
+    ``lambda >= 0`` meeting the rows, ``y . A lambda >= b > 0`` while ``y . A lambda = -z .
+    lambda <= 0``. Where the problem is infeasible but rounding hides it, the dual active-set
+    method's multipliers diverge along such a ray."""
+    md = A.shape[0]
+    used = np.concatenate((np.arange(md), md + np.flatnonzero(y[md:])))  # dense + nonzero
+    rows = np.vstack((A, qp.null_rows(used[md:] - md))) if used.size > md else A
+    y_used = y[used]
+    bound = np.where(y_used > 0.0, lo[used], np.where(y_used < 0.0, hi[used], 0.0))
+    norms = np.sqrt(np.einsum("ij,ij->i", rows, rows))
+    size = max(float(np.abs(y_used * norms).max(initial=0.0)), float(z.max(initial=0.0)))
+    if not (size > 0.0 and np.isfinite(size)):
+        return False
+    at_bound = y_used != 0.0  # an infinite bound never carries a multiplier
+    gap = float(bound[at_bound] @ y_used[at_bound])
+    residual = float(np.abs(rows.T @ y_used + z).max(initial=0.0))
+    return residual <= tol * size and gap >= tol * size
+
+
 def solve_dual_active_set(
     qp: AllocationQP,
     free: BoolArray | None = None,
@@ -140,7 +177,7 @@ def solve_dual_active_set(
     m = lo.size
     active = np.zeros(m, np.int8) if rows is None else np.ascontiguousarray(rows, np.int8)
     scale = _row_scales(qp, A, m, null_scale)
-    lam, y, _, code, steps, values = dual_active_set(
+    lam, y, z, code, steps, values = dual_active_set(
         np.ascontiguousarray(qp.G_lam),
         qp.w_ext,
         qp.params.reg,
@@ -161,17 +198,25 @@ def solve_dual_active_set(
     n_t = qp.torque_rows.size
     torque_values, null_values = values[1 : 1 + n_t], values[1 + n_t :]
     status = _STATUS.get(code, "failed")
+    detail = "iteration limit" if code not in _STATUS else f"dual active set: {status}"
+    worst = relative = np.inf
+    if code == OPTIMAL:
+        null_worst = float(np.abs(null_values).max(initial=0.0)) - qp.params.eps_margin
+        worst, relative = violations(qp, lam, torque_values, null_worst)
+        if not relative <= VERIFY_TOL:
+            status = "failed"
+            detail = f"dual active set: inaccurate (relative violation {relative:.2g})"
+    if status == "failed" and code != ITERATION_LIMIT:
+        # Rounding hid an infeasible problem where the multipliers diverged along a ray that
+        # proves it.
+        if infeasibility_certificate(qp, A, lo, hi, y, z):
+            status, detail = "infeasible", "dual active set: infeasible (certified by the ray)"
     if status != "optimal":
-        detail = "iteration limit" if code not in _STATUS else f"dual active set: {status}"
-        failed = AllocationSolution(None, status, 1, m - 1, steps, np.inf, detail=detail)
+        failed = AllocationSolution(
+            None, status, 1, m - 1, steps, worst, relative, detail, solver_time=solver_time
+        )
         return DualSolution(failed, y, scale[A.shape[0] :])
     x = np.concatenate((lam, qp.G_lam @ lam + qp.w_ext))
-    null_worst = float(np.abs(null_values).max(initial=0.0)) - qp.params.eps_margin
-    worst, relative = violations(qp, lam, torque_values, null_worst)
-    if not relative <= VERIFY_TOL:
-        detail = f"dual active set: inaccurate (relative violation {relative:.2g})"
-        failed = AllocationSolution(None, "failed", 1, m - 1, steps, worst, relative, detail)
-        return DualSolution(failed, y, scale[A.shape[0] :])
     solution = AllocationSolution(
         x=x,
         status="optimal",

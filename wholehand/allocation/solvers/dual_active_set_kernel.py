@@ -348,6 +348,16 @@ def dual_active_set(  # noqa: C901 - one compiled solve
             u_p += t
             updates += 1
             if u_p > DIVERGED:
+                # p's multiplier joins the others': together they are (nearly) a ray of the
+                # dual, the certificate of infeasibility the caller may check.
+                if p_bound:
+                    is_free[p] = False
+                    u_bound[p] = u_p
+                else:
+                    act[k] = p
+                    sign[p] = p_sign
+                    u_row[p] = u_p
+                    k += 1
                 status = NUMERICAL
                 break
             ok = True

@@ -181,6 +181,25 @@ def test_renamed_and_ignored_joints(allegro):
         JointStateReader(allegro, HardwareConfig(rename={"joint_99": "x"}))
 
 
+def test_a_joint_published_by_its_urdf_name_despite_a_rename_is_named_with_the_fix(allegro):
+    """A robot that publishes the URDF's names to a config that renames one: the rejection says
+    the name is the hand's, which name the rename expects, and where the rename is."""
+    config = HardwareConfig(rename={"joint_0.0": "hand_joint_0"}, path="robot.toml")
+    reader = JointStateReader(allegro, config)
+    q = allegro.neutral()
+    msg = msgs.JointStateMsg(1.0, tuple(allegro.joint_names), q, np.zeros(0), np.zeros(0))
+    with pytest.raises(RejectedMessage) as err:
+        reader.read(msg, now=1.0)
+    assert err.value.reason == "unknown_joint"
+    text = str(err.value)
+    assert "['joint_0.0'] are joints of hand 'allegro_right'" in text
+    assert "robot.toml [joints] rename expects 'joint_0.0' as 'hand_joint_0'" in text
+    names = ["wrist", *allegro.joint_names[1:]]  # a name the hand does not have: the expected
+    msg = msgs.JointStateMsg(1.0, tuple(names), q, np.zeros(0), np.zeros(0))
+    with pytest.raises(RejectedMessage, match=r"not joints of hand .*expected: \['hand_joint_0'"):
+        reader.read(msg, now=1.0)
+
+
 @pytest.mark.parametrize(
     ("change", "reason"),
     [
@@ -613,8 +632,8 @@ def test_shipped_config_loads_against_the_allegro_in_its_urdf_order(allegro):
 
     config = load_hardware_config(hand_hardware_config("allegro_right"))
     reader = JointStateReader(allegro, config)
-    assert reader.msg_name["joint_0.0"] == "allegro_joint_0"
-    # The file names joint 0 by its robot name (after rename): the same joint either way.
+    # A robot publishing the URDF's names is read as it is: no rename by default.
+    assert all(reader.msg_name[j] == j for j in allegro.joint_names)
     assert [allegro.joint_names[i] for i in command_dofs(allegro, config)] == list(ALLEGRO_ORDER)
     model_order = [allegro.joint_names[i] for i in np.flatnonzero(allegro.actuated_dofs)]
     assert model_order != list(ALLEGRO_ORDER)  # why the order must be given

@@ -85,6 +85,8 @@ class JointStateReader:
             self.msg_name[j] for j in hand.joint_names if j not in hand.mimics
         )
         self.ignored = frozenset(config.ignore)
+        self.config_path = str(config.path) if config.path else None
+        """The hardware config the renames come from, for the messages."""
         self.max_future = config.safety.max_future_stamp
         self._name_at_q = {self._q_index[self.msg_name[j]]: j for j in hand.joint_names}
         self._cache: tuple[tuple[str, ...], npt.NDArray[np.intp], npt.NDArray[np.intp]] | None
@@ -102,11 +104,7 @@ class JointStateReader:
             raise RejectedMessage("duplicate_names", f"joint names repeat: {list(names)}")
         strange = sorted(set(names) - set(self._q_index) - self.ignored)
         if strange:
-            raise RejectedMessage(
-                "unknown_joint",
-                f"joint names {strange} are not joints of hand {self.hand.name!r} (rename them "
-                "in [joints] rename or list them in [joints] ignore)",
-            )
+            raise RejectedMessage("unknown_joint", self._unknown_names(strange))
         missing = sorted(self.required - set(names))
         if missing:
             raise RejectedMessage("missing_joint", f"joint state lacks joints {missing}")
@@ -114,6 +112,23 @@ class JointStateReader:
         idx = np.array([self._q_index[names[i]] for i in rows], dtype=np.intp)
         self._cache = (names, rows, idx)
         return rows, idx
+
+    def _unknown_names(self, strange: list[str]) -> str:
+        """Why the message's names ``strange`` are not read, and the fix."""
+        renamed = {n: self.msg_name[n] for n in strange if self.msg_name.get(n, n) != n}
+        where = self.config_path or "the hardware config"
+        if renamed:
+            expected = ", ".join(f"{n!r} as {m!r}" for n, m in renamed.items())
+            return (
+                f"joint names {strange} are joints of hand {self.hand.name!r}, but {where} "
+                f"[joints] rename expects {expected}: remove those renames if the robot "
+                "publishes the URDF's names"
+            )
+        return (
+            f"joint names {strange} are not joints of hand {self.hand.name!r} (expected: "
+            f"{sorted(self._q_index)}); rename them in {where} [joints] rename (URDF name = "
+            "robot name) or list them in [joints] ignore"
+        )
 
     def read(self, msg: JointStateMsg, now: float) -> JointSample:
         """The sample of ``msg``, checked.

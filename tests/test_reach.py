@@ -793,6 +793,34 @@ def test_reach_cli_passes_the_episode_options(capsys) -> None:
     assert spec["balance_weight"] and spec["gravity_compensation"]
 
 
+def test_reach_takes_a_users_hand_folder_whose_name_differs_from_its_folder(
+    tmp_path, capsys
+) -> None:
+    """Every command resolves ``--hand`` one way: a user's folder is found by its path whatever
+    its hand.toml calls the hand, and its grasps are read from the folder's grasps/."""
+    import json
+    import shutil
+
+    from wholehand.cli.main import main
+    from wholehand.grasps.store import grasp_file
+    from wholehand.models.hand_folders import shipped_hands_dir
+
+    folder = tmp_path / "lab_hand"
+    shutil.copytree(shipped_hands_dir() / "allegro_right", folder)
+    toml = folder / "hand.toml"
+    toml.write_text(toml.read_text().replace('name = "allegro_right"', 'name = "our_lab_hand"'))
+    args = ["reach", "--hand", str(folder), "--duration", "0.4", "--json"]
+    assert main(args) == 2  # no grasps yet: the fix names the folder, not the hand's name
+    err = capsys.readouterr().err
+    assert f"grasps generate --hand {folder} --object 077_rubiks_cube" in err
+    stored = grasp_file("allegro_right", "077_rubiks_cube")
+    (folder / "grasps").mkdir()
+    shutil.copy(stored, folder / "grasps" / stored.name)
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["spec"]["hand"] == str(folder) and report["transitions"]  # it reached
+
+
 def test_an_episode_from_the_table_regrasps_the_object_where_it_lies(allegro) -> None:
     """start="table": the box rests on the table, is slid while the hand reaches, grasped from
     above, pushed and twisted, pulled out from under the hand along the table and put down;

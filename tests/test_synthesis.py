@@ -264,9 +264,11 @@ def test_a_hand_without_grasping_tables_gets_optimised_grasps(tmp_path, capsys):
     (folder / "hand.toml").write_text(bare)
     args = ["grasps", "generate", "--hand", str(folder), "--object", "077_rubiks_cube"]
     args += ["--count", "1", "--max-candidates", "16", "--out", str(tmp_path / "out")]
-    assert main(args) == 2
-    assert "close_torque is empty" in capsys.readouterr().err
-    assert main([*args, "--method", "optimize"]) == 0
+    assert main([*args, "--method", "preshape"]) == 2
+    assert "close_torque is empty" in (err := capsys.readouterr().err)
+    assert "--method optimize" in err  # the fix
+    assert main(args) == 0  # the optimiser by default, and the output says so
+    assert "grasps by optimisation (--method optimize)" in capsys.readouterr().out
     (grasp,) = load_grasps(tmp_path / "out" / "077_rubiks_cube.json")
     assert "thumb" in grasp.extra["fingers"]
     # The file says how to make it again: a user's hand by its folder, not its name.

@@ -34,10 +34,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--method",
         choices=("preshape", "optimize"),
-        default="preshape",
-        help="preshape: close the style's pre-shape from random palm poses (default); "
-        "optimize: optimise contact points, force closure and penetration from random starts "
-        "(wholehand/grasps/synthesis.py); both validate each candidate in MuJoCo",
+        default=None,
+        help="preshape: close the style's pre-shape from random palm poses (the default where "
+        "hand.toml's style has a close_torque); optimize: optimise contact points, force "
+        "closure and penetration from random starts (wholehand/grasps/synthesis.py; the "
+        "default for a hand without one); both validate each candidate in MuJoCo",
     )
     p.add_argument(
         "--type",
@@ -148,6 +149,13 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects
 
     hand = load_hand(args.hand)
+    if args.method is None:
+        args.method = default_method(hand, args.type)
+        if args.method == "optimize":
+            print(
+                f"{hand.config.path} [grasping] has no close_torque for the {args.type} style: "
+                "grasps by optimisation (--method optimize)"
+            )
     shipped = hand_grasps_dir(args.hand).is_relative_to(grasps_dir())
     ycb = available_objects()
     names = args.object or list(PAPER_OBJECTS)
@@ -165,6 +173,15 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         if without:
             print(f"none for: {', '.join(without)}")
     return 0
+
+
+def default_method(hand: HandModel, style: str) -> str:
+    """``grasps generate``'s method when none is given: the pre-shape generator where the
+    hand's grasp style says how to close it (a ``close_torque``), else the optimiser, which
+    needs nothing from hand.toml's [grasping] tables."""
+    from wholehand.grasps.generate import named_style
+
+    return "preshape" if named_style(hand, style).close_torque else "optimize"
 
 
 def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bool) -> str:

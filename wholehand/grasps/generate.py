@@ -175,8 +175,9 @@ class GraspGenerator:
         table = "[grasping]" if style == "power" else f"[grasping.{style}]"
         if not self.style.close_torque:
             raise ConfigError(
-                f"{cfg.path}: {table} close_torque is empty; the grasp generator needs the "
-                "closing torque of each flexion joint"
+                f"{cfg.path}: {table} close_torque is empty; the pre-shape generator needs the "
+                "closing torque of each flexion joint (add it to hand.toml), or use the "
+                "optimiser, which needs none: `wholehand grasps generate --method optimize`"
             )
         if not self.style.fingers and cfg.thumb is None:
             raise ConfigError(

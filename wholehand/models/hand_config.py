@@ -148,6 +148,15 @@ class HandConfig:
     """An assembly's arm start posture [rad], in the order of :attr:`arm_joints`."""
     extra: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def reference(self) -> str:
+        """How every command names this hand (``--hand``): a shipped hand's name, else its
+        folder's absolute path. The hand.toml's ``name`` need not be either."""
+        from wholehand.models.hand_folders import is_shipped_hand
+
+        folder = self.path.resolve().parent
+        return folder.name if is_shipped_hand(folder) else str(folder)
+
 
 def _locate_in_distribution(dist_name: str, rel: str, where: Path) -> Path:
     try:

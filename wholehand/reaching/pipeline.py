@@ -62,7 +62,7 @@ def grasp_plans(hand: HandModel, obj: ObjectModel, on_table: bool = False) -> li
     missing: list[ConfigError] = []
     for name in styles:
         try:
-            grasps = load_grasps(hand.name, obj.name, name, on_table=on_table)
+            grasps = load_grasps(hand.config.reference, obj.name, name, on_table=on_table)
         except ConfigError as err:
             missing.append(err)
             continue

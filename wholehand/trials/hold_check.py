@@ -26,7 +26,7 @@ def protocol_check(
     (the phase it was lost in). ``spec`` sets the other trial parameters (default: those of
     ``wholehand run``); its hand, object and grasp are replaced."""
     trial = dataclasses.replace(
-        spec or TrialSpec(), hand=hand.name, object=obj.name, theta_deg=theta_deg
+        spec or TrialSpec(), hand=hand.config.reference, object=obj.name, theta_deg=theta_deg
     )
 
     def check(grasp: Grasp) -> str | None:

@@ -113,3 +113,33 @@ def test_an_infinite_torque_limit_is_refused_when_the_hand_is_read(tmp_path):
     folder = write_toy_hand(tmp_path / "toy", tables="[joints]\ntorque_limit = { default = inf }\n")
     with pytest.raises(ConfigError, match="torque_limit.default must be a finite number, got inf"):
         parse_hand_config(folder)
+
+
+def test_zero_efforts_and_a_centre_of_mass_far_outside_its_link_are_flagged(tmp_path, capsys):
+    """effort="0" silently takes the default torque limit; an <inertial> origin of 0.5 m on a
+    finger link (in millimetres meant, say) puts its centre of mass far outside the link and
+    asks its joint for m g r = 0.2 kg * 9.81 m/s^2 * 0.5 m ~ 0.98 N*m against 0.2 N*m."""
+    folder = write_toy_hand(tmp_path / "toy")
+    urdf = folder / "toy.urdf"
+    text = urdf.read_text().replace('effort="1"', 'effort="0"')
+    start = text.index('<link name="f1_1">')
+    at = text.index('<inertial><mass value="0.02"/>', start)
+    far = '<inertial><origin xyz="0 0 0.5"/><mass value="0.2"/>'
+    urdf.write_text(text[:at] + far + text[at + len('<inertial><mass value="0.02"/>') :])
+    assert main(["hand", "check", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING: 5 joints have effort=\"0\" in toy.urdf: ['f1_j1', 'f1_j2'" in out
+    assert "fix: set each motor's effort [N*m] in the URDF" in out
+    assert "the centre of mass of ['f1_1'] (0.2 kg) lies 460 mm outside their geometry" in out
+    line = next(x for x in out.splitlines() if "needs more torque than the motors" in x)
+    assert "at 1 joints [N*m]: f1_j1 0.98" in line and "> 0.2" in line
+    # Pinocchio and MuJoCo were compared, and it says how far apart they came out.
+    assert "MuJoCo's and Pinocchio's poses of all" in out and "compared at 3 joint" in out
+    # Limits set in hand.toml for every joint: the zero efforts no longer matter.
+    limits = ", ".join(f"{j} = 0.2" for j in ("f1_j1", "f1_j2", "f2_j1", "f2_j2", "t_j1"))
+    folder = write_toy_hand(
+        tmp_path / "limited", tables=f"[joints]\ntorque_limit = {{ {limits} }}\n"
+    )
+    (folder / "toy.urdf").write_text(text)
+    assert main(["hand", "check", str(folder)]) == 0
+    assert 'effort="0"' not in capsys.readouterr().out

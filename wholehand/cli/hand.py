@@ -68,6 +68,13 @@ def _print_model(report: HandReport) -> None:
             )
     if s.get("locked_joints"):
         print(f"  locked: {s['locked_joints']}")
+    match = s.get("mujoco_vs_pinocchio")
+    if match:
+        print(
+            f"  MuJoCo's and Pinocchio's poses of all {match['links']} links compared at "
+            f"{match['configurations']} joint configurations: at most "
+            f"{match['max_offset_mm']:.2g} mm and {match['max_angle_deg']:.2g} deg apart"
+        )
     if s.get("points_per_link"):
         print("\n  samples per link:")
         for link, n in s["points_per_link"].items():

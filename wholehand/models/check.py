@@ -37,6 +37,9 @@ FAR_FROM_LINK = 0.3
 which spans more than this, is reported (wrong origin, or a mesh in millimetres) [m]."""
 FEW_SAMPLES = 3
 """Links with fewer surface samples than this are reported."""
+COM_OUTSIDE = 0.02
+"""A moving body's centre of mass farther than this outside the box around its links' surface
+samples is reported (an <inertial> origin in the wrong frame or in millimetres) [m]."""
 
 
 @dataclass
@@ -85,6 +88,7 @@ def _raw_joint_findings(cfg: HandConfig, report: HandReport) -> None:
     root = ET.parse(cfg.model_path).getroot()
     placeholders: list[str] = []
     efforts: list[str] = []
+    zero: list[str] = []
     for joint in root.iter("joint"):
         name, kind = joint.get("name", ""), joint.get("type", "")
         if kind not in ("revolute", "prismatic"):
@@ -106,10 +110,35 @@ def _raw_joint_findings(cfg: HandConfig, report: HandReport) -> None:
                 "swap lower and upper in the URDF",
             )
         effort = float(limit.get("effort", "0"))
-        if effort > PLACEHOLDER_EFFORT and name not in cfg.locked_joints:
+        if effort <= 0.0 and name not in cfg.locked_joints:
+            zero.append(name)
+        elif effort > PLACEHOLDER_EFFORT and name not in cfg.locked_joints:
             placeholders.append(f"{name} ({effort:g})")
         elif 0.0 < effort != cfg.torque_limit_default and name not in cfg.locked_joints:
             efforts.append(f"{name} ({effort:g})")
+    _effort_findings(cfg, report, zero, efforts, placeholders)
+
+
+def _effort_findings(
+    cfg: HandConfig,
+    report: HandReport,
+    zero: list[str],
+    efforts: list[str],
+    placeholders: list[str],
+) -> None:
+    """What the URDF's efforts of the joints in ``zero`` (zero), ``efforts`` (real-looking, not
+    used) and ``placeholders`` (too large to be real) mean for the torque limits."""
+    unset = [j for j in zero if j not in cfg.torque_limits]
+    if unset:
+        report.add(
+            "warning",
+            f'{len(unset)} joints have effort="0" in {cfg.model_path.name}: {unset[:6]}'
+            f"{' ...' if len(unset) > 6 else ''}; wholehand gives them the default torque "
+            f"limit {cfg.torque_limit_default:g} N*m without a word, and a simulator or driver "
+            "that reads the URDF gives them none",
+            "set each motor's effort [N*m] in the URDF from the data sheet, or its [joints] "
+            "torque_limit in hand.toml",
+        )
     if efforts and not cfg.torque_limit_set:
         report.add(
             "warning",
@@ -300,8 +329,79 @@ def check_hand(name_or_path: str | Path) -> HandReport:
         )
     _geometry_findings(hand, report)
     _buried_findings(hand, report)
+    _inertia_findings(hand, report)
     _simulation_findings(hand, report)
     return report
+
+
+def _inertia_findings(hand: HandModel, report: HandReport) -> None:
+    """Centres of mass far outside their links' geometry, and joints whose motors cannot hold
+    the links they carry against gravity (the worst direction of gravity, at three positions of
+    the joints): both point to an <inertial> in the wrong frame or units."""
+    model = hand.model
+    samples = hand.samples
+    for jid in range(1, model.njoints):
+        points = samples.p_joint[samples.joint == jid]
+        inertia = model.inertias[jid]
+        if points.shape[0] < FEW_SAMPLES or inertia.mass <= 0.0:
+            continue
+        com = np.asarray(inertia.lever)
+        outside = float(np.linalg.norm(com - np.clip(com, points.min(0), points.max(0))))
+        if outside > COM_OUTSIDE:
+            links = [n for n, j in zip(hand.link_names, hand.link_joint, strict=True) if j == jid]
+            report.add(
+                "warning",
+                f"the centre of mass of {links} ({inertia.mass:.3g} kg) lies "
+                f"{1e3 * outside:.0f} mm outside their geometry (joint {model.names[jid]!r}'s "
+                "frame): gravity and the simulation see a lever the hand does not have",
+                "check the <inertial> <origin xyz> of those links in the URDF (the link's "
+                "frame, metres)",
+            )
+    worst = _worst_gravity_torques(hand)
+    motors = np.flatnonzero(hand.actuated_dofs & ~hand.arm_dofs)
+    over = [v for v in motors if worst[v] > hand.tau_max[v]]
+    if over:
+        names = {model.joints[j].idx_v: model.names[j] for j in range(1, model.njoints)}
+        listed = ", ".join(f"{names[v]} {worst[v]:.3g} > {hand.tau_max[v]:.3g}" for v in over[:4])
+        report.add(
+            "warning",
+            f"gravity on the links needs more torque than the motors' limits at {len(over)} "
+            f"joints [N*m]: {listed}{' ...' if len(over) > 4 else ''} (the worst direction of "
+            "gravity, joints at a quarter, half and three quarters of their ranges): gravity "
+            "compensation saturates and a grasp must hold the fingers up too",
+            "check the links' <inertial> mass and origin in the URDF, and the torque limits "
+            "([joints] torque_limit in hand.toml)",
+        )
+
+
+def _worst_gravity_torques(hand: HandModel) -> FloatArray:
+    """(n_v,) the largest torque [N*m] gravity (9.81 m/s^2) asks of each joint over every
+    direction of gravity, at the joints a quarter, half and three quarters through their
+    ranges: gravity's torque is linear in its direction, so the worst over unit directions is
+    the norm of the torques of the three axes; a coupled hand's actuators carry their
+    followers' too (``C^T g``), reported at each actuator's joint."""
+    import pinocchio as pin
+
+    model = pin.Model(hand.model)
+    data = model.createData()
+    finite = np.isfinite(hand.q_lower) & np.isfinite(hand.q_upper)
+    lower = np.where(finite, hand.q_lower, 0.0)
+    upper = np.where(finite, hand.q_upper, 0.0)
+    actuators = np.flatnonzero(hand.actuated_dofs)
+    worst = np.zeros(model.nv)
+    for share in (0.25, 0.5, 0.75):
+        q = hand.couple(np.where(finite, lower + share * (upper - lower), hand.neutral()))
+        per_axis = []
+        for axis in np.eye(3):
+            model.gravity.linear = 9.81 * axis
+            g = np.array(pin.computeGeneralizedGravity(model, data, q))
+            if hand.coupled:
+                g_act = np.zeros(model.nv)
+                g_act[actuators] = hand.coupling.T @ g
+                g = g_act
+            per_axis.append(g)
+        worst = np.maximum(worst, np.linalg.norm(np.array(per_axis), axis=0))
+    return worst
 
 
 def _simulation_findings(hand: HandModel, report: HandReport) -> None:
@@ -323,7 +423,10 @@ def _simulation_findings(hand: HandModel, report: HandReport) -> None:
     finite = np.isfinite(hand.q_lower) & np.isfinite(hand.q_upper)
     lower = np.where(finite, hand.q_lower, 0.0)
     upper = np.where(finite, hand.q_upper, 0.0)
-    for share in (0.5, 0.25, 0.75):
+    shares = (0.5, 0.25, 0.75)
+    worst: tuple[float, float, str, float] | None = None  # offset, angle, link, share
+    largest = [0.0, 0.0]  # [m], [deg]
+    for share in shares:
         q = hand.couple(np.where(finite, lower + share * (upper - lower), hand.neutral()))
         simulated = backend.link_poses(q)
         kin.update(q, hand.wMb)
@@ -331,17 +434,27 @@ def _simulation_findings(hand: HandModel, report: HandReport) -> None:
             model = kin.frame_pose(link)
             offset = float(np.linalg.norm(simulated[i, :3, 3] - model[:3, 3]))
             angle = float(np.degrees(rotation_angle(simulated[i, :3, :3], model[:3, :3])))
-            if offset > POSE_MISMATCH_M or angle > POSE_MISMATCH_DEG:
-                report.add(
-                    "error",
-                    f"MuJoCo puts link {link!r} {1e3 * offset:.1f} mm and {angle:.1f} deg away "
-                    f"from where the kinematic model (Pinocchio) puts it, with the joints "
-                    f"{share:.0%} of the way through their ranges: the simulation would not be "
-                    "the hand the controller models",
-                    "check the URDF's root link (a root named 'world' is handled; other names "
-                    "MuJoCo reserves are not), its fixed joints and their origins",
-                )
-                return
+            largest = [max(largest[0], offset), max(largest[1], angle)]
+            bad = offset > POSE_MISMATCH_M or angle > POSE_MISMATCH_DEG
+            if bad and (worst is None or offset > worst[0]):
+                worst = (offset, angle, link, share)
+    report.summary["mujoco_vs_pinocchio"] = {
+        "links": len(hand.link_names),
+        "configurations": len(shares),
+        "max_offset_mm": 1e3 * largest[0],
+        "max_angle_deg": largest[1],
+    }
+    if worst is not None:
+        offset, angle, link, share = worst
+        report.add(
+            "error",
+            f"MuJoCo puts link {link!r} {1e3 * offset:.1f} mm and {angle:.1f} deg away "
+            f"from where the kinematic model (Pinocchio) puts it, with the joints "
+            f"{share:.0%} of the way through their ranges: the simulation would not be "
+            "the hand the controller models",
+            "check the URDF's root link (a root named 'world' is handled; other names "
+            "MuJoCo reserves are not), its fixed joints and their origins",
+        )
 
 
 def plot_samples(hand: HandModel, path: str | Path) -> Path:

@@ -44,7 +44,7 @@ def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(
     )
     control = wholehand(
         "control", *control_link, "--listen", "--duration", "4.0",
-        "--json", str(tmp_path / "control.json"),
+        "--json", str(tmp_path / "control.json"), "--record", str(tmp_path / "run.mcap"),
     )  # fmt: skip
     out, err = sim.communicate(timeout=180)
     assert sim.returncode == 0, err[-3000:]
@@ -64,6 +64,24 @@ def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(
     # The trace pairs every torque message with the joint state it answered.
     stamps = {s for s, _ in robot["arrivals"]}
     assert len(stamps & {s for _, _, s in ctl["trace"]}) > 200, seen
+    # The recording is on the system clock, as the robot's messages are: its cycles lie
+    # between the first and the last torque message's UNIX time (a monotonic clock's seconds
+    # since boot would not).
+    published = np.array([p for _, _, p in ctl["trace"]]) * 1e-9
+    recorded = _log_times(tmp_path / "run.mcap", "/joint_states")
+    assert recorded.size > 200, seen
+    assert published.min() - 0.5 < recorded[0] and recorded[-1] < published.max() + 0.5
+    assert abs(np.median(recorded) - np.median(published)) < 0.5
+
+
+def _log_times(path, topic: str) -> np.ndarray:
+    """The log times [s] of ``topic``'s messages in the MCAP file at ``path``."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        times = [m.log_time for _, _, m in reader.iter_messages(topics=[topic])]
+    return np.array(times, dtype=float) * 1e-9
 
 
 def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, tmp_path):

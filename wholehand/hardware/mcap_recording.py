@@ -4,7 +4,10 @@
 The file follows rosbag2's MCAP storage: profile ``ros2``, one schema per message type
 (``ros2msg``, the definition with its dependencies, ROS 2 Jazzy's), CDR messages, each
 channel's ``offered_qos_profiles``. Every message is stamped (header and log time) with the
-run's time: the backend's clock [s], from 0 in a simulation, the system clock on a robot.
+run's time: the backend's clock [s] from 0 in a simulation; on a robot (a backend on the wall
+clock) the system clock, UNIX time as ROS time is, so that the file lines up with the robot's own
+messages and bags (the backend's monotonic clock shifted by the system clock's offset, measured
+when the run starts).
 
 Topics (frames: ``world``, every link of the model by its name, and ``object``):
 
@@ -54,6 +57,7 @@ import contextlib
 import json
 import logging
 import math
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import IO, Any
@@ -201,6 +205,14 @@ class _Types:
         return self.Marker(**values)
 
 
+def system_time_offset(backend: Any) -> float:
+    """The system clock (UNIX time) minus ``backend``'s clock [s] for a backend on the wall
+    clock (a robot's, ``time.monotonic``), 0 for a simulation, whose time starts at 0."""
+    if getattr(backend, "clock", "sim") != "wall":
+        return 0.0
+    return time.time() - float(backend.time)
+
+
 def force_colour(magnitude: float) -> tuple[float, float, float]:
     """Blue (0 N) to red (:data:`FORCE_FULL_COLOUR` and above), as RGB in [0, 1]."""
     s = min(max(magnitude / FORCE_FULL_COLOUR, 0.0), 1.0)
@@ -299,6 +311,8 @@ class McapRecorder(Observer):
         for topic, (msgtype, latched) in TOPICS.items():
             writer.channel(topic, msgtype, latched)
         self._started = False
+        self.time_offset = system_time_offset(loop.backend)
+        """What turns the loop's time into the recording's [s] (0 in a simulation)."""
 
     def _write_latched(self, writer: McapWriter, t: float) -> None:
         """The messages written once, at the first cycle's time ``t`` [s]: the URDF, the run's
@@ -314,6 +328,7 @@ class McapRecorder(Observer):
             "base_link": self.hand.all_link_names[0],
             "arrow_scale_m_per_N": ARROW_SCALE,
             "joint_names": list(self.hand.joint_names),
+            "clock": "system" if self.time_offset else "run",
             **self.info,
         }
         writer.write("/wholehand/run_info", T.String(data=json.dumps(info, default=str)), t)
@@ -381,7 +396,7 @@ class McapRecorder(Observer):
 
     def _record(self, writer: McapWriter, cycle: Cycle) -> None:
         T, hand = self.types, self.hand
-        t = cycle.t
+        t = cycle.t + self.time_offset
         if not self._started:
             self._write_latched(writer, t)
             self._started = True

@@ -402,6 +402,8 @@ class Ros2Backend(Backend):
             return {
                 "received": dict(streams.received),
                 "rejected": dict(streams.rejected),
+                "arrived": dict(streams.arrived),
+                "superseded": streams.superseded,
                 "last_rejection": streams.last_rejection,
                 "guard": dict(self.guard.counts),
                 "torque_messages": self._torque.sequence_number,

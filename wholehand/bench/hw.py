@@ -59,25 +59,31 @@ def run_hw_benchmark(
     sync_to_joint_states: bool = True,
     config: str | Path | None = None,
     transport: str = "zenoh",
+    flood: str | None = None,
+    flood_rate: float = 10000.0,
 ) -> dict[str, Any]:
     """Run the double and the controller over each grasp of each object; latency percentiles
     over all messages, and whether each grasp held the load test. ``sync_to_joint_states``:
     the controller's setting of that name (:mod:`wholehand.hardware.config_file`); ``config``: the
     hardware config both use (None: the hand folder's ``ros2.toml``); ``transport``: zenoh
     (a free TCP port on loopback) or dds (unicast on loopback, the domain of the config or
-    ``$ROS_DOMAIN_ID``)."""
+    ``$ROS_DOMAIN_ID``); ``flood``: ``bad`` or ``valid`` joint states sent at ``flood_rate``
+    [Hz] by a third node meanwhile (:mod:`wholehand.bench.flood_source`), None for none."""
     spec = spec or ControllerSpec()
     config_path = hand_hardware_config(hand) if config is None else Path(config)
     hand_model = load_hand(hand)
     answer, controller, wire, rates, rows = [], [], [], [], []
+    flood_sent: list[float] = []
     cycles: list[float] = []
     for obj, grasp in ((o, g) for o in objects for g in grasps):
         obj_model = load_object(obj)
         endpoint = loopback_endpoint()
+        # A flooding node reaches the controller directly: zenoh peers do not route for others.
+        flood_endpoint = loopback_endpoint() if flood is not None else None
         hw_config = replace(
             load_hardware_config(config_path),
             connect=(endpoint,),
-            listen=(),
+            listen=() if flood_endpoint is None else (flood_endpoint,),
             stamp_source=stamp_source,
             sync_to_joint_states=sync_to_joint_states,
             transport=transport,
@@ -119,6 +125,17 @@ def run_hw_benchmark(
                 text=True,
                 env=os.environ.copy(),
             )
+            flooder = None
+            if flood is not None:
+                flooder = _start_flood(
+                    Path(tmp) / "flood.json",
+                    config_path,
+                    hand,
+                    flood,
+                    flood_rate,
+                    transport,
+                    (endpoint, flood_endpoint or endpoint),
+                )
             try:
                 result = run_controller(
                     hand_model, obj_model, hw_config, spec, trace=True, duration=None, stop=sim.poll
@@ -127,6 +144,11 @@ def run_hw_benchmark(
             finally:
                 if sim.poll() is None:
                     sim.kill()
+                if flooder is not None:
+                    _stop(flooder)
+            sent = Path(tmp) / "flood.json"
+            if flooder is not None and sent.exists():
+                flood_sent.append(json.loads(sent.read_text())["sent_hz"])
             if not out.exists():
                 raise ConfigError(f"bench hw: hw-sim failed for {obj} grasp {grasp}: {err[-2000:]}")
             robot = json.loads(out.read_text())
@@ -149,6 +171,8 @@ def run_hw_benchmark(
                 "lost_at": robot["lost_at"],
                 "statuses": robot["statuses"],
                 "rejected": result["backend"]["rejected"],
+                "arrived": result["backend"]["arrived"],
+                "superseded": result["backend"]["superseded"],
                 "guard": result["backend"]["guard"],
                 "sync": result["backend"]["sync"],
                 "sync_wait_s": result["backend"]["sync_wait_s"],
@@ -182,8 +206,58 @@ def run_hw_benchmark(
         "messages": len(answer),
         "rate_hz": {"min": float(min(rates)), "mean": float(np.mean(rates))},
         "control_rate_hz": load_hardware_config(config_path).control_rate,
+        "flood": None
+        if flood is None
+        else {
+            "kind": flood,
+            "rate_hz": flood_rate,
+            "sent_hz": float(np.mean(flood_sent)) if flood_sent else None,
+        },
         "runs": rows,
     }
+
+
+def _stop(process: subprocess.Popen[str], grace: float = 10.0) -> None:
+    """SIGTERM, then SIGKILL past ``grace`` [s] (a transport call that blocks in C keeps the
+    signal from being handled)."""
+    process.terminate()
+    try:
+        process.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(timeout=grace)
+
+
+def _start_flood(
+    out: Path,
+    config: Path,
+    hand: str,
+    kind: str,
+    rate: float,
+    transport: str,
+    endpoints: tuple[str, str],
+) -> subprocess.Popen[str]:
+    """The flooding node (:mod:`wholehand.bench.flood_source`) in its own process."""
+    argv = [
+        sys.executable,
+        "-m",
+        "wholehand.bench.flood_source",
+        "--config",
+        str(config),
+        "--hand",
+        hand,
+        "--kind",
+        kind,
+        "--rate",
+        str(rate),
+        "--transport",
+        transport,
+        "--connect",
+        ",".join(endpoints),
+        "--json",
+        str(out),
+    ]
+    return subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
 
 
 def _plain_loop(

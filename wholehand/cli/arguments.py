@@ -31,3 +31,5 @@ count = _number(int, lambda v: v >= 1, "a whole number >= 1")
 """A whole number of at least one."""
 natural = _number(int, lambda v: v >= 0, "a whole number >= 0")
 """A whole number of at least zero (a seed, an index)."""
+rate = _number(float, lambda v: v > 0.0, "a rate > 0 [Hz]")
+"""A finite rate above zero [Hz]."""

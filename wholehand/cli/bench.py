@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from wholehand.cli.arguments import rate
+
 
 def _cmd_contacts(args: argparse.Namespace) -> int:
     from wholehand.bench.contacts import run_contact_benchmark
@@ -162,6 +164,8 @@ def _cmd_hw(args: argparse.Namespace) -> int:
         sync_to_joint_states=not args.no_sync,
         config=args.config,
         transport=args.transport,
+        flood=args.flood,
+        flood_rate=args.flood_rate,
     )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -350,6 +354,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=["zenoh", "dds"],
         help="zenoh on a loopback TCP port, or DDS unicast on loopback",
     )
+    p.add_argument(
+        "--flood",
+        choices=["bad", "valid"],
+        default=None,
+        help="a third node floods the joint-state topic meanwhile: bad (rejected) or valid "
+        "(the robot's newest, re-stamped) joint states (wholehand/bench/flood_source.py)",
+    )
+    p.add_argument("--flood-rate", type=rate, default=10000.0, help="the flood's rate [Hz]")
     p.add_argument("--out", help="also write the JSON here")
     p.set_defaults(func=_cmd_hw)
 

@@ -5,6 +5,17 @@ Each message is decoded and checked when it arrives, on the transport's thread
 time on the streams' clock (``time.monotonic`` unless a test gives its own), and a message that
 fails a check, or is older than the newest, is counted by reason (:attr:`RobotStreams.rejected`)
 while the last good one stays.
+
+A flood of joint states (thousands a second, good or bad, from a misconfigured driver or a
+hostile node) must not starve the control cycle: decoding one costs ~30 us of Python, which
+holds the interpreter's lock. Joint states are decoded on arrival at most at one per
+:data:`DECODE_SPACING` on average, in bursts of up to :data:`DECODE_BURST` (a token bucket);
+one past that is only kept, undecoded, in place of any other so kept (which is counted
+``superseded``), and the controller decodes it when it next reads the streams. At the rates
+robots send (up to 1 kHz, jitter and bursts included) every message is still decoded and
+checked on arrival; under a flood the transport's threads decode 2000 a second and the
+controller one per cycle, and every message delivered is counted once: accepted, rejected (by
+reason) or superseded.
 """
 
 from __future__ import annotations
@@ -12,7 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -34,6 +45,17 @@ from wholehand.hardware.messages import (
 from wholehand.hardware.transport import SampleMeta, TopicSubscriber, Transport
 
 log = logging.getLogger(__name__)
+
+HISTORY_SPACING = 0.001
+"""Least time between two joint states handed to the controller's history [s]: a robot, or a
+misconfigured node, sending thousands a second must not cost the control cycle per message,
+nor shrink the time the history spans (the object pose's stamp is looked up in it)."""
+DECODE_SPACING = 0.0005
+"""Mean time between joint states decoded on arrival under a flood [s] (module docstring)."""
+DECODE_BURST = 8.0
+"""Joint states decoded on arrival back to back before :data:`DECODE_SPACING` applies."""
+PENDING_MAX = 1024
+"""Joint states kept for the history between two cycles at most (the oldest dropped first)."""
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -81,7 +103,15 @@ class RobotStreams:
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
         """Notified on every message, accepted or rejected."""
-        self._pending: list[JointSample] = []
+        self._pending: deque[JointSample] = deque(maxlen=PENDING_MAX)
+        self._pending_stamp = -np.inf  # of the last joint state put in _pending
+        self.arrived: Counter[str] = Counter()
+        """Messages the transport delivered per stream, before any check."""
+        self.superseded = 0
+        """Joint states replaced by a newer one before they were decoded (a flood)."""
+        self._deferred: tuple[bytes, float] | None = None  # (payload, receipt), not decoded
+        self._tokens = DECODE_BURST  # decodes on arrival allowed now
+        self._tokens_at = -np.inf  # when the tokens were counted
         self._joint: JointSample | None = None
         self._previous: JointSample | None = None
         self._joint_received = -np.inf
@@ -108,6 +138,28 @@ class RobotStreams:
 
     def _on_joints(self, payload: bytes, meta: SampleMeta, _: float) -> None:
         received = self.clock()
+        with self._lock:
+            self.arrived["joint_states"] += 1
+            self.superseded += self._deferred is not None
+            refill = (received - self._tokens_at) / DECODE_SPACING
+            self._tokens = min(DECODE_BURST, self._tokens + refill)
+            self._tokens_at = received
+            if self._tokens < 1.0:
+                self._deferred = (payload, received)
+                return
+            self._tokens -= 1.0
+            self._deferred = None
+        self._read_joints(payload, received)
+
+    def _read_deferred(self) -> None:
+        """Decode the joint state kept undecoded, if any (on the controller's thread)."""
+        with self._lock:
+            deferred, self._deferred = self._deferred, None
+        if deferred is not None:
+            self._read_joints(*deferred)
+
+    def _read_joints(self, payload: bytes, received: float) -> None:
+        """Decode, check and keep (or count) one joint state received at ``received``."""
         try:
             sample = self.reader.read(decode_joint_state(payload), time.time())
         except MessageError as err:
@@ -123,11 +175,14 @@ class RobotStreams:
                 return
             self._previous, self._joint = self._joint, sample
             self._joint_received = received
-            self._pending.append(sample)
+            if sample.stamp >= self._pending_stamp + HISTORY_SPACING:
+                self._pending.append(sample)
+                self._pending_stamp = sample.stamp
             self.received["joint_states"] += 1
 
     def _on_pose(self, payload: bytes, meta: SampleMeta, _: float) -> None:
         received = self.clock()
+        self.arrived["object_pose"] += 1
         config = self.config
         try:
             msg = decode_pose(payload)
@@ -173,6 +228,7 @@ class RobotStreams:
 
     def latest(self) -> Latest:
         """The newest samples, consistent with each other."""
+        self._read_deferred()
         with self._lock:
             return Latest(
                 self._joint,
@@ -184,9 +240,12 @@ class RobotStreams:
             )
 
     def take_pending(self) -> list[JointSample]:
-        """Every joint state accepted since the last call, oldest first."""
+        """The joint states accepted since the last call, oldest first, at least
+        :data:`HISTORY_SPACING` apart (the newest accepted is :meth:`latest`'s)."""
+        self._read_deferred()
         with self._lock:
-            pending, self._pending = self._pending, []
+            pending = list(self._pending)
+            self._pending.clear()
         return pending
 
     def wait_for_first(self, timeout: float) -> None:

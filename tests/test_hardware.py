@@ -766,3 +766,20 @@ def test_the_controller_declares_rmw_zenohs_liveliness_tokens(allegro):
         _until(lambda: not [r for r in watcher.liveliness().get("@ros2_lv/**") if r.ok])
     finally:
         watcher.close()
+
+
+@pytest.mark.parametrize("transport", ["zenoh", "dds"])
+def test_the_benchmarks_link_controller_and_double_on_either_transport(transport):
+    """``bench hw`` and ``bench pipeline`` take --transport: the controller's config and the
+    double's arguments match (a zenoh port the double listens on, or DDS unicast on loopback)."""
+    from wholehand.bench.loopback import loopback
+
+    base = HardwareConfig(connect=("tcp/10.0.0.1:7447",), listen=("tcp/0.0.0.0:7448",))
+    config, link = loopback(base, transport, ("tcp/127.0.0.1:9999",))
+    assert config.transport == transport
+    if transport == "dds":
+        assert link[:2] == ["--transport", "dds"] and config.dds_peers == ("127.0.0.1",)
+        assert config.dds_interface == "127.0.0.1"
+    else:
+        assert link[0] == "--listen" and link[-1] == "--connect"
+        assert config.connect == (link[1],) and config.listen == ("tcp/127.0.0.1:9999",)

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from wholehand.bench.loopback import loopback
 from wholehand.errors import ConfigError
 from wholehand.hardware.config import HardwareConfig, StampSource
 from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
@@ -43,8 +44,6 @@ from wholehand.timing import percentiles
 
 POINTS = (50, 95, 99)
 """Percentiles reported [%]."""
-DDS_LOOPBACK: dict[str, Any] = {"dds_interface": "127.0.0.1", "dds_peers": ("127.0.0.1",)}
-"""The DDS settings of a controller and a double on one machine."""
 
 
 def run_hw_benchmark(
@@ -77,23 +76,16 @@ def run_hw_benchmark(
     cycles: list[float] = []
     for obj, grasp in ((o, g) for o in objects for g in grasps):
         obj_model = load_object(obj)
-        endpoint = loopback_endpoint()
         # A flooding node reaches the controller directly: zenoh peers do not route for others.
         flood_endpoint = loopback_endpoint() if flood is not None else None
-        hw_config = replace(
+        base = replace(
             load_hardware_config(config_path),
-            connect=(endpoint,),
-            listen=() if flood_endpoint is None else (flood_endpoint,),
             stamp_source=stamp_source,
             sync_to_joint_states=sync_to_joint_states,
-            transport=transport,
-            **(DDS_LOOPBACK if transport == "dds" else {}),
         )
-        link = (
-            ["--transport", "dds", "--dds-peer", "127.0.0.1", "--dds-interface", "127.0.0.1"]
-            if transport == "dds"
-            else ["--listen", endpoint, "--connect"]
-        )
+        listen = () if flood_endpoint is None else (flood_endpoint,)
+        hw_config, link = loopback(base, transport, listen)
+        endpoint = hw_config.connect[0] if transport == "zenoh" else ""
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "sim.json"
             argv = [

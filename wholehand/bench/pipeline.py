@@ -19,16 +19,15 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from wholehand.bench.loopback import loopback
 from wholehand.errors import ConfigError
 from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
 from wholehand.hardware.controller import ControllerSpec, run_controller
-from wholehand.hardware.rmw_zenoh import loopback_endpoint
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
 from wholehand.provenance import provenance
@@ -66,17 +65,22 @@ def _outcome(
 
 
 def over_ros(
-    hand: str, obj: str, seed: int, config: Path, latency: float, duration: float
+    hand: str,
+    obj: str,
+    seed: int,
+    config: Path,
+    latency: float,
+    duration: float,
+    transport: str = "zenoh",
 ) -> dict[str, Any]:
-    """One episode through the double (a second process) and the controller (this one)."""
-    endpoint = loopback_endpoint()
-    hw_config = replace(load_hardware_config(config), connect=(endpoint,), listen=())
+    """One episode through the double (a second process) and the controller (this one), over
+    ``transport`` (:func:`~wholehand.bench.loopback.loopback`)."""
+    hw_config, link = loopback(load_hardware_config(config), transport)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "sim.json"
         argv = [sys.executable, "-m", "wholehand.cli.main", "hw-sim", "--config", str(config),
                 "--hand", hand, "--object", obj, "--seed", str(seed), "--latency", str(latency),
-                "--duration", str(duration), "--listen", endpoint, "--connect",
-                "--json", str(out)]  # fmt: skip
+                "--duration", str(duration), *link, "--json", str(out)]  # fmt: skip
         sim = subprocess.Popen(
             argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
             env=os.environ.copy(),
@@ -173,10 +177,11 @@ def run_pipeline_benchmark(
     duration: float = 14.0,
     config: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
+    transport: str = "zenoh",
 ) -> dict[str, Any]:
-    """Run ``episodes`` seeded episodes per object over ROS and in process (seeds as ``wholehand
-    study reach`` derives them); JSON-ready rows and totals per mode, with the paired
-    differences of acquisition and completion."""
+    """Run ``episodes`` seeded episodes per object over ROS (``transport``: zenoh or dds) and in
+    process (seeds as ``wholehand study reach`` derives them); JSON-ready rows and totals per
+    mode, with the paired differences of acquisition and completion."""
     if episodes < 1:
         raise ConfigError(f"bench pipeline: episodes must be >= 1, got {episodes}")
     config_path = hand_hardware_config(hand) if config is None else Path(config)
@@ -184,7 +189,7 @@ def run_pipeline_benchmark(
     for oi, obj in enumerate(objects):
         for episode in range(episodes):
             episode_seed = derive_seed(seed, oi, episode)
-            a = over_ros(hand, obj, episode_seed, config_path, latency, duration)
+            a = over_ros(hand, obj, episode_seed, config_path, latency, duration, transport)
             b = in_process(hand, obj, episode_seed)
             ros.append(a)
             local.append(b)
@@ -201,6 +206,7 @@ def run_pipeline_benchmark(
         "hand": hand,
         "objects": list(objects),
         "episodes_per_object": episodes,
+        "transport": transport,
         "tracker": {
             "rate_hz": load_hardware_config(config_path).object_pose_rate,
             "latency_s": latency,

@@ -187,6 +187,7 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
         latency=args.latency,
         config=args.config,
         progress=lambda line: print(line, file=sys.stderr, flush=True),
+        transport=args.transport,
     )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -379,6 +380,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--latency", type=float, default=0.033, help="the tracker's latency [s]")
     p.add_argument(
         "--config", help="hardware config TOML (default: ros2.toml in the hand's folder)"
+    )
+    p.add_argument(
+        "--transport",
+        default="zenoh",
+        choices=["zenoh", "dds"],
+        help="zenoh on a loopback TCP port, or DDS unicast on loopback",
     )
     p.add_argument("--out", help="also write the JSON (with every episode's row) here")
     p.set_defaults(func=_cmd_pipeline)

@@ -906,3 +906,55 @@ def test_hold_stage_keeps_regulating_through_lost_tracking_until_the_ramp_ends(a
     regulation.lost_for = TRACKING_HOLD + TRACKING_RAMP
     out = stage.step(context(allegro, allegro.neutral(), np.eye(4), far))
     assert out.next == PREGRASP and "out of the hand's reach for 0.70 s" in out.reason
+
+
+def _person():
+    from wholehand.reaching.episode_spec import EpisodeSpec
+    from wholehand.reaching.person import Person
+
+    return Person(
+        EpisodeSpec(), None, np.eye(4), np.random.default_rng(0), (0.25, 1e-4), "palm", 0.03
+    )
+
+
+def test_an_episode_with_a_perturbation_left_out_is_not_complete() -> None:
+    from wholehand.reaching.person import Event
+
+    person = _person()
+    person.done = True
+    person.events = [Event(2.5, "push 2.47 N for 0.3 s"), Event(3.8, "twist 0.094 N*m for 0.3 s")]
+    assert person.complete and person.skipped == []
+    person.events[1] = Event(3.8, "no twist: the hand holds no object")
+    assert not person.complete and person.skipped == ["no twist: the hand holds no object"]
+
+
+def test_the_last_hold_is_timed_from_the_release_not_from_the_grasp() -> None:
+    """Grasped at 6.0 s, let go at 6.5 s, hold_after 1 s: complete at 7.5 s, not 7.0 s."""
+    from types import SimpleNamespace
+
+    person = _person()
+    person.state, person.since = "regrasped", 6.5
+    assert person._wait_for_the_end(SimpleNamespace(t=7.0), True, 1.0) is None
+    assert not person.done
+    assert person._wait_for_the_end(SimpleNamespace(t=7.5), True, 1.5) == "episode complete"
+    assert person.done
+    dropped = _person()
+    dropped.state, dropped.since = "regrasped", 6.5
+    assert dropped._wait_for_the_end(SimpleNamespace(t=9.0), False, 0.0) is None
+
+
+def test_what_a_stage_says_without_switching_is_noted_once_per_change() -> None:
+    """A replan's reason is kept for the timeline; the same reason in the next cycles is not
+    repeated, a new one is."""
+    from wholehand.loop.control_loop import ControlLoop
+    from wholehand.loop.report import LoopReport
+
+    loop = object.__new__(ControlLoop)
+    loop.report, loop.active = LoopReport(), "reach_pregrasp"
+    for t in (1.0, 1.005, 1.01):
+        loop._note(t, "no_plan", "no usable grasp plan at the object's pose (10 stored)")
+    loop._note(4.0, "replan", "pre-grasp not reached within 3 s: grasp 4; next: grasp 7")
+    loop._note(4.005, "no_plan", "no usable grasp plan at the object's pose (10 stored)")
+    notes = [(n.t, n.status) for n in loop.report.notes]
+    assert notes == [(1.0, "no_plan"), (4.0, "replan"), (4.005, "no_plan")]
+    assert loop.report.as_dict()["notes"][1]["reason"].endswith("next: grasp 7")

@@ -161,10 +161,14 @@ def format_summary(s: dict[str, Any]) -> str:
         f"  {s['duration_s']:12.2f}  {s['perturbations']:13d}  {s['grasps']:6d}  "
         f"{s['losses']:6d}  {s['recovered']:9d}  {'yes' if s['complete'] else 'no'}",
         "",
-        "timeline:",
     ]
+    skipped = s.get("skipped_perturbations", [])
+    if skipped:
+        lines += [f"not complete: left out because the hand held no object: {skipped}", ""]
+    lines.append("timeline:")
     rows = [(e["t"], e["what"]) for e in s["events"]]
     rows += [(t["t"], f"{t['source']} -> {t['target']}: {t['reason']}") for t in s["transitions"]]
+    rows += [(n["t"], f"{n['stage']}: {n['status']}: {n['reason']}") for n in s.get("notes", [])]
     lines += [f"  {t:7.3f} s  {what}" for t, what in sorted(rows, key=lambda r: r[0])]
     lines.append("")
     for kind, stats in s["cycle_us"].items():

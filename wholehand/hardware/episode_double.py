@@ -355,7 +355,8 @@ def run_episode_double(
     events = [asdict(e) for e in script.events]
     return {
         "spec": {**asdict(spec.episode), "latency": spec.latency, "away": spec.away},
-        "complete": bool(getattr(script, "done", False)),
+        "complete": bool(getattr(script, "complete", False)),
+        "skipped_perturbations": list(getattr(script, "skipped", [])),
         "events": events,
         "perturbations": sum(e["what"].startswith(PERTURBATIONS) for e in events),
         "duration_s": backend.time,

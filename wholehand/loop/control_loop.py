@@ -45,7 +45,7 @@ from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError, ObservationError
 from wholehand.loop.filters import ObservationFilter
 from wholehand.loop.gate import ObservationGate
-from wholehand.loop.report import MAX_KEPT_ERRORS, LoopReport, StageError, Transition
+from wholehand.loop.report import MAX_KEPT_ERRORS, LoopReport, Note, StageError, Transition
 from wholehand.loop.stage import END, CycleContext, LoopStatus, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
@@ -207,12 +207,27 @@ class ControlLoop:
             reason = observer.on_cycle(cycle) or reason
         if reason is not None:
             return reason
-        next_stage = cycle.output.next
+        output = cycle.output
+        next_stage = output.next
         if next_stage == END:
             return END
         if next_stage is not None:
-            self._switch(next_stage, cycle.t, cycle.output.reason)
+            self._switch(next_stage, cycle.t, output.reason)
+        elif output.reason:
+            self._note(cycle.t, output.status, output.reason)
         return None
+
+    def _note(self, t: float, status: str, reason: str) -> None:
+        """Keep what the active stage said without switching, unless it said just that last."""
+        notes = self.report.notes
+        last = notes[-1] if notes else None
+        said = last is not None and (last.stage, last.status, last.reason) == (
+            self.active,
+            status,
+            reason,
+        )
+        if not said:
+            notes.append(Note(t, self.active, status, reason))
 
     def _next_cycle(self, t0: float, n_run: int, t: float, deadline: float) -> float:
         """Advance the backend to the start of the run's cycle ``n_run`` (after the one at

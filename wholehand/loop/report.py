@@ -33,6 +33,17 @@ class Transition:
     reason: str
 
 
+@dataclass(frozen=True)
+class Note:
+    """Something a stage said without switching (a replan, no plan to reach for), with why."""
+
+    t: float
+    """Backend time of the cycle [s]."""
+    stage: str
+    status: str
+    reason: str
+
+
 @dataclass
 class LoopReport:
     """What a run of the loop did, for records and the CLI."""
@@ -73,6 +84,9 @@ class LoopReport:
     """All stage exceptions, kept or not."""
     transitions: list[Transition] = field(default_factory=list)
     """Every switch between stages, in order."""
+    notes: list[Note] = field(default_factory=list)
+    """What the stages said, with a reason, without switching: each change, in order (a
+    reason repeated in the next cycles is kept once)."""
 
     def as_dict(self) -> dict[str, object]:
         """JSON-serialisable summary (tracebacks of at most three errors)."""
@@ -94,4 +108,5 @@ class LoopReport:
             "n_errors": self.n_errors,
             "errors": [e.__dict__ for e in self.errors[:3]],
             "transitions": [t.__dict__ for t in self.transitions],
+            "notes": [n.__dict__ for n in self.notes],
         }

@@ -303,7 +303,8 @@ def _episode_summary(
     recovered = sum(any(g.t > loss.t for g in grasps) for loss in losses)
     return {
         "spec": asdict(spec),
-        "complete": person.done,
+        "complete": person.complete,
+        "skipped_perturbations": person.skipped,
         "mount": "arm" if scene.hand.arm_dofs.any() else "floating wrist",
         "duration_s": scene.backend.time,
         "perturbations": sum(e.what.startswith(PERTURBATIONS) for e in person.events),
@@ -314,6 +315,7 @@ def _episode_summary(
         "recovered": recovered,
         "events": [asdict(e) for e in person.events],
         "transitions": [t.__dict__ for t in report.transitions],
+        "notes": [n.__dict__ for n in report.notes],
         "cycle_us": timer.summary(),
         "reacher_us": percentiles(reacher_us),
         "loop": report.as_dict(),

@@ -40,6 +40,9 @@ SLIDE_TIME = 0.5
 """On a table: how long the person pushes the object to its new place before leaving it [s]."""
 PERTURBATIONS = ("person moves", "push", "twist", "person snatches")
 """Events that count as perturbations."""
+SKIPPED = ("no push", "no twist")
+"""Events of a perturbation left out because the hand held no object: the episode is then not
+complete (:attr:`Person.complete`)."""
 
 
 def grip(
@@ -237,8 +240,21 @@ class Person(Observer):
             self.backend.set_object_spring(None)
             self._to("regrasped", t, "person lets go: the hand kept the object through the snatch")
 
+    @property
+    def skipped(self) -> list[str]:
+        """The perturbations left out because the hand held no object (their events)."""
+        return [e.what for e in self.events if e.what.startswith(SKIPPED)]
+
+    @property
+    def complete(self) -> bool:
+        """The episode's script ran to its end: every perturbation met a held object, and after
+        the person last let go the hand held the object for ``hold_after``."""
+        return self.done and not self.skipped
+
     def _wait_for_the_end(self, cycle: Cycle, holding: bool, held_for: float) -> str | None:
-        if held_for >= self.spec.hold_after:
+        """Complete once the hand has held the object for ``hold_after`` since the person let
+        go (or left it on the table), not since the grasp was made."""
+        if holding and min(held_for, cycle.t - self.since) >= self.spec.hold_after:
             self.done = True
             return "episode complete"
         return None

@@ -287,7 +287,10 @@ class ReachStage(Stage):
         if plan is None:
             plan = self.planner.choose(wMo, self.grasp_base(context))
             if plan is None:
-                return StageOutput(None, "no_plan")
+                reason = (
+                    f"no usable grasp plan at the object's pose ({len(self.planner.plans)} stored)"
+                )
+                return StageOutput(None, "no_plan", reason=reason)
         if self.kind == "pregrasp":
             q_goal, oMb_goal = plan.q_pre, plan.oMb_pre
         else:
@@ -375,9 +378,12 @@ class ReachStage(Stage):
             wMo = context.obs.wMo
             assert wMo is not None
             self.planner.fail()
-            self.planner.choose(wMo, self.grasp_base(context))
+            chosen = self.planner.choose(wMo, self.grasp_base(context))
             self._since = context.t
-            reason = f"pre-grasp not reached within {PREGRASP_TIMEOUT} s: grasp {plan.grasp_id}"
+            then = "no usable plan left" if chosen is None else f"next: grasp {chosen.grasp_id}"
+            reason = (
+                f"pre-grasp not reached within {PREGRASP_TIMEOUT} s: grasp {plan.grasp_id}; {then}"
+            )
             return StageOutput(command, "replan", reason=reason)
         return StageOutput(command, "reaching")
 

@@ -202,10 +202,14 @@ def test_the_drives_count_a_step_to_zero_as_a_stop_not_a_torque_rate():
     assert drives.max_rate == pytest.approx(20.0) and drives.stops == 1
 
 
-def test_ctrl_c_of_the_double_writes_its_summary_without_a_traceback(endpoint, tmp_path):
-    """SIGINT while the double waits for a controller: it ends, writes its summary (0 cycles,
-    interrupted) and exits 130, as `control` does."""
-    sim = wholehand("hw-sim", "--quick", "--listen", endpoint, "--json", str(tmp_path / "s.json"))
+@pytest.mark.parametrize("hand", ["allegro_right", "flexiv_rizon4_hx5_d20_right"])
+def test_ctrl_c_of_the_double_writes_its_summary_without_a_traceback(endpoint, tmp_path, hand):
+    """SIGINT while the double (a hand alone, or the arm-hand episode) waits for a controller:
+    it ends, writes its summary (0 cycles, interrupted) and exits 130, as `control` does."""
+    sim = wholehand(
+        "hw-sim", "--hand", hand, "--listen", endpoint, "--json", str(tmp_path / "s.json"),
+        *(["--quick"] if hand == "allegro_right" else []),
+    )  # fmt: skip
     try:
         wait_for_line(sim, "waiting for a controller's first command")
         sim.send_signal(signal.SIGINT)

@@ -140,8 +140,17 @@ def _episode_double(args: argparse.Namespace) -> int:
         command_timeout=args.command_timeout,
         away=None if args.away is None else (float(args.away[0]), float(args.away[1])),
     )
-    summary = run_episode_double(spec, _config(args), args.wait, _recorders(args, spec))
+    summary = run_episode_double(
+        spec,
+        _config(args),
+        args.wait,
+        _recorders(args, spec),
+        announce=lambda line: print(line, file=sys.stderr, flush=True),
+    )
     _write(summary, args.json, summary)
+    if summary["interrupted"]:
+        print(f"hw-sim: stopped by a signal after {summary['cycles']} cycles", file=sys.stderr)
+        return 130
     return 0
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -47,6 +47,7 @@ from wholehand.hardware.messages import (
     decode_joint_trajectory,
 )
 from wholehand.hardware.node import open_transport
+from wholehand.hardware.stopping import StopOnEvent, signals_set
 from wholehand.hardware.transport import SampleMeta
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.stage import CycleContext, Stage, StageOutput
@@ -262,9 +263,12 @@ def run_episode_double(
     config: HardwareConfig,
     wait_for_controller: float = 30.0,
     observers: Sequence[Observer] = (),
+    announce: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Play the robot through the episode of ``spec``: wait for the first torque command, then
-    run in real time until the person's script ends or ``episode.duration`` has passed.
+    run in real time until the person's script ends or ``episode.duration`` has passed. SIGINT
+    and SIGTERM end the wait or the run early (``interrupted`` in the summary); ``announce``
+    gets a line when the double starts waiting.
 
     Returns:
         A JSON-ready summary: ``complete``, the person's ``events`` (times from the start of the
@@ -334,6 +338,7 @@ def run_episode_double(
             subs.append(transport.subscriber(topic, FLOAT64_ARRAY, drives.on_hand_position))
         publisher = RobotPublisher(joints, poses, names, config.frame_id, "image")
         pacer = RealTimePacer()
+        stopped = threading.Event()  # Ctrl-C or SIGTERM: the run ends and its summary is written
         loop = ControlLoop(
             backend,
             hand,
@@ -341,12 +346,17 @@ def run_episode_double(
             drives,
             rate=config.joint_state_rate,
             filters=tracking_filters(tracking, obj.com),
-            observers=[script, publisher, *observers, pacer],
+            observers=[script, publisher, *observers, pacer, StopOnEvent(stopped)],
         )
-        wait_for_command(
-            backend, drives.commanded, joints, poses, names, config, wait_for_controller
-        )
-        report = loop.run(spec.episode.duration)
+        commanded = lambda: drives.commanded() or stopped.is_set()  # noqa: E731
+        with signals_set(stopped):
+            if announce is not None:
+                announce(
+                    f"hw-sim: playing {hand.name}'s episode, waiting for a controller's first "
+                    "command (Ctrl-C stops)"
+                )
+            wait_for_command(backend, commanded, joints, poses, names, config, wait_for_controller)
+            report = loop.run(0.0 if stopped.is_set() else spec.episode.duration)
         wall = time.monotonic() - pacer.mono0  # the run's simulated time took this long
         for sub in subs:
             sub.close()
@@ -355,6 +365,7 @@ def run_episode_double(
     events = [asdict(e) for e in script.events]
     return {
         "spec": {**asdict(spec.episode), "latency": spec.latency, "away": spec.away},
+        "interrupted": stopped.is_set(),
         "complete": bool(getattr(script, "complete", False)),
         "skipped_perturbations": list(getattr(script, "skipped", [])),
         "events": events,

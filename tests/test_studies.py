@@ -865,3 +865,73 @@ def test_a_second_run_on_a_folder_in_use_is_refused_with_the_holder_named(tmp_pa
         holder.wait()
     assert main([*args, "--no-progress"]) == 0  # the killed holder left no stale lock
     assert (folder / JOURNAL_NAME).read_text() == ""  # a fresh run, 0 trials this time
+
+
+def _posed_record(rows: list[tuple[int, np.ndarray, np.ndarray]]) -> RunRecord:
+    """A record of (phase, hand base pose, object pose) rows, every cycle held."""
+    import pinocchio as pin
+
+    record = RunRecord(phases=["settle", "load"])
+    extra = {k: np.zeros(2) for k in RunRecord.FIELDS}
+    extra.update({k: np.zeros((0, 3)) for k in getattr(RunRecord, "CONTACT_FIELDS", ())})
+    extra["contact_link"] = np.zeros(0, dtype=int)
+    for i, (phase, wMb, wMo) in enumerate(rows):
+        record.append(
+            **{
+                **extra,
+                "t": 0.005 * i,
+                "phase": phase,
+                "status": "ok",
+                "held": True,
+                "p_object": wMo[:3, 3],
+                "r_object": pin.log3(wMo[:3, :3]),
+                "p_base": wMb[:3, 3],
+                "r_base": pin.log3(wMb[:3, :3]),
+            }
+        )
+    return record
+
+
+def test_the_strict_criterion_measures_the_slip_in_the_hand_from_the_settled_grasp():
+    """The object's pose in the hand base's frame, from the end of the settle phase to the last
+    cycle: carried rigidly by a moving hand it has not slipped; slid 30 mm and turned 25 deg in
+    a still hand it has, and the paper's criterion still says held."""
+    import pinocchio as pin
+
+    from wholehand.trials.outcome import STRICT_SLIP_MM, outcome_of
+
+    def pose(xyz, yaw_deg=0.0):
+        M = np.eye(4)
+        M[:3, :3] = pin.rpy.rpyToMatrix(0.0, 0.0, np.radians(yaw_deg))
+        M[:3, 3] = xyz
+        return M
+
+    bMo = pose([0.0, 0.0, 0.1])
+    moved_hand = pose([0.05, 0.02, 0.0], 90.0)
+    carried = _posed_record(
+        [(0, pose([0, 0, 0]), pose([0.0, 0.0, 0.09])), (0, pose([0, 0, 0]), bMo),
+         (1, moved_hand, moved_hand @ bMo)]
+    )  # fmt: skip
+    out = outcome_of(carried)
+    assert out.held and out.held_strict
+    assert out.slip_mm == pytest.approx(0.0, abs=1e-9) and out.slip_deg == pytest.approx(0.0)
+    slid = _posed_record(
+        [(0, pose([0, 0, 0]), bMo), (1, pose([0, 0, 0]), pose([0.03, 0.0, 0.1], 25.0))]
+    )
+    out = outcome_of(slid)
+    assert out.held and not out.held_strict
+    assert out.slip_mm == pytest.approx(30.0) and out.slip_deg == pytest.approx(25.0)
+    assert out.slip_mm > STRICT_SLIP_MM
+    row = record_row(slid)
+    assert row["held"] is True and row["held_strict"] is False and row["slip_mm"] == 30.0
+
+
+def test_success_stats_give_the_strict_rate_only_where_every_row_carries_it():
+    rows = [
+        {"hand": "h", "object": "o", "grasp": g, "held": True, "held_strict": g == 0}
+        for g in range(4)
+    ]
+    stats = success_stats(rows)
+    assert stats["success"] == 1.0 and stats["success_strict"] == pytest.approx(0.25)
+    del rows[1]["held_strict"]  # a row of a study run before the criterion
+    assert np.isnan(success_stats(rows)["success_strict"])

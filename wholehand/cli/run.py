@@ -14,7 +14,7 @@ import numpy as np
 
 from wholehand.errors import ConfigError
 from wholehand.loop.record import RunRecord
-from wholehand.trials.outcome import outcome_of
+from wholehand.trials.outcome import STRICT_SLIP_DEG, STRICT_SLIP_MM, outcome_of
 
 if TYPE_CHECKING:
     from wholehand.backends.table import Table
@@ -350,6 +350,9 @@ def summarise(record: RunRecord) -> dict[str, object]:
     return {
         "spec": meta.get("spec"),
         "held": outcome.held,
+        "held_strict": outcome.held_strict,
+        "slip_mm": outcome.slip_mm,
+        "slip_deg": outcome.slip_deg,
         "failure_phase": outcome.failure_phase,
         "error": outcome.error,
         "phases": record.phase_summary(),
@@ -397,8 +400,14 @@ def print_summary(summary: dict[str, Any]) -> None:
             f"{s['displacement_mm']:>8.1f} {s['rotation_deg']:>8.1f}"
         )
     t = summary["timing"]
+    strict = (
+        f"strict: {'held' if summary['held_strict'] else 'NOT held'} (the object ended "
+        f"{summary['slip_mm']:.1f} mm and {summary['slip_deg']:.1f} deg from where the hand "
+        f"held it after settling; bounds {STRICT_SLIP_MM:g} mm, {STRICT_SLIP_DEG:g} deg)"
+    )
     print(
-        f"\nresult: {'HELD through every phase' if summary['held'] else 'LOST'}\n"
+        f"\nresult: {'HELD through every phase' if summary['held'] else 'LOST'} (the paper's "
+        f"criterion)\n{strict}\n"
         f"QP time        p50 {t['qp_p50_us']:8.0f} us   p99 {t['qp_p99_us']:8.0f} us\n"
         f"estimate time  p50 {t['estimate_p50_us']:8.0f} us   p99 {t['estimate_p99_us']:8.0f} us\n"
         f"cycle time     p50 {t['cycle_p50_us']:8.0f} us   p99 {t['cycle_p99_us']:8.0f} us"

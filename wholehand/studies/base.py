@@ -107,15 +107,24 @@ def success_stats(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     controller: they are left out and counted in ``n_excluded``. Because divergence is not
     independent of the method, ``success_diverged_lost`` is the same rate with diverged trials
     counted as lost (trials that raised are still left out); ``n_diverged`` counts them.
+    ``success_strict`` and ``se_strict``: the same with the strict criterion
+    (:attr:`~wholehand.trials.outcome.RunOutcome.held_strict`), NaN where a row lacks it.
     """
     valid = [r for r in rows if not r.get("error")]  # failed or diverged runs are excluded
     diverged = [r for r in rows if str(r.get("error") or "").startswith(DIVERGED_PREFIX)]
     rates = _grasp_rates(valid, lambda r: bool(r["held"]))
     rates_lost = _grasp_rates(valid + diverged, lambda r: not r.get("error") and bool(r["held"]))
     n = int(rates.size)
+    # The strict criterion's rate (slip within bounds too), where every row carries it (rows
+    # of studies run before it did not).
+    carried = all(isinstance(r.get("held_strict"), bool) for r in valid)
+    strict = _grasp_rates(valid, lambda r: r["held_strict"]) if carried else np.zeros(0)
+    n_strict = int(strict.size)
     return {
         "success": float(rates.mean()) if n else float("nan"),
         "se": float(rates.std(ddof=1) / np.sqrt(n)) if n > 1 else 0.0,
+        "success_strict": float(strict.mean()) if n_strict else float("nan"),
+        "se_strict": float(strict.std(ddof=1) / np.sqrt(n_strict)) if n_strict > 1 else 0.0,
         "success_diverged_lost": float(rates_lost.mean()) if rates_lost.size else float("nan"),
         "n_grasps": n,
         "n_trials": len(valid),

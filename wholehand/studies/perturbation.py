@@ -132,8 +132,12 @@ class PerturbationStudy(Study):
             theta = np.array([g["theta_deg"] for g in groups])
             rate = 100 * np.array([g["success"] for g in groups])
             se = 100 * np.array([g["se"] for g in groups])
-            ax.plot(theta, rate, marker="o", label=method)
+            (line,) = ax.plot(theta, rate, marker="o", label=method)
             ax.fill_between(theta, rate - se, rate + se, alpha=0.2)
+            strict = 100 * np.array([g.get("success_strict", np.nan) for g in groups])
+            if np.isfinite(strict).any():  # the strict criterion, dashed in the same colour
+                ax.plot(theta, strict, ls="--", marker=".", color=line.get_color(),
+                        label=f"{method}, strict")  # fmt: skip
         ax.set_xlabel("rotation of the pull [deg]")
         title = f"{self.name} ({trials_label(summary)})"
         save_success_figure(fig, ax, path, title)

@@ -44,6 +44,9 @@ def record_row(record: RunRecord) -> dict[str, Any]:
     stage_raised = bool(record.meta.get("loop", {}).get("n_errors", 0))
     return {
         "held": outcome.held,
+        "held_strict": outcome.held_strict,
+        "slip_mm": round(outcome.slip_mm, 3),
+        "slip_deg": round(outcome.slip_deg, 3),
         "stages_total": outcome.phases_total,
         "stages_reached": outcome.phases_reached,
         "failure_stage": "error" if stage_raised else outcome.failure_phase,

@@ -143,3 +143,45 @@ def test_zero_efforts_and_a_centre_of_mass_far_outside_its_link_are_flagged(tmp_
     (folder / "toy.urdf").write_text(text)
     assert main(["hand", "check", str(folder)]) == 0
     assert 'effort="0"' not in capsys.readouterr().out
+
+
+def test_a_spread_motor_gets_no_closing_torque_and_hand_check_says_each_role(tmp_path, capsys):
+    """A spread joint at the index's root (about the palm normal) moves the tip sideways: the
+    closing torques derived from the model leave it out and close the flexion joints, and
+    `hand check` lists the role and the derived closing direction of each joint."""
+    from wholehand.grasps.motor_roles import FLEXION, SPREAD, motor_roles
+    from wholehand.grasps.styles import derived_close_torque
+    from wholehand.models.hand import load_hand
+
+    folder = write_toy_hand(tmp_path / "toy", spread=True)
+    hand = load_hand(folder)
+    roles = motor_roles(hand)
+    assert roles["f1_j0"].role == SPREAD and roles["f1_j0"].angle_deg == pytest.approx(90.0)
+    assert roles["f1_j1"].role == roles["f1_j2"].role == FLEXION
+    assert roles["t_j1"].finger == "thumb" and roles["t_j1"].role == FLEXION
+    derived = derived_close_torque(hand)
+    assert "f1_j0" not in derived
+    assert all(derived[j] > 0 for j in ("f1_j1", "f1_j2", "f2_j1", "f2_j2", "t_j1"))
+    assert main(["hand", "check", str(folder), "--json"]) == 0
+    joints = {j["name"]: j for j in json.loads(capsys.readouterr().out)["joints"]}
+    assert joints["f1_j0"]["role"] == "spread" and joints["f1_j0"]["derived_close_torque"] is None
+    assert joints["f1_j1"]["role"] == "flexion" and joints["f1_j1"]["derived_close_torque"] > 0
+    assert main(["hand", "check", str(folder)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.strip().startswith("f1_j0"))
+    assert "index, spread" in line and line.rstrip().endswith("no")
+
+
+def test_the_shipped_hands_derived_closing_joints_are_their_hand_tomls():
+    """On both shipped hands the model alone closes exactly the joints hand.toml closes, each
+    the same way: the flexion joints, no spread or thumb-opposition motor."""
+    import numpy as np
+
+    from wholehand.grasps.styles import derived_close_torque
+    from wholehand.models.hand import load_hand
+
+    for name in ("allegro_right", "robotis_hx5_d20_right"):
+        hand = load_hand(name)
+        shipped = hand.config.grasp_styles["power"].close_torque
+        derived = derived_close_torque(hand)
+        assert set(derived) == set(shipped), name
+        assert all(np.sign(derived[j]) == np.sign(t) for j, t in shipped.items())

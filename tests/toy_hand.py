@@ -6,7 +6,8 @@ y = +-0.025 and point along +z, their joints turning about +y (positive angles c
 toward +x); a one-link thumb sticks out along +x at z = -0.07 and closes toward +z (axis -y).
 The palm hangs from a root link through a fixed joint (``palm_xyz``, ``palm_rpy``), or through a
 revolute wrist joint about the root's x axis (``wrist=True``); ``forearm=True`` adds a large box
-below the palm on the root; ``knuckle=True`` a second palm box buried inside the first.
+below the palm on the root; ``knuckle=True`` a second palm box buried inside the first;
+``spread=True`` a spread (abduction) joint ``f1_j0`` about the palm normal at the index's root.
 """
 
 from __future__ import annotations
@@ -77,6 +78,7 @@ def toy_urdf(
     forearm=False,
     knuckle=False,
     mimic=False,
+    spread=False,
 ):
     body = _link("root", None, mass=0.1)
     if wrist:
@@ -90,7 +92,14 @@ def toy_urdf(
         body += _joint("root_to_forearm", "root", "forearm", (-0.01, 0, -0.14), kind="fixed")
         body += _link("forearm", (0.04, 0.06, 0.12), mass=0.3)
     for k, y in (("1", 0.025), ("2", -0.025)):
-        body += _joint(f"f{k}_j1", "palm", f"f{k}_1", (0.0, y, 0.0))
+        if spread and k == "1":  # a spread motor at the index's root, about the palm normal
+            body += _joint(
+                "f1_j0", "palm", "f1_0", (0.0, y, 0.0), axis="1 0 0", lower=-0.3, upper=0.3
+            )
+            body += _link("f1_0", None, mass=0.005)
+            body += _joint("f1_j1", "f1_0", "f1_1", (0.0, 0.0, 0.0))
+        else:
+            body += _joint(f"f{k}_j1", "palm", f"f{k}_1", (0.0, y, 0.0))
         body += _link(f"f{k}_1", (0.015, 0.015, 0.04), (0.0, 0.0, 0.02))
         tag = f'<mimic joint="f{k}_j1" multiplier="{MIMIC[0]}" offset="{MIMIC[1]}"/>'
         body += _joint(f"f{k}_j2", f"f{k}_1", f"f{k}_2", (0.0, 0.0, 0.04), inner=tag * mimic)

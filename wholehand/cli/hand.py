@@ -56,15 +56,21 @@ def _print_model(report: HandReport) -> None:
             f"{s['candidate_points']} surface samples ({s['sample_surface']} geometry)"
         )
     if report.joints:
-        print(f"\n  {'joint':<24} {'lower':>8} {'upper':>8}  {'torque limit':>12}  actuation")
+        print(
+            f"\n  {'joint':<24} {'lower':>8} {'upper':>8}  {'torque limit':>12}  "
+            f"{'actuation':<16} {'finger, role':<18} closes (model)"
+        )
         for j in report.joints:
             if j["follows"]:
                 how = f"follows {j['follows']} x {j['multiplier']:g} + {j['offset']:g}"
             else:
                 how = "motor" if j["actuated"] else "arm (position)" if j["arm"] else "passive"
+            role = f"{j['finger']}, {j['role']}" if j.get("role") else "-"
+            derived = j.get("derived_close_torque")
+            closes = "no" if derived is None else "+q" if derived > 0 else "-q"
             print(
                 f"  {j['name']:<24} {j['lower']:>8.3f} {j['upper']:>8.3f}  "
-                f"{j['torque_limit']:>12.3g}  {how}"
+                f"{j['torque_limit']:>12.3g}  {how:<16} {role:<18} {closes}"
             )
     if s.get("locked_joints"):
         print(f"  locked: {s['locked_joints']}")

@@ -301,6 +301,7 @@ def check_hand(name_or_path: str | Path) -> HandReport:
                 "offset": None if mimic is None else mimic.offset,
             }
         )
+    _add_roles(hand, report)
     _coupling_findings(hand, report)
     _close_torque_findings(hand, report)
     report.summary = hand.summary()
@@ -332,6 +333,22 @@ def check_hand(name_or_path: str | Path) -> HandReport:
     _inertia_findings(hand, report)
     _simulation_findings(hand, report)
     return report
+
+
+def _add_roles(hand: HandModel, report: HandReport) -> None:
+    """Each joint's role in its finger (flexion, spread, other) and the closing torque the
+    model gives it when hand.toml gives none (:func:`~wholehand.grasps.styles.
+    derived_close_torque`)."""
+    from wholehand.grasps.motor_roles import motor_roles
+    from wholehand.grasps.styles import derived_close_torque
+
+    roles = motor_roles(hand)
+    derived = derived_close_torque(hand)
+    for j in report.joints:
+        role = roles.get(j["name"])
+        j["finger"] = None if role is None else role.finger
+        j["role"] = None if role is None else role.role
+        j["derived_close_torque"] = derived.get(j["name"])
 
 
 def _inertia_findings(hand: HandModel, report: HandReport) -> None:

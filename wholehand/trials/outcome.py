@@ -57,8 +57,8 @@ class RunOutcome:
     def held_strict(self) -> bool:
         """The strict criterion, beside the paper's: :attr:`held`, and the object ended within
         :data:`STRICT_SLIP_MM` and :data:`STRICT_SLIP_DEG` of where and how the hand held it
-        once the grasp settled. The paper's hull criterion calls a bottle that slid 7 cm through the hand
-        held; this one does not."""
+        once the grasp settled. The paper's hull criterion calls a bottle that slid 7 cm
+        through the hand held; this one does not."""
         return self.held and self.slip_mm <= STRICT_SLIP_MM and self.slip_deg <= STRICT_SLIP_DEG
 
 

@@ -185,3 +185,19 @@ def test_the_shipped_hands_derived_closing_joints_are_their_hand_tomls():
         derived = derived_close_torque(hand)
         assert set(derived) == set(shipped), name
         assert all(np.sign(derived[j]) == np.sign(t) for j, t in shipped.items())
+
+
+def test_hand_check_gives_the_palm_normal_and_flags_a_hand_toml_that_contradicts_it(
+    tmp_path, capsys
+):
+    """The toy hand's fingers close toward +x of its root: hand check says so; a hand.toml
+    palm_normal of -x is used but flagged as 180 deg from it."""
+    folder = write_toy_hand(tmp_path / "toy")
+    assert main(["hand", "check", str(folder), "--json"]) == 0
+    palm = json.loads(capsys.readouterr().out)["summary"]["palm_normal"]
+    assert palm["model"] == pytest.approx([1.0, 0.0, 0.0], abs=1e-6) and palm["hand_toml"] is None
+    flipped = write_toy_hand(tmp_path / "flipped", top="palm_normal = [-1.0, 0.0, 0.0]")
+    assert main(["hand", "check", str(flipped)]) == 0
+    out = capsys.readouterr().out
+    assert "hand.toml gives [-1.0, 0.0, 0.0], 180 deg apart; hand.toml's palm_normal is used" in out
+    assert "WARNING: hand.toml's palm_normal is 180 deg from the direction the fingers close" in out

@@ -55,3 +55,23 @@ def test_closing_torques_that_move_no_fingertip_are_named(tmp_path):
     tau[hand.joint_names.index("t_j1")] = 0.1  # only the thumb closes
     with pytest.raises(ConfigError, match="do not move the tips of the fingers.*f1_2"):
         palm_frame(hand, q, tau)
+
+
+def test_hand_toml_can_set_the_palm_normal_over_the_models(tmp_path):
+    """The toy hand closes toward +x; a hand.toml that says the palm faces +x tilted toward +y
+    gets that normal, made orthogonal to the fingers' direction; a zero normal is refused."""
+    from wholehand.models.hand_config import parse_hand_config
+
+    folder = write_toy_hand(tmp_path / "toy", top="palm_normal = [1.0, 1.0, 0.0]")
+    hand = load_hand(folder)
+    q, tau, _ = style_arrays(hand, hand.config.grasp_styles["power"])
+    tau[:] = 0.0  # nothing closes: the given normal needs no closing motion
+    palm = palm_frame(hand, q, tau)
+    np.testing.assert_allclose(palm.bRp[:, 0], np.array([1.0, 1.0, 0.0]) / np.sqrt(2), atol=1e-9)
+    np.testing.assert_allclose(palm.bRp.T @ palm.bRp, np.eye(3), atol=1e-12)
+    zero = write_toy_hand(tmp_path / "zero", top="palm_normal = [0.0, 0.0, 0.0]")
+    with pytest.raises(ConfigError, match="palm_normal must be a direction, not zero"):
+        parse_hand_config(zero)
+    bad = write_toy_hand(tmp_path / "bad", top='palm_normal = "x"')
+    with pytest.raises(ConfigError, match="palm_normal must be a list of 3 finite numbers"):
+        parse_hand_config(bad)

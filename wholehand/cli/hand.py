@@ -74,6 +74,14 @@ def _print_model(report: HandReport) -> None:
             )
     if s.get("locked_joints"):
         print(f"  locked: {s['locked_joints']}")
+    palm = s.get("palm_normal")
+    if palm:
+        used = "hand.toml's palm_normal" if palm["hand_toml"] else "the model's"
+        angle = f", {palm['angle_deg']:.0f} deg apart" if "angle_deg" in palm else ""
+        print(
+            f"  palm normal (root frame): the fingers close toward {palm['model']}; hand.toml "
+            f"gives {palm['hand_toml']}{angle}; {used} is used"
+        )
     match = s.get("mujoco_vs_pinocchio")
     if match:
         print(

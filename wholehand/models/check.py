@@ -330,6 +330,7 @@ def check_hand(name_or_path: str | Path) -> HandReport:
         )
     _geometry_findings(hand, report)
     _buried_findings(hand, report)
+    _palm_findings(hand, report)
     _inertia_findings(hand, report)
     _simulation_findings(hand, report)
     return report
@@ -349,6 +350,47 @@ def _add_roles(hand: HandModel, report: HandReport) -> None:
         j["finger"] = None if role is None else role.finger
         j["role"] = None if role is None else role.role
         j["derived_close_torque"] = derived.get(j["name"])
+
+
+PALM_DISAGREES_DEG = 30.0
+"""hand.toml's palm_normal farther than this from the model's closing direction is reported."""
+
+
+def _palm_findings(hand: HandModel, report: HandReport) -> None:
+    """The palm normal the model gives (the power style's closing motion at its pre-shape) and
+    hand.toml's ``palm_normal``, in the summary; a finding where the model gives none, or where
+    the two disagree by more than :data:`PALM_DISAGREES_DEG`."""
+    from wholehand.grasps.styles import style_arrays, with_close_torque
+    from wholehand.models.palm import model_palm_normal
+
+    cfg = hand.config
+    given = None if cfg.palm_normal is None else np.asarray(cfg.palm_normal, dtype=float)
+    q, tau, _ = style_arrays(hand, with_close_torque(hand, cfg.grasp_styles["power"]))
+    try:
+        model = model_palm_normal(hand, q, tau)
+    except WholehandError as err:
+        severity = "note" if given is not None else "warning"
+        report.add(
+            severity,
+            f"the model gives no palm normal: {err}",
+            "set palm_normal in hand.toml (the palm's normal in the hand's root frame)",
+        )
+        model = None
+    entry: dict[str, Any] = {
+        "model": None if model is None else model.round(6).tolist(),
+        "hand_toml": None if given is None else (given / np.linalg.norm(given)).tolist(),
+    }
+    if model is not None and given is not None:
+        cos = float(model @ given / np.linalg.norm(given))
+        entry["angle_deg"] = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        if entry["angle_deg"] > PALM_DISAGREES_DEG:
+            report.add(
+                "warning",
+                f"hand.toml's palm_normal is {entry['angle_deg']:.0f} deg from the direction "
+                f"the fingers close toward ({entry['model']}, the hand's root frame)",
+                "check palm_normal's frame (the URDF root's) and sign",
+            )
+    report.summary["palm_normal"] = entry
 
 
 def _inertia_findings(hand: HandModel, report: HandReport) -> None:

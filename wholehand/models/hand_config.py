@@ -118,6 +118,10 @@ class HandConfig:
     its sub-tables (``[grasping.precision]``)."""
     mount_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    palm_normal: tuple[float, float, float] | None = None
+    """The palm's normal (out of the palm face, toward a grasped object) in the hand's root
+    frame, where hand.toml gives it; None: derived from how the fingers close
+    (:func:`~wholehand.models.palm.palm_frame`)."""
     locked_joints: dict[str, float] = field(default_factory=dict)
     """Joints held at a fixed value [rad or m] (e.g. a wrist): the hand model treats them as
     fixed joints at that value, and the MuJoCo scene welds them there."""
@@ -191,6 +195,7 @@ HAND_KEYS = frozenset(
         "fingertip_links",
         "excluded_links",
         "outer_surface_only",
+        "palm_normal",
         "fingers",
         "joints",
         "simulation",
@@ -328,6 +333,14 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     sim = raw.get("simulation", {})
     mount = raw.get("mount", {})
     xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
+    palm_normal = None
+    if "palm_normal" in raw:
+        palm_normal = three_numbers(raw["palm_normal"], "palm_normal", path, table="top-level")
+        if math.hypot(*palm_normal) < 1e-9:
+            raise ConfigError(
+                f"{path}: palm_normal must be a direction, not zero: the palm's normal in the "
+                "hand's root frame, e.g. palm_normal = [1.0, 0.0, 0.0]"
+            )
 
     return HandConfig(
         path=path.resolve(),
@@ -355,6 +368,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         grasp_styles=grasp_styles,
         mount_xyz=xyz,
         mount_rpy=rpy,
+        palm_normal=palm_normal,
     )
 
 
@@ -472,6 +486,14 @@ def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
     if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
         raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
     xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
+    palm_normal = None
+    if "palm_normal" in raw:
+        palm_normal = three_numbers(raw["palm_normal"], "palm_normal", path, table="top-level")
+        if math.hypot(*palm_normal) < 1e-9:
+            raise ConfigError(
+                f"{path}: palm_normal must be a direction, not zero: the palm's normal in the "
+                "hand's root frame, e.g. palm_normal = [1.0, 0.0, 0.0]"
+            )
     return dataclasses.replace(
         hand,
         path=path.resolve(),

@@ -4,8 +4,9 @@ A hand's root frame is wherever its URDF puts it (the Allegro's at the knuckles,
 at the wrist), so anything that places an object in front of the palm works in this frame
 instead:
 
-- x, the palm normal: the direction the tips of the non-thumb fingers move when their closing
-  torques are applied at the pre-shape (out of the palm face, toward the grasped object);
+- x, the palm normal: hand.toml's ``palm_normal`` where it gives one, else the direction the
+  tips of the non-thumb fingers move when their closing torques are applied at the pre-shape
+  (out of the palm face, toward the grasped object);
 - z, the finger direction: from the fingers' first links to their distal links, made normal
   to x;
 - y = z x x.
@@ -56,6 +57,54 @@ def _unit(v: FloatArray) -> FloatArray:
     return cast(FloatArray, v / np.linalg.norm(v))
 
 
+def closing_direction(
+    hand: HandModel,
+    kin: HandKinematics,
+    tips: FloatArray,
+    tip_joint: npt.NDArray[np.intp],
+    tau_close: FloatArray,
+) -> FloatArray:
+    """The summed velocity (3,) of the fingers' tips ``tips`` (F, 3) (on joints ``tip_joint``)
+    under the closing torques ``tau_close`` (n_v,), base frame, at ``kin``'s configuration.
+
+    Raises:
+        ConfigError: the torques do not move the tips.
+    """
+    if hand.coupled:  # the closing torques drive the actuators, followers move with them
+        tau_close = hand.coupling @ (hand.coupling.T @ tau_close)
+    closing = (kin.point_jacobians(tip_joint, tips) @ tau_close).sum(axis=0)
+    if np.linalg.norm(closing) < 1e-9:
+        cfg = hand.config
+        links = [hand.link_names[i] for i in np.flatnonzero(np.isin(hand.link_joint, tip_joint))]
+        raise ConfigError(
+            f"{cfg.path}: the closing torques of [grasping] do not move the tips of the fingers "
+            f"({links}); give their flexion joints a close_torque, or set palm_normal (the "
+            "palm's normal in the hand's root frame) in hand.toml"
+        )
+    return cast(FloatArray, closing)
+
+
+def model_palm_normal(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> FloatArray:
+    """The palm normal (3,) the model gives, whatever hand.toml says: the unit direction the
+    tips of the non-thumb fingers move under ``tau_close`` (n_v,) at ``q`` (n_q,), base frame.
+
+    Raises:
+        ConfigError: no finger besides the thumb, or the torques do not move the tips.
+    """
+    cfg = hand.config
+    fingers = [links for name, links in cfg.fingers.items() if name != cfg.thumb]
+    if not fingers:
+        raise ConfigError(
+            f"{cfg.path}: [fingers] names no finger besides the thumb, so the palm's direction "
+            "cannot be found; list each finger's links, base to tip"
+        )
+    kin = HandKinematics(hand)
+    kin.update(q, np.eye(4))
+    tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in fingers])
+    tip_joint = np.array([hand.link_joint[hand.link_index(links[-1])] for links in fingers])
+    return _unit(closing_direction(hand, kin, tips, tip_joint, tau_close))
+
+
 def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFrame:
     """The palm frame of ``hand`` at the pre-shape ``q`` (n_q,) [rad] with closing torques
     ``tau_close`` (n_v,) [N*m] (the grasp style's; non-closing joints 0).
@@ -75,16 +124,10 @@ def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFra
     kin.update(q, np.eye(4))
     roots = np.array([kin.frame_pose(links[0])[:3, 3] for links in fingers])
     tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in fingers])
-    tip_joint = np.array([hand.link_joint[hand.link_index(links[-1])] for links in fingers])
-    if hand.coupled:  # the closing torques drive the actuators, followers move with them
-        tau_close = hand.coupling @ (hand.coupling.T @ tau_close)
-    tip_velocity = kin.point_jacobians(tip_joint, tips) @ tau_close  # (F, 3), base frame
-    closing = tip_velocity.sum(axis=0)
-    if np.linalg.norm(closing) < 1e-9:
-        raise ConfigError(
-            f"{cfg.path}: the closing torques of [grasping] do not move the tips of the fingers "
-            f"{[links[-1] for links in fingers]}; give their flexion joints a close_torque"
-        )
+    if cfg.palm_normal is not None:  # hand.toml's word over the model's
+        closing = np.asarray(cfg.palm_normal, dtype=float)
+    else:
+        closing = model_palm_normal(hand, q, tau_close)
     normal = _unit(np.round(_unit(closing), AXIS_DECIMALS))
     along = np.round(_unit(tips.mean(axis=0) - roots.mean(axis=0)), AXIS_DECIMALS)
     along = along - (along @ normal) * normal

@@ -19,7 +19,8 @@ def three_numbers(
             return x, y, z
     raise ConfigError(
         f"{where}: {table} {key} must be a list of 3 finite numbers "
-        f"({'[m]' if key.endswith('xyz') else '[rad]'}), e.g. {key} = [0.0, 0.0, 0.0]; "
+        f"({'[m]' if key.endswith('xyz') else '[rad]' if key.endswith('rpy') else '[-]'}), "
+        f"e.g. {key} = [0.0, 0.0, 0.0]; "
         f"got {value!r}"
     )
 

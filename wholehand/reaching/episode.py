@@ -50,7 +50,7 @@ from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, pipeline_sta
 from wholehand.reaching.pregrasp import GraspPlan, hand_clearance, usable_on_table
 from wholehand.reaching.stages import PREGRASP, REGULATE, ReachPlanner, ReachStage
 from wholehand.timing import percentiles
-from wholehand.trials.trial import load_allocator
+from wholehand.trials.trial import load_allocator, tracking_filters
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -192,6 +192,10 @@ def _check_spec(spec: EpisodeSpec) -> None:
         value = getattr(spec, name)
         if not (math.isfinite(value) and value >= 0.0):
             raise ConfigError(f"EpisodeSpec: {name} must be >= 0 [object weights], got {value!r}")
+    for name, unit in (("tracker_rate", "Hz"), ("tracker_latency", "s"), ("qp_deadline", "s")):
+        value = getattr(spec, name)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ConfigError(f"EpisodeSpec: {name} must be >= 0 [{unit}] (0: none), got {value!r}")
 
 
 def _arm_start(hand: HandModel, grasp_hand: HandModel, start: GraspPlan) -> FloatArray:
@@ -241,7 +245,13 @@ def run_episode(
         meta = {"spec": asdict(spec), "kind": "reach episode", "table": asdict(scene.table)}
         recorder = Recorder(loss, meta=meta)
         watchers += [loss, recorder]
-    loop = ControlLoop(backend, hand, obj, stages, rate=spec.rate, observers=watchers)
+    filters = []
+    if spec.tracker_rate > 0.0:  # the pose a tracker gives, as on a robot
+        tracking = {"rate_hz": spec.tracker_rate, "latency_s": spec.tracker_latency}
+        filters = tracking_filters(tracking, obj.com)
+    loop = ControlLoop(
+        backend, hand, obj, stages, rate=spec.rate, filters=filters, observers=watchers
+    )
     report = loop.run(spec.duration)
     reacher_us = [1e6 * t for stage in reaching for t in stage.reacher_times]
     summary = _episode_summary(spec, scene, report, person, timer, reacher_us)
@@ -278,7 +288,8 @@ def _episode_stages(
     # object off its support (measured: the box rose 4 mm and the QP's p99 went to 10-24 ms).
     balance = spec.balance_weight and not scene.on_table
     weight = obj.mass * np.asarray(defaults.GRAVITY_VECTOR) if balance else None
-    allocator = load_allocator(spec.allocator, hand, {})
+    options = {"options": {"deadline": spec.qp_deadline}} if spec.qp_deadline > 0.0 else {}
+    allocator = load_allocator(spec.allocator, hand, options)
     compensate = spec.gravity_compensation
     regulation = ForceRegulation(
         hand, obj, estimator, allocator, weight=weight, gravity_compensation=compensate

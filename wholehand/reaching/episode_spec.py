@@ -53,3 +53,11 @@ class EpisodeSpec:
     """The hand's actuators hold their own links against gravity, while reaching and while
     regulating (``ForceRegulation(gravity_compensation=True)``); False: the paper's ``tau = J^T
     f``, the fingers' weight left to the grip."""
+    tracker_rate: float = 0.0
+    """The object pose as a tracker gives it: frames at this rate [Hz] with
+    :attr:`tracker_latency`, as on a robot (0: the exact pose every cycle, the default)."""
+    tracker_latency: float = 0.0
+    """The tracker's latency [s] (with :attr:`tracker_rate`)."""
+    qp_deadline: float = 0.0
+    """The QP allocator's deadline [s] of wall time, as the robot's controller runs it (0: none,
+    the default); a deadline makes the episode depend on the computer's speed."""

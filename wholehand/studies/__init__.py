@@ -16,7 +16,7 @@ from wholehand.studies.k_sweep import KSweepStudy
 from wholehand.studies.perturbation import PerturbationStudy
 from wholehand.studies.pose_error import PoseErrorStudy
 from wholehand.studies.rate import RateStudy
-from wholehand.studies.reach import ReachStudy, ReachTableStudy
+from wholehand.studies.reach import ReachStudy, ReachTableStudy, RobotConditionsStudy
 from wholehand.studies.runner import StudyResult, run_study
 from wholehand.studies.study_files import TIMING_COLUMNS
 from wholehand.studies.tracking import TrackingStudy
@@ -32,6 +32,7 @@ STUDIES: dict[str, type[Study]] = {
         ContactsStudy,
         ReachStudy,
         ReachTableStudy,
+        RobotConditionsStudy,
         GravityStudy,
         TrackingStudy,
         DexGraspBenchStudy,

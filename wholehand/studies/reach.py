@@ -30,6 +30,16 @@ class Method:
     """Force regulation balances the object's weight."""
     self_collision: bool = False
     """The reacher keeps the fingers apart."""
+    tracker: bool = False
+    """The object pose as the robot's tracker gives it (:data:`TRACKER`)."""
+    deadline: float = 0.0
+    """The QP allocator's deadline [s] (0: none)."""
+
+
+TRACKER = (30.0, 0.033)
+"""The robot path's tracker: frames at 30 Hz with 33 ms latency (``hw-sim``'s default)."""
+ROBOT_DEADLINE = 0.002
+"""The robot controller's QP deadline [s] (``control --qp-deadline``'s default)."""
 
 
 METHODS = {
@@ -38,6 +48,15 @@ METHODS = {
     "qp+weight+self": Method(True, self_collision=True),
 }
 """Method label -> how the episode runs."""
+
+CONDITIONS = {
+    "in-process": Method(True),
+    "tracker": Method(True, tracker=True),
+    "deadline": Method(True, deadline=ROBOT_DEADLINE),
+    "tracker+deadline": Method(True, tracker=True, deadline=ROBOT_DEADLINE),
+}
+"""The robot-conditions study's variants: the in-process episode with the robot path's
+conditions added one at a time (label -> how the episode runs)."""
 
 
 @dataclass(frozen=True)
@@ -62,7 +81,8 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
 
     s = job.spec
     # --methods puts plain allocator names in the label: those run the paper's balance
-    method = METHODS.get(job.labels["method"], METHODS["qp"])
+    method = {**METHODS, **CONDITIONS}.get(job.labels["method"], METHODS["qp"])
+    tracker_rate, tracker_latency = TRACKER if method.tracker else (0.0, 0.0)
     started = time.perf_counter()
     summary = run_episode(
         EpisodeSpec(
@@ -74,6 +94,9 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
             balance_weight=method.balance_weight,
             self_collision=method.self_collision,
             start=str(job.labels.get("start", "held")),
+            tracker_rate=tracker_rate,
+            tracker_latency=tracker_latency,
+            qp_deadline=method.deadline,
         )
     )
     warnings = summary["mujoco_warnings"]
@@ -86,6 +109,7 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
         "grasps": summary["grasps"],
         "losses": summary["losses"],
         "losses_snatch": summary["loss_causes"].count("snatch"),
+        "losses_release": summary["loss_causes"].count("gravity"),
         "loss_causes": " ".join(summary["loss_causes"]),
         "recovered": summary["recovered"],
         "perturbations": summary["perturbations"],
@@ -116,6 +140,7 @@ def _counts(group: list[dict[str, Any]]) -> dict[str, Any]:
         "perturbations": perturbations,
         "losses": losses,
         "losses_not_snatch": losses - snatch,
+        "losses_at_release": sum(int(r.get("losses_release", 0)) for r in group),
         "losses_per_perturbation": losses / perturbations if perturbations else 0.0,
         "recovered": recovered,
         "step_retries_failed": sum(int(r.get("step_retries_failed", 0)) for r in group),
@@ -219,3 +244,30 @@ class ReachTableStudy(ReachStudy):
                 "--object NAME`"
             )
         return found
+
+
+class RobotConditionsStudy(ReachStudy):
+    """Which of the robot path's conditions costs grasps: the reach episode in process (as
+    ``wholehand reach`` and ``bench pipeline``'s in-process half run it, the object's weight
+    balanced), then with the tracker the robot double has (30 Hz, 33 ms), with the robot
+    controller's 2 ms QP deadline, and with both, on the same seeds. The deadline is on wall
+    time: those rows depend on the computer, as the robot's do."""
+
+    name = "robot-conditions"
+    description = (
+        "the reach episode in process with the robot path's conditions added one at a time "
+        "(tracker 30 Hz / 33 ms, 2 ms QP deadline, both): which one costs grasps"
+    )
+
+    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
+        cfg = CONFIGS[self.check_size(size)]
+        conditions = ReachConfig(cfg.objects, cfg.episodes, tuple(CONDITIONS))
+        jobs: list[TrialJob] = []
+        for oi, obj in enumerate(conditions.objects):
+            for episode in range(conditions.episodes):
+                episode_seed = derive_seed(seed, oi, episode)
+                for method in conditions.methods:
+                    spec = TrialSpec(hand=hand, object=obj, seed=episode_seed, gravity=True)
+                    labels: dict[str, Any] = {"method": method, "episode": episode}
+                    jobs.append(TrialJob(len(jobs), spec, labels, "episode"))
+        return jobs

@@ -958,3 +958,49 @@ def test_what_a_stage_says_without_switching_is_noted_once_per_change() -> None:
     notes = [(n.t, n.status) for n in loop.report.notes]
     assert notes == [(1.0, "no_plan"), (4.0, "replan"), (4.005, "no_plan")]
     assert loop.report.as_dict()["notes"][1]["reason"].endswith("next: grasp 7")
+
+
+def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkeypatch) -> None:
+    """Each object and seed runs in process, with the tracker, with the deadline and with both;
+    the episode gets exactly that condition."""
+    from wholehand.reaching import episode as episode_module
+    from wholehand.studies import get_study
+    from wholehand.studies.reach import ROBOT_DEADLINE, TRACKER, episode_row
+
+    jobs = get_study("robot-conditions").jobs("quick", seed=3)
+    by_seed: dict[int, list[str]] = {}
+    for job in jobs:
+        by_seed.setdefault(job.spec.seed, []).append(job.labels["method"])
+    assert len(by_seed) == 5
+    assert all(
+        m == ["in-process", "tracker", "deadline", "tracker+deadline"] for m in by_seed.values()
+    )
+    seen = []
+
+    def fake_episode(spec, **kwargs):
+        seen.append(spec)
+        return {"complete": True, "grasps": 1, "time_to_grasp_s": 1.0, "losses": 1,
+                "loss_causes": ["gravity"], "recovered": 1, "perturbations": 4,
+                "duration_s": 7.0, "loop": {"cycles": 100, "n_errors": 0},
+                "mujoco_warnings": {}}  # fmt: skip
+
+    monkeypatch.setattr(episode_module, "run_episode", fake_episode)
+    rows = [episode_row(job) for job in jobs[:4]]
+    plain, tracked, hurried, both = seen
+    assert (plain.tracker_rate, plain.qp_deadline) == (0.0, 0.0)
+    assert (tracked.tracker_rate, tracked.tracker_latency) == TRACKER
+    assert hurried.qp_deadline == ROBOT_DEADLINE and hurried.tracker_rate == 0.0
+    assert (both.tracker_rate, both.qp_deadline) == (TRACKER[0], ROBOT_DEADLINE)
+    assert all(s.balance_weight for s in seen) and rows[0]["losses_release"] == 1
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("tracker_rate", -30.0), ("tracker_latency", float("nan")), ("qp_deadline", -1.0)],
+)
+def test_bad_robot_conditions_of_an_episode_are_named(field, value) -> None:
+    from wholehand.reaching.episode import _check_spec
+    from wholehand.reaching.episode_spec import EpisodeSpec
+
+    with pytest.raises(ConfigError, match=f"EpisodeSpec: {field} must be >= 0"):
+        _check_spec(EpisodeSpec(**{field: value}))

@@ -111,3 +111,18 @@ def test_the_history_gets_joint_states_at_least_a_spacing_apart(allegro, streams
     assert s.received["joint_states"] == 40
     assert stamps.size == 10 and (np.diff(stamps) > HISTORY_SPACING - 1e-6).all()  # ns stamps
     assert s.take_pending() == []
+
+
+def test_the_flood_restamps_a_joint_state_in_its_bytes(allegro):
+    """The flooding node writes the stamp into the CDR bytes; decoding them gives that stamp
+    and the same joint state, as encoding it with that stamp does."""
+    from wholehand.bench.flood_source import restamped
+
+    q = allegro.neutral() + 0.01
+    payload = msgs.encode_joint_state(12.5, list(allegro.joint_names), q)
+    again = restamped(payload, 1765000000.123456789)
+    decoded = msgs.decode_joint_state(again)
+    assert decoded.stamp == pytest.approx(1765000000.123456789, abs=1e-6)
+    np.testing.assert_array_equal(decoded.position, q)
+    assert decoded.names == tuple(allegro.joint_names)
+    assert again == msgs.encode_joint_state(decoded.stamp, list(allegro.joint_names), q)

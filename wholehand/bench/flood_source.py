@@ -31,7 +31,7 @@ from types import FrameType
 import numpy as np
 
 from wholehand.hardware import messages as msgs
-from wholehand.hardware.config import HardwareConfig
+from wholehand.hardware.config import HardwareConfig, QoS
 from wholehand.hardware.config_file import load_hardware_config
 from wholehand.hardware.node import open_transport
 from wholehand.hardware.transport import SampleMeta
@@ -96,13 +96,21 @@ def flood(config: HardwareConfig, hand: str, kind: str, rate: float, out: Path) 
     signal.signal(signal.SIGTERM, handle)
     signal.signal(signal.SIGINT, handle)
     transport = open_transport(config, "wholehand_flood")
+    # The robot's states come in on a node of their own, best effort: a reliable reader in the
+    # writing process held Cyclone's writer up (its acknowledgements need the interpreter).
+    reader = None
+    if kind == "valid":
+        best_effort = QoS(reliability="best_effort")
+        reader = open_transport(
+            replace(config, qos={**config.qos, "joint_states": best_effort}), "wholehand_flood_in"
+        )
     sent = 0
     started = time.monotonic()
     try:
         publisher = transport.publisher("joint_states", msgs.JOINT_STATE)
         newest = Newest()
-        if kind == "valid":
-            transport.subscriber("joint_states", msgs.JOINT_STATE, newest)
+        if reader is not None:
+            reader.subscriber("joint_states", msgs.JOINT_STATE, newest)
         bad = _bad_payloads(hand, config.transport == "zenoh")
         period = 1.0 / rate
         started = time.monotonic()
@@ -128,6 +136,8 @@ def flood(config: HardwareConfig, hand: str, kind: str, rate: float, out: Path) 
     finally:
         elapsed = time.monotonic() - started
         transport.close()
+        if reader is not None:
+            reader.close()
         out.write_text(json.dumps({"kind": kind, "sent": sent, "sent_hz": sent / elapsed}))
 
 

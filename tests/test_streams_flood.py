@@ -126,3 +126,13 @@ def test_the_flood_restamps_a_joint_state_in_its_bytes(allegro):
     np.testing.assert_array_equal(decoded.position, q)
     assert decoded.names == tuple(allegro.joint_names)
     assert again == msgs.encode_joint_state(decoded.stamp, list(allegro.joint_names), q)
+
+
+def test_the_wait_for_a_fresh_joint_state_decodes_the_one_kept_first(allegro, streams):
+    s, deliver, clock = streams
+    t0 = time.time() - 1.0
+    for i in range(int(DECODE_BURST) + 1):  # the burst, and one kept undecoded
+        deliver(_state(allegro, t0 + 1e-4 * i), META, 0.0)
+    assert s.received["joint_states"] == DECODE_BURST
+    assert s.wait_for_fresh_joint(fresh_age=1.0, max_wait=0.0)[0] == "fresh"
+    assert s.received["joint_states"] == DECODE_BURST + 1  # decoded before the check

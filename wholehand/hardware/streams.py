@@ -282,7 +282,9 @@ class RobotStreams:
     def wait_for_fresh_joint(self, fresh_age: float, max_wait: float) -> tuple[str, float]:
         """If the newest joint state is older than ``fresh_age`` [s], wait up to ``max_wait``
         [s] for the next; returns how (``fresh``, ``waited``, ``timed_out``; ``none`` before
-        a first joint state) and the time waited [s]."""
+        a first joint state) and the time waited [s]. A joint state kept undecoded under a
+        flood is decoded first: it is the newest."""
+        self._read_deferred()
         with self._changed:
             received = self._joint_received
             started = self.clock()

@@ -209,13 +209,19 @@ def test_grasp_hands_over_on_thumb_and_two_fingers(allegro, plans, fingers, fire
 
 
 def _pinch(allegro, plan):
-    """``plan`` as if made in the Allegro's pinch style (thumb and index)."""
+    """``plan`` as if made in the Allegro's pinch style (thumb and index), closing the joints
+    the model derives for those two fingers."""
+    from wholehand.grasps.motor_roles import motor_roles
     from wholehand.grasps.styles import derived_close_torque, style_arrays
 
     style = allegro.config.grasp_styles["pinch"]
-    closing = style_arrays(
-        allegro, dataclasses.replace(style, close_torque=derived_close_torque(allegro))
-    )[1]
+    roles = motor_roles(allegro)
+    own = {
+        j: t
+        for j, t in derived_close_torque(allegro).items()
+        if roles[j].finger in ("thumb", "index")
+    }
+    closing = style_arrays(allegro, dataclasses.replace(style, close_torque=own))[1]
     return dataclasses.replace(plan, style="pinch", fingers=("thumb", "index"), closing=closing)
 
 

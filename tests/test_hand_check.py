@@ -149,9 +149,9 @@ def test_a_spread_motor_gets_no_closing_torque_and_hand_check_says_each_role(tmp
     """A spread joint at the index's root (about the palm normal) moves the tip sideways: the
     closing torques derived from the model leave it out and close the flexion joints, and
     `hand check` lists the role and the derived closing direction of each joint."""
-    from wholehand.grasps.motor_roles import FLEXION, SPREAD, motor_roles
-    from wholehand.grasps.styles import derived_close_torque
+    from wholehand.models.grasp_styles import derived_close_torque
     from wholehand.models.hand import load_hand
+    from wholehand.models.motor_roles import FLEXION, SPREAD, motor_roles
 
     folder = write_toy_hand(tmp_path / "toy", spread=True)
     hand = load_hand(folder)
@@ -176,7 +176,7 @@ def test_the_shipped_hands_derived_closing_joints_are_their_hand_tomls():
     the same way: the flexion joints, no spread or thumb-opposition motor."""
     import numpy as np
 
-    from wholehand.grasps.styles import derived_close_torque
+    from wholehand.models.grasp_styles import derived_close_torque
     from wholehand.models.hand import load_hand
 
     for name in ("allegro_right", "robotis_hx5_d20_right"):

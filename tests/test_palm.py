@@ -7,7 +7,7 @@ import pytest
 from toy_hand import write_toy_hand
 
 from wholehand.errors import ConfigError
-from wholehand.grasps.styles import style_arrays
+from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import load_hand
 from wholehand.models.palm import palm_frame
 from wholehand.models.poses import pose_from_xyz_rpy

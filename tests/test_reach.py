@@ -208,20 +208,19 @@ def test_grasp_hands_over_on_thumb_and_two_fingers(allegro, plans, fingers, fire
     assert (out.next is not None) is fires
 
 
-def _pinch(allegro, plan):
+def _pinch(allegro, plan, own_fingers_only=False):
     """``plan`` as if made in the Allegro's pinch style (thumb and index), closing the joints
-    the model derives for those two fingers."""
-    from wholehand.grasps.motor_roles import motor_roles
-    from wholehand.grasps.styles import derived_close_torque, style_arrays
+    the model derives (as the pipeline does), or with ``own_fingers_only`` only those of its
+    two fingers."""
+    from wholehand.models.grasp_styles import derived_close_torque, style_arrays
+    from wholehand.models.motor_roles import motor_roles
 
     style = allegro.config.grasp_styles["pinch"]
-    roles = motor_roles(allegro)
-    own = {
-        j: t
-        for j, t in derived_close_torque(allegro).items()
-        if roles[j].finger in ("thumb", "index")
-    }
-    closing = style_arrays(allegro, dataclasses.replace(style, close_torque=own))[1]
+    derived = derived_close_torque(allegro)
+    if own_fingers_only:
+        roles = motor_roles(allegro)
+        derived = {j: t for j, t in derived.items() if roles[j].finger in ("thumb", "index")}
+    closing = style_arrays(allegro, dataclasses.replace(style, close_torque=derived))[1]
     return dataclasses.replace(plan, style="pinch", fingers=("thumb", "index"), closing=closing)
 
 
@@ -241,11 +240,11 @@ def test_a_pinch_hands_over_when_its_own_fingers_touch(allegro, plans, fingers, 
 def test_a_pinch_squeezes_its_own_closing_joints(allegro, plans) -> None:
     """At the grasp pose the servo aims SQUEEZE past the grasp on the closing joints of the
     plan's style: the pinch's (derived from the model), not the power style's."""
-    from wholehand.grasps.styles import style_arrays
+    from wholehand.models.grasp_styles import style_arrays
     from wholehand.reaching.stages import SQUEEZE
 
     power = plans[0]
-    pinch = _pinch(allegro, power)
+    pinch = _pinch(allegro, power, own_fingers_only=True)
     power_closing = style_arrays(allegro, allegro.config.grasp_styles["power"])[1]
     assert np.any((pinch.closing != 0) != (power_closing != 0))  # the styles close differently
     for plan, closing in ((power, power_closing), (pinch, pinch.closing)):

@@ -240,7 +240,7 @@ def test_generate_with_the_optimiser_writes_validated_grasps(tmp_path, allegro, 
 def test_closing_directions_derived_from_the_model_are_the_shipped_ones(name):
     """Each motor that moves a fingertip toward the palm closes that way: on both shipped hands
     the signs agree with their hand.toml's closing torques on every joint it names."""
-    from wholehand.grasps.styles import derived_close_torque
+    from wholehand.models.grasp_styles import derived_close_torque
     from wholehand.models.hand import load_hand
 
     hand = load_hand(name)

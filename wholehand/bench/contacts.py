@@ -9,7 +9,7 @@ import numpy.typing as npt
 import trimesh
 
 from wholehand import registry
-from wholehand.grasps.styles import style_arrays
+from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object

@@ -50,10 +50,10 @@ from wholehand.errors import ConfigError
 from wholehand.grasps.checks import GraspCheck, passes
 from wholehand.grasps.face_schedule import FaceSchedule
 from wholehand.grasps.store import LIMIT_SLACK, Grasp, joint_past_limits
-from wholehand.grasps.styles import style_arrays
 from wholehand.loop.control_loop import ControlLoop
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
+from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
 from wholehand.models.hand_folders import is_shipped_hand

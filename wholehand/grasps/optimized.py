@@ -25,9 +25,9 @@ from wholehand.grasps.generate import (
     named_style,
 )
 from wholehand.grasps.store import Grasp
-from wholehand.grasps.styles import with_close_torque
 from wholehand.grasps.synthesis import GraspSynthesizer, SynthesisResult
 from wholehand.grasps.synthesis_params import SynthesisParams
+from wholehand.models.grasp_styles import with_close_torque
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics, lowest_point
 from wholehand.models.objects import ObjectModel

@@ -45,8 +45,8 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from wholehand.errors import ConfigError
-from wholehand.grasps.styles import style_arrays
 from wholehand.grasps.synthesis_params import SynthesisParams
+from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
 from wholehand.models.kinematics import HandKinematics

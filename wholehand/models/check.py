@@ -338,10 +338,10 @@ def check_hand(name_or_path: str | Path) -> HandReport:
 
 def _add_roles(hand: HandModel, report: HandReport) -> None:
     """Each joint's role in its finger (flexion, spread, other) and the closing torque the
-    model gives it when hand.toml gives none (:func:`~wholehand.grasps.styles.
+    model gives it when hand.toml gives none (:func:`~wholehand.models.grasp_styles.
     derived_close_torque`)."""
-    from wholehand.grasps.motor_roles import motor_roles
-    from wholehand.grasps.styles import derived_close_torque
+    from wholehand.models.grasp_styles import derived_close_torque
+    from wholehand.models.motor_roles import motor_roles
 
     roles = motor_roles(hand)
     derived = derived_close_torque(hand)
@@ -360,7 +360,7 @@ def _palm_findings(hand: HandModel, report: HandReport) -> None:
     """The palm normal the model gives (the power style's closing motion at its pre-shape) and
     hand.toml's ``palm_normal``, in the summary; a finding where the model gives none, or where
     the two disagree by more than :data:`PALM_DISAGREES_DEG`."""
-    from wholehand.grasps.styles import style_arrays, with_close_torque
+    from wholehand.models.grasp_styles import style_arrays, with_close_torque
     from wholehand.models.palm import model_palm_normal
 
     cfg = hand.config

@@ -16,10 +16,10 @@ import numpy.typing as npt
 from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
-from wholehand.grasps.styles import style_arrays
 from wholehand.loop.grasp_loss import GraspLossCheck
 from wholehand.loop.regulation import ForceRegulation
 from wholehand.loop.stage import Stage
+from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
 from wholehand.reaching.base import Reacher

@@ -22,7 +22,7 @@ import numpy.typing as npt
 from wholehand import defaults
 from wholehand.backends.table import Table
 from wholehand.grasps.store import Grasp
-from wholehand.grasps.styles import style_arrays, with_close_torque
+from wholehand.models.grasp_styles import style_arrays, with_close_torque
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
 from wholehand.models.kinematics import HandKinematics, lowest_point

@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from wholehand.backends.table import HAND_MARGIN
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import Grasp
-from wholehand.grasps.styles import style_arrays
+from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
 from wholehand.reaching.episode import episode_scene, run_episode

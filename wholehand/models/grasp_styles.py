@@ -47,14 +47,14 @@ def with_close_torque(hand: HandModel, style: GraspStyle) -> GraspStyle:
 
 def derived_close_torque(hand: HandModel, step: float = 1e-4) -> dict[str, float]:
     """Closing torques for a hand whose hand.toml gives none, from its model alone: each
-    flexion motor (:func:`~wholehand.grasps.motor_roles.motor_roles`; spread and opposition
+    flexion motor (:func:`~wholehand.models.motor_roles.motor_roles`; spread and opposition
     motors, which move the tip sideways or set the thumb, get none) that moves a finger's tip
     (the centroid of its last link's surface samples) toward the palm (the centroid of the
     palm link's samples) at the mid-range configuration closes in that direction with
     :data:`DERIVED_CLOSE_TORQUE` (at most its torque limit). On the shipped hands these are
     the joints their hand.toml names, with the same signs."""
-    from wholehand.grasps.motor_roles import FLEXION, motor_roles
     from wholehand.models.kinematics import HandKinematics
+    from wholehand.models.motor_roles import FLEXION, motor_roles
 
     cfg, s, model = hand.config, hand.samples, hand.model
     kin = HandKinematics(hand)

@@ -2,7 +2,7 @@
 
 A finger's joints that curl it turn about (nearly) parallel axes, the distal one among them; a
 spread (abduction) joint turns about an axis across those, moving the tip sideways rather than
-toward the palm. Closing torques derived from the model (:func:`~wholehand.grasps.styles.
+toward the palm. Closing torques derived from the model (:func:`~wholehand.models.grasp_styles.
 derived_close_torque`) go to flexion motors only, and ``wholehand hand check`` lists each
 motor's role. A joint between the two (a thumb's opposition, say) is ``other``.
 """

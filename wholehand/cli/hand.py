@@ -7,7 +7,7 @@ import json
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from wholehand.models.check import HandReport
+    from wholehand.models.hand_report import HandReport
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

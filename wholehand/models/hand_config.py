@@ -486,14 +486,6 @@ def _assembly_config(raw: dict[str, Any], path: Path) -> HandConfig:
     if not isinstance(mount, dict) or set(mount) - {"xyz", "rpy"}:
         raise ConfigError(f"{path}: [mount] must be {{ xyz = [...], rpy = [...] }}")
     xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
-    palm_normal = None
-    if "palm_normal" in raw:
-        palm_normal = three_numbers(raw["palm_normal"], "palm_normal", path, table="top-level")
-        if math.hypot(*palm_normal) < 1e-9:
-            raise ConfigError(
-                f"{path}: palm_normal must be a direction, not zero: the palm's normal in the "
-                "hand's root frame, e.g. palm_normal = [1.0, 0.0, 0.0]"
-            )
     return dataclasses.replace(
         hand,
         path=path.resolve(),

@@ -84,6 +84,22 @@ def closing_direction(
     return cast(FloatArray, closing)
 
 
+def _non_thumb_fingers(hand: HandModel) -> list[tuple[str, ...]]:
+    """The links of every finger but the thumb (``[fingers]``), base to tip.
+
+    Raises:
+        ConfigError: there is none.
+    """
+    cfg = hand.config
+    fingers = [tuple(links) for name, links in cfg.fingers.items() if name != cfg.thumb]
+    if not fingers:
+        raise ConfigError(
+            f"{cfg.path}: [fingers] names no finger besides the thumb, so the palm's direction "
+            "cannot be found; list each finger's links, base to tip"
+        )
+    return fingers
+
+
 def model_palm_normal(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> FloatArray:
     """The palm normal (3,) the model gives, whatever hand.toml says: the unit direction the
     tips of the non-thumb fingers move under ``tau_close`` (n_v,) at ``q`` (n_q,), base frame.
@@ -91,13 +107,7 @@ def model_palm_normal(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> 
     Raises:
         ConfigError: no finger besides the thumb, or the torques do not move the tips.
     """
-    cfg = hand.config
-    fingers = [links for name, links in cfg.fingers.items() if name != cfg.thumb]
-    if not fingers:
-        raise ConfigError(
-            f"{cfg.path}: [fingers] names no finger besides the thumb, so the palm's direction "
-            "cannot be found; list each finger's links, base to tip"
-        )
+    fingers = _non_thumb_fingers(hand)
     kin = HandKinematics(hand)
     kin.update(q, np.eye(4))
     tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in fingers])
@@ -114,12 +124,7 @@ def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFra
             move those fingers' tips.
     """
     cfg = hand.config
-    fingers = [links for name, links in cfg.fingers.items() if name != cfg.thumb]
-    if not fingers:
-        raise ConfigError(
-            f"{cfg.path}: [fingers] names no finger besides the thumb, so the palm's direction "
-            "cannot be found; list each finger's links, base to tip"
-        )
+    fingers = _non_thumb_fingers(hand)
     kin = HandKinematics(hand)
     kin.update(q, np.eye(4))
     roots = np.array([kin.frame_pose(links[0])[:3, 3] for links in fingers])

@@ -221,3 +221,42 @@ def test_run_says_when_its_recording_stopped(tmp_path, monkeypatch, capsys):
     main(["run", "--theta", "0", "--record", str(path)])
     out = capsys.readouterr().out
     assert f"recording: {path} STOPPED at t = " in out and "No space left on device" in out
+
+
+def test_the_scene_carries_the_hands_meshes_so_the_file_draws_it_alone(recorded):
+    """Every contact link's mesh is a triangle list in its own frame (namespace ``hand``):
+    placed by the link's transform in the file, its triangles are the link's surface where the
+    model puts it, without the URDF's mesh files."""
+    import pinocchio as pin
+
+    from wholehand.models.hand import load_hand
+    from wholehand.models.kinematics import HandKinematics
+
+    path, record = recorded
+    _, _, msgs = _read(path)
+    hand = load_hand("allegro_right")
+    markers = {
+        m.header.frame_id: m for m in msgs["/wholehand/scene"][0][1].markers if m.ns == "hand"
+    }
+    with_faces = [n for i, n in enumerate(hand.link_names) if len(hand.link_mesh(i).faces)]
+    assert sorted(markers) == sorted(with_faces)
+    tf = {t.child_frame_id: t.transform for t in msgs["/tf"][0][1].transforms}
+    kin = HandKinematics(hand)
+    kin.update(np.asarray(record.rows["q"][0]), np.eye(4))  # the first cycle's posture
+    for link in with_faces[:3]:
+        i = hand.link_index(link)
+        marker = markers[link]
+        assert marker.type == 11 and marker.frame_locked
+        mesh = hand.link_mesh(i)
+        assert len(marker.points) == 3 * len(mesh.faces)
+        r, v = tf[link].rotation, tf[link].translation
+        R = pin.Quaternion(r.w, r.x, r.y, r.z).toRotationMatrix()
+        local = np.array([[p.x, p.y, p.z] for p in marker.points])
+        in_world = local @ R.T + np.array([v.x, v.y, v.z])
+        corners = np.asarray(mesh.vertices)[np.asarray(mesh.faces)].reshape(-1, 3)
+        joints = np.full(len(corners), int(hand.link_joint[i]), dtype=np.intp)
+        base = np.eye(4)
+        base[:3, :3] = pin.exp3(np.asarray(record.rows["r_base"][0]))
+        base[:3, 3] = record.rows["p_base"][0]
+        kin.update(np.asarray(record.rows["q"][0]), base)
+        np.testing.assert_allclose(in_world, kin.transform_points(corners, joints), atol=1e-9)

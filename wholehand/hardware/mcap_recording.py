@@ -23,8 +23,10 @@ Topics (frames: ``world``, every link of the model by its name, and ``object``):
                                                                         saw
 ``/wholehand/scene``                ``visualization_msgs/msg/           the object's mesh (its
                                     MarkerArray``                       triangles in
-                                                                        ``object``) and the
-                                                                        table (latched)
+                                                                        ``object``), each
+                                                                        contact link's in its
+                                                                        frame (``hand``) and
+                                                                        the table (latched)
 ``/wholehand/torque_command``       ``std_msgs/msg/Float64MultiArray``  the applied torques
                                                                         [N*m], model order
 ``/wholehand/joint_targets``        ``sensor_msgs/msg/JointState``      position targets (arm,
@@ -56,18 +58,15 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import math
 import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import pinocchio as pin
 
-from wholehand.errors import ConfigError
-from wholehand.hardware.messages import typestore
+from wholehand.hardware.mcap_writer import McapWriter, MessageTypes
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
@@ -104,18 +103,6 @@ TOPICS: dict[str, tuple[str, bool]] = {
 """Topic -> (message type, latched: transient-local, as a late subscriber needs it)."""
 
 
-def _qos(latched: bool) -> str:
-    """rosbag2's ``offered_qos_profiles`` of a reliable keep-last publisher (YAML)."""
-    durability = 1 if latched else 2  # transient local / volatile
-    return (
-        f"- history: 1\n  depth: 1\n  reliability: 1\n  durability: {durability}\n"
-        "  deadline:\n    sec: 2147483647\n    nsec: 4294967295\n"
-        "  lifespan:\n    sec: 2147483647\n    nsec: 4294967295\n"
-        "  liveliness: 1\n  liveliness_lease_duration:\n    sec: 2147483647\n"
-        "    nsec: 4294967295\n  avoid_ros_namespace_conventions: false\n"
-    )
-
-
 def urdf_for_viewers(hand: HandModel) -> str | None:
     """The hand's URDF with every mesh path a ``file://`` URI (viewers cannot resolve the
     model's ``package://`` or relative paths); None for an MJCF model."""
@@ -128,81 +115,6 @@ def urdf_for_viewers(hand: HandModel) -> str | None:
         if path is not None:
             mesh.set("filename", path.resolve().as_uri())
     return ET.tostring(root, encoding="unicode")
-
-
-MESSAGE_PACKAGES = (
-    "builtin_interfaces",
-    "std_msgs",
-    "geometry_msgs",
-    "sensor_msgs",
-    "tf2_msgs",
-    "visualization_msgs",
-)
-"""Where :class:`_Types` looks a short message name up, in order."""
-
-
-class _Types:
-    """The rosbags message classes by their short names (``T.Point``: the first of
-    :data:`MESSAGE_PACKAGES` that has it), and builders of the messages' common parts."""
-
-    def __init__(self) -> None:
-        self._all = typestore().types
-
-    def __getattr__(self, name: str) -> Any:
-        for package in MESSAGE_PACKAGES:
-            cls = self._all.get(f"{package}/msg/{name}")
-            if cls is not None:
-                setattr(self, name, cls)  # found once
-                return cls
-        raise AttributeError(f"no message type {name!r} in {MESSAGE_PACKAGES}")
-
-    def header(self, t: float, frame: str = "world") -> Any:
-        sec = math.floor(t)
-        nanosec = min(int(round((t - sec) * 1e9)), 999_999_999)
-        return self.Header(stamp=self.Time(sec=int(sec), nanosec=nanosec), frame_id=frame)
-
-    def transform(self, M: FloatArray) -> Any:
-        x, y, z, w = pin.Quaternion(np.asarray(M[:3, :3])).coeffs()
-        return self.Transform(
-            translation=self.Vector3(x=float(M[0, 3]), y=float(M[1, 3]), z=float(M[2, 3])),
-            rotation=self.Quaternion(x=float(x), y=float(y), z=float(z), w=float(w)),
-        )
-
-    def points(self, xyz: FloatArray) -> list[Any]:
-        return [self.Point(x=float(x), y=float(y), z=float(z)) for x, y, z in xyz]
-
-    def pose(self, M: FloatArray) -> Any:
-        tr = self.transform(M)
-        v = tr.translation
-        return self.Pose(position=self.Point(x=v.x, y=v.y, z=v.z), orientation=tr.rotation)
-
-    def marker(self, header: Any, **fields: Any) -> Any:
-        """A Marker with every field not given at its default."""
-        values: dict[str, Any] = {
-            "header": header,
-            "ns": "",
-            "id": 0,
-            "type": 0,
-            "action": 0,
-            "pose": self.pose(np.eye(4)),
-            "scale": self.Vector3(x=1.0, y=1.0, z=1.0),
-            "color": self.ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0),
-            "lifetime": self.Duration(sec=0, nanosec=0),
-            "frame_locked": False,
-            "points": [],
-            "colors": [],
-            "texture_resource": "",
-            "texture": self.CompressedImage(
-                header=header, format="", data=np.zeros(0, dtype=np.uint8)
-            ),
-            "uv_coordinates": [],
-            "text": "",
-            "mesh_resource": "",
-            "mesh_file": self.MeshFile(filename="", data=np.zeros(0, dtype=np.uint8)),
-            "mesh_use_embedded_materials": False,
-        }
-        values.update(fields)
-        return self.Marker(**values)
 
 
 def system_time_offset(backend: Any) -> float:
@@ -219,52 +131,6 @@ def force_colour(magnitude: float) -> tuple[float, float, float]:
     return s, 0.2, 1.0 - s
 
 
-class McapWriter:
-    """An MCAP file of ROS 2 messages with rosbag2's conventions (module docstring)."""
-
-    def __init__(self, path: str | Path) -> None:
-        from mcap.writer import Writer
-
-        self.path = Path(path)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        except OSError as err:
-            raise ConfigError(
-                f"cannot write the recording {self.path}: {err.strerror}; give --record a path "
-                "in a writable folder"
-            ) from err
-        self._writer = Writer(self._file)
-        self._writer.start(profile="ros2", library="wholehand")
-        self._schemas: dict[str, int] = {}
-        self._channels: dict[str, tuple[int, str]] = {}
-        self._sequence = 0
-
-    def channel(self, topic: str, msgtype: str, latched: bool = False) -> None:
-        """Declare ``topic`` of ``msgtype`` (e.g. ``std_msgs/msg/String``)."""
-        if msgtype not in self._schemas:
-            msgdef = typestore().generate_msgdef(msgtype, ros_version=2)[0]
-            self._schemas[msgtype] = self._writer.register_schema(
-                msgtype, "ros2msg", msgdef.encode()
-            )
-        cid = self._writer.register_channel(
-            topic, "cdr", self._schemas[msgtype], {"offered_qos_profiles": _qos(latched)}
-        )
-        self._channels[topic] = (cid, msgtype)
-
-    def write(self, topic: str, message: Any, t: float) -> None:
-        """Write ``message`` (a rosbags message of the topic's type) at time ``t`` [s]."""
-        cid, msgtype = self._channels[topic]
-        data = bytes(typestore().serialize_cdr(message, msgtype))
-        stamp = max(int(round(t * 1e9)), 0)
-        self._sequence += 1
-        self._writer.add_message(cid, stamp, data, stamp, self._sequence)
-
-    def close(self) -> None:
-        self._writer.finish()
-        self._file.close()
-
-
 class McapRecorder(Observer):
     """Records every cycle of a run into an MCAP file (module docstring).
 
@@ -279,7 +145,7 @@ class McapRecorder(Observer):
     def __init__(self, path: str | Path, info: dict[str, Any] | None = None) -> None:
         self.path = Path(path)
         self.info = dict(info or {})
-        self.types = _Types()
+        self.types = MessageTypes()
         self._writer: McapWriter | None = None
         self._stage = ""
         self._transitions = 0
@@ -358,7 +224,38 @@ class McapRecorder(Observer):
                     color=T.ColorRGBA(r=0.55, g=0.45, b=0.35, a=1.0),
                 )
             )
+        scene += self._hand_markers(t)
         writer.write("/wholehand/scene", T.MarkerArray(markers=scene), t)
+
+    def _hand_markers(self, t: float) -> list[Any]:
+        """Every contact link's surface mesh as a TRIANGLE_LIST marker in that link's frame
+        (namespace ``hand``): the hand draws from the file alone, where the URDF's mesh paths
+        do not resolve (another computer)."""
+        T, hand, kin = self.types, self.hand, self.kin
+        kin.update(hand.neutral(), np.eye(4))
+        out = []
+        for i, link in enumerate(hand.link_names):
+            mesh = hand.link_mesh(i)
+            if len(mesh.faces) == 0:
+                continue
+            # The mesh is in the link's parent-joint frame; the marker is in the link's.
+            corners = np.asarray(mesh.vertices, dtype=float)[np.asarray(mesh.faces)].reshape(-1, 3)
+            joints = np.full(len(corners), int(hand.link_joint[i]), dtype=np.intp)
+            world = kin.transform_points(corners, joints)
+            wMl = kin.frame_pose(link)
+            corners = (world - wMl[:3, 3]) @ wMl[:3, :3]
+            out.append(
+                T.marker(
+                    T.header(t, link),
+                    ns="hand",
+                    id=i,
+                    type=11,  # TRIANGLE_LIST
+                    color=T.ColorRGBA(r=0.6, g=0.6, b=0.65, a=1.0),
+                    frame_locked=True,
+                    points=T.points(corners),
+                )
+            )
+        return out
 
     def on_cycle(self, cycle: Cycle) -> str | None:
         """Record the cycle; a failure (a full disk, a state that cannot be written) stops the

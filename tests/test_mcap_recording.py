@@ -260,3 +260,32 @@ def test_the_scene_carries_the_hands_meshes_so_the_file_draws_it_alone(recorded)
         base[:3, 3] = record.rows["p_base"][0]
         kin.update(np.asarray(record.rows["q"][0]), base)
         np.testing.assert_allclose(in_world, kin.transform_points(corners, joints), atol=1e-9)
+
+
+def test_the_file_carries_rosbag2s_metadata_record_and_each_topics_type_hash(recorded):
+    """As rosbag2 writes an MCAP bag: a metadata record ``rosbag2`` whose
+    ``serialized_metadata`` (version 9) counts every topic's messages, and each channel's
+    ``topic_type_hash`` (RIHS01), here against rosbags' own hash of the type."""
+    from rosbags.typesys import Stores, get_typestore
+
+    path, _ = recorded
+    _, summary, msgs = _read(path)
+    with open(path, "rb") as f:
+        records = list(make_reader(f).iter_metadata())
+    (record,) = [r for r in records if r.name == "rosbag2"]
+    info = json.loads(record.metadata["serialized_metadata"])["rosbag2_bagfile_information"]
+    assert info["version"] == 9 and info["storage_identifier"] == "mcap"
+    assert info["relative_file_paths"] == [path.name]
+    counts = {
+        t["topic_metadata"]["name"]: t["message_count"] for t in info["topics_with_message_count"]
+    }
+    assert counts == {topic: len(msgs.get(topic, [])) for topic in TOPICS}
+    assert info["message_count"] == sum(counts.values())
+    stamps = [t for topic in msgs for t, _ in msgs[topic]]
+    assert info["starting_time"]["nanoseconds_since_epoch"] == min(stamps)
+    assert info["duration"]["nanoseconds"] == max(stamps) - min(stamps)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for channel in summary.channels.values():
+        msgtype = TOPICS[channel.topic][0]
+        assert channel.metadata["topic_type_hash"] == store.hash_rihs01(msgtype)
+        assert channel.metadata["topic_type_hash"].startswith("RIHS01_")

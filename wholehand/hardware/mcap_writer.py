@@ -8,6 +8,7 @@ names and builds their common parts (headers, transforms, poses, markers).
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import IO, Any
@@ -17,7 +18,7 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.messages import typestore
+from wholehand.hardware.messages import type_hash, typestore
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -31,6 +32,25 @@ MESSAGE_PACKAGES = (
     "visualization_msgs",
 )
 """Where :class:`MessageTypes` looks a short message name up, in order."""
+
+
+FOREVER = {"sec": 2147483647, "nsec": 4294967295}
+"""rosbag2's "infinite" duration of a QoS policy."""
+
+
+def _qos_profile(latched: bool) -> dict[str, Any]:
+    """rosbag2's QoS profile of a reliable keep-last publisher, as its metadata lists it."""
+    return {
+        "history": 1,
+        "depth": 1,
+        "reliability": 1,
+        "durability": 1 if latched else 2,  # transient local / volatile
+        "deadline": FOREVER,
+        "lifespan": FOREVER,
+        "liveliness": 1,
+        "liveliness_lease_duration": FOREVER,
+        "avoid_ros_namespace_conventions": False,
+    }
 
 
 def _qos(latched: bool) -> str:
@@ -128,6 +148,9 @@ class McapWriter:
         self._writer.start(profile="ros2", library="wholehand")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}
+        self._latched: dict[str, bool] = {}
+        self._counts: dict[str, int] = {}
+        self._first = self._last = -1  # log times of the first and last message [ns]
         self._sequence = 0
 
     def channel(self, topic: str, msgtype: str, latched: bool = False) -> None:
@@ -137,10 +160,11 @@ class McapWriter:
             self._schemas[msgtype] = self._writer.register_schema(
                 msgtype, "ros2msg", msgdef.encode()
             )
-        cid = self._writer.register_channel(
-            topic, "cdr", self._schemas[msgtype], {"offered_qos_profiles": _qos(latched)}
-        )
+        metadata = {"offered_qos_profiles": _qos(latched), "topic_type_hash": type_hash(msgtype)}
+        cid = self._writer.register_channel(topic, "cdr", self._schemas[msgtype], metadata)
         self._channels[topic] = (cid, msgtype)
+        self._latched[topic] = latched
+        self._counts[topic] = 0
 
     def write(self, topic: str, message: Any, t: float) -> None:
         """Write ``message`` (a rosbags message of the topic's type) at time ``t`` [s]."""
@@ -149,7 +173,54 @@ class McapWriter:
         stamp = max(int(round(t * 1e9)), 0)
         self._sequence += 1
         self._writer.add_message(cid, stamp, data, stamp, self._sequence)
+        self._counts[topic] += 1
+        self._first = stamp if self._first < 0 else min(self._first, stamp)
+        self._last = max(self._last, stamp)
 
     def close(self) -> None:
+        """Write rosbag2's metadata record (what ``ros2 bag info`` reads) and the summary."""
+        self._writer.add_metadata("rosbag2", {"serialized_metadata": self.bag_metadata()})
         self._writer.finish()
         self._file.close()
+
+    def bag_metadata(self) -> str:
+        """rosbag2's bag metadata (version 9, as ``metadata.yaml`` holds it) of what was written,
+        in JSON, which is YAML too."""
+        start = max(self._first, 0)
+        duration = max(self._last - self._first, 0)
+        total = sum(self._counts.values())
+        topics = [
+            {
+                "topic_metadata": {
+                    "name": topic,
+                    "type": msgtype,
+                    "serialization_format": "cdr",
+                    "offered_qos_profiles": [_qos_profile(self._latched[topic])],
+                    "type_description_hash": type_hash(msgtype),
+                },
+                "message_count": self._counts[topic],
+            }
+            for topic, (_, msgtype) in self._channels.items()
+        ]
+        info = {
+            "version": 9,
+            "storage_identifier": "mcap",
+            "relative_file_paths": [self.path.name],
+            "duration": {"nanoseconds": duration},
+            "starting_time": {"nanoseconds_since_epoch": start},
+            "message_count": total,
+            "topics_with_message_count": topics,
+            "compression_format": "",
+            "compression_mode": "",
+            "files": [
+                {
+                    "path": self.path.name,
+                    "starting_time": {"nanoseconds_since_epoch": start},
+                    "duration": {"nanoseconds": duration},
+                    "message_count": total,
+                }
+            ],
+            "custom_data": None,
+            "ros_distro": "jazzy",
+        }
+        return json.dumps({"rosbag2_bagfile_information": info}, indent=1)

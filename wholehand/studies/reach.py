@@ -163,13 +163,18 @@ class ReachStudy(Study):
         """The objects of a study of this size for ``hand``."""
         return cfg.objects
 
+    def methods(self, cfg: ReachConfig) -> tuple[str, ...]:
+        """The method labels each object and seed runs under (:data:`METHODS`' or the
+        size's)."""
+        return cfg.methods
+
     def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
         cfg = CONFIGS[self.check_size(size)]
         jobs: list[TrialJob] = []
         for oi, obj in enumerate(self.objects(cfg, hand)):
             for episode in range(cfg.episodes):
                 episode_seed = derive_seed(seed, oi, episode)
-                for method in cfg.methods:
+                for method in self.methods(cfg):
                     spec = TrialSpec(hand=hand, object=obj, seed=episode_seed, gravity=True)
                     labels: dict[str, Any] = {"method": method, "episode": episode}
                     if self.start != "held":
@@ -259,15 +264,6 @@ class RobotConditionsStudy(ReachStudy):
         "(tracker 30 Hz / 33 ms, 2 ms QP deadline, both): which one costs grasps"
     )
 
-    def jobs(self, size: str, seed: int, hand: str = DEFAULT_HAND) -> list[TrialJob]:
-        cfg = CONFIGS[self.check_size(size)]
-        conditions = ReachConfig(cfg.objects, cfg.episodes, tuple(CONDITIONS))
-        jobs: list[TrialJob] = []
-        for oi, obj in enumerate(conditions.objects):
-            for episode in range(conditions.episodes):
-                episode_seed = derive_seed(seed, oi, episode)
-                for method in conditions.methods:
-                    spec = TrialSpec(hand=hand, object=obj, seed=episode_seed, gravity=True)
-                    labels: dict[str, Any] = {"method": method, "episode": episode}
-                    jobs.append(TrialJob(len(jobs), spec, labels, "episode"))
-        return jobs
+    def methods(self, cfg: ReachConfig) -> tuple[str, ...]:
+        """Every condition of :data:`CONDITIONS`, whatever the size."""
+        return tuple(CONDITIONS)

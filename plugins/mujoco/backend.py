@@ -20,6 +20,7 @@ import pinocchio as pin
 from wholehand.backends.base import (
     Backend,
     HasGroundTruth,
+    PushesBodies,
     PushesObject,
     ReportsWarnings,
     Resettable,
@@ -134,7 +135,9 @@ def _pd_terms(command: Command) -> _PDTerms:
     return all_dofs, qidx, q_out, np.concatenate(dq_ref), np.concatenate(kp), np.concatenate(kd)
 
 
-class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWarnings):
+class MujocoBackend(
+    Backend, PushesObject, PushesBodies, HasGroundTruth, Resettable, ReportsWarnings
+):
     """MuJoCo simulation of a mounted hand and a free object (torques and joint targets).
 
     Args:
@@ -203,6 +206,10 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
             self._wrist_q = int(self.model.joint(WRIST_JOINT).qposadr[0])
         self._targets: _PDTerms | None = None
         self._spring: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        self._pushes: list[tuple[int, float, float, FloatArray]] = []
+        """Scheduled pushes: MuJoCo body, first and end step time [s], force [N]."""
+        self._pushed_links: npt.NDArray[np.intp] = np.zeros(0, dtype=np.intp)
+        """Hand bodies with a scheduled push (their xfrc_applied is the pushes' alone)."""
         wMo = self.object_pose_in_model() if wMo_init is None else wMo_init
         self.reset(hand.neutral() if q_init is None else q_init, wMo)
 
@@ -281,10 +288,14 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         for _ in range(n):
             if self._spring is not None:
                 self.data.xfrc_applied[body] = self._wrench + self._spring_wrench()
+            if self._pushes:
+                self._push_at(self.time)
             if self._targets is not None:
                 self._set_ctrl(self._pd_torque())
             self._guard.step(self.data)
         self.data.xfrc_applied[body] = self._wrench
+        if self._pushes:
+            self.data.xfrc_applied[self._pushed_links] = 0.0
         if n > 0:
             if self.data.time < t_before:  # MuJoCo diverged and reset its data, time included
                 self._time_offset += t_before + n * self.model.opt.timestep - self.data.time
@@ -340,6 +351,50 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         torque = k_rot * pin.log3(R_target @ R.T) - d_rot * omega
         return np.concatenate((force, torque))
 
+    def schedule_push(
+        self, force_world: FloatArray, start: float, duration: float, link: str | None = None
+    ) -> None:
+        """Push the object (``link`` None) or the hand link ``link`` with ``force_world`` (3,)
+        [N], world axes, at its centre of mass, in the MuJoCo steps that start in ``[start,
+        start + duration)`` [s] (half a step of tolerance at each end: ``round(duration /
+        timestep)`` steps). Added to ``xfrc_applied`` beside the object's wrench and spring."""
+        force = _vector(force_world, 3, "force_world")
+        if not (math.isfinite(start) and math.isfinite(duration) and duration > 0.0):
+            raise ConfigError(
+                f"MujocoBackend.schedule_push: start must be finite and duration > 0 [s], got "
+                f"start={start!r}, duration={duration!r}"
+            )
+        if link is None:
+            body = self.scene.object_body
+        else:
+            if link not in self.hand.link_names:
+                raise ConfigError(
+                    f"MujocoBackend.schedule_push: {link!r} is not a link of hand "
+                    f"{self.hand.name!r}; use one of {self.hand.link_names}"
+                )
+            body = int(self.scene.link_body[self.hand.link_index(link)])
+            self._pushed_links = np.union1d(self._pushed_links, [body]).astype(np.intp)
+        half = 0.5 * self.timestep
+        self._pushes.append((body, start - half, start + duration - half, force))
+
+    def clear_pushes(self) -> None:
+        """Remove every scheduled push (and the force of one under way)."""
+        self._pushes = []
+        self.data.xfrc_applied[self._pushed_links] = 0.0
+        self._pushed_links = np.zeros(0, dtype=np.intp)
+
+    def _push_at(self, t: float) -> None:
+        """Set the scheduled pushes of the step starting at ``t`` [s] on top of the other
+        external forces (the object's wrench and spring are set just before)."""
+        xfrc = self.data.xfrc_applied
+        object_body = self.scene.object_body
+        if self._spring is None:
+            xfrc[object_body] = self._wrench
+        xfrc[self._pushed_links] = 0.0
+        for body, begin, end, force in self._pushes:
+            if begin <= t < end:
+                xfrc[body, :3] += force
+
     # --- extras -------------------------------------------------------------------------------
     @property
     def timestep(self) -> float:
@@ -359,6 +414,8 @@ class MujocoBackend(Backend, PushesObject, HasGroundTruth, Resettable, ReportsWa
         self._targets = None
         self._wrench = np.zeros(6)
         self._spring = None
+        self._pushes = []
+        self._pushed_links = np.zeros(0, dtype=np.intp)
         d.qpos[s.qpos_index] = q
         d.qpos[s.object_qpos : s.object_qpos + 3] = wMo[:3, 3]
         d.qpos[s.object_qpos + 3 : s.object_qpos + 7] = mujoco_quat(wMo)

@@ -7,6 +7,8 @@ capability, declared by deriving from one of the classes below, and checked with
 
 - :class:`PushesObject`: external wrench and a spring-damper on the object (the perturbation
   protocol needs it; a real robot cannot).
+- :class:`PushesBodies`: a force on the object or on one hand link over a window of simulated
+  time, evaluated at every simulation step (the fast-disturbance protocol).
 - :class:`HasGroundTruth`: the simulator's own contacts and forces (baselines that allocate once
   from ground truth, studies, tests). The controller never sees them.
 - :class:`Resettable`: restart at a given joint configuration and object pose.
@@ -86,6 +88,25 @@ class PushesObject(abc.ABC):
             stiffness: translational [N/m] (on the centre of mass) and rotational [N*m/rad].
             damping: translational [N*s/m] and rotational [N*m*s/rad].
         """
+
+
+class PushesBodies(abc.ABC):
+    """Capability: push the object or a hand link with a force over a window of simulated time,
+    evaluated at every simulation step, so that a push shorter than a control period lands
+    whole and at its own time (simulation)."""
+
+    @abc.abstractmethod
+    def schedule_push(
+        self, force_world: FloatArray, start: float, duration: float, link: str | None = None
+    ) -> None:
+        """Push with ``force_world`` (3,) [N], world axes, at the centre of mass of the object
+        (``link`` None) or of the hand link named ``link``, during the simulation steps that
+        start in ``[start, start + duration)`` of the backend's clock [s]. Pushes add up to
+        any other external wrench; :meth:`clear_pushes` or a reset removes them."""
+
+    @abc.abstractmethod
+    def clear_pushes(self) -> None:
+        """Remove every scheduled push."""
 
 
 class HasGroundTruth(abc.ABC):

@@ -116,6 +116,12 @@ class ControlLoop:
         observers: observers, called in order each cycle.
         initial_command: applied until a stage produces one (default: zero torques).
         gate: a plausibility gate applied to each observation before the filters (None: none).
+        compute_delay: simulated real time, on a simulation clock only: a cycle's command takes
+            effect once the cycle's compute time as measured on this computer has passed on
+            the backend's clock (rounded to its nearest step), the previous command acting
+            meanwhile; a cycle that computes past its period pushes the next one back (its
+            slot is missed, as on a robot). False: the command takes effect at the cycle's
+            start, as if computing took no time.
     """
 
     def __init__(
@@ -130,7 +136,13 @@ class ControlLoop:
         observers: Sequence[Observer] = (),
         initial_command: Command | None = None,
         gate: ObservationGate | None = None,
+        compute_delay: bool = False,
     ) -> None:
+        if compute_delay and backend.clock != "sim":
+            raise ConfigError(
+                "ControlLoop: compute_delay simulates the time a cycle computes and needs a "
+                "simulation clock; on a wall clock that time passes by itself"
+            )
         if not (isinstance(rate, int | float) and 0.0 < rate < np.inf):
             raise ConfigError(f"ControlLoop: rate must be a finite number > 0 [Hz], got {rate!r}")
         self.stages: dict[str, Stage] = (
@@ -149,6 +161,9 @@ class ControlLoop:
         self.filters = list(filters)
         self.observers = list(observers)
         self.gate = gate
+        self.compute_delay = compute_delay
+        self._pending: tuple[Command, float] | None = None
+        """With compute_delay: the command of the latest cycle and its compute time [s]."""
         self.command = initial_command or Command.torques(np.zeros(hand.nv))
         """The last feasible command (the one memory of it)."""
         self.report = LoopReport()
@@ -234,9 +249,13 @@ class ControlLoop:
         ``t``); the wall clock's next ``deadline`` (unchanged on a simulation clock)."""
         backend, report = self.backend, self.report
         if backend.clock == "sim":
+            start = t + 0.5 * self.dt
+            if self._pending is not None:
+                start = max(start, self._apply_when_computed(*self._pending))
+                self._pending = None
             # The schedule t0 + n dt keeps the rate on average when a period is not a whole
             # number of simulation steps; every cycle advances at least one step.
-            self._advance(max(t0 + n_run * self.dt, t + 0.5 * self.dt))
+            self._advance(max(t0 + n_run * self.dt, start))
             return deadline
         deadline += self.dt
         overran = self._advance(deadline)
@@ -247,6 +266,19 @@ class ControlLoop:
                 report.max_overrun = max(report.max_overrun, late)
             deadline = backend.time
         return deadline
+
+    def _apply_when_computed(self, command: Command, compute: float) -> float:
+        """Let the previous command act for ``compute`` [s] of simulated time (to the nearest
+        whole step of the backend, when it says its step), then apply ``command``; the
+        backend time at which it took effect."""
+        backend = self.backend
+        step = getattr(backend, "timestep", None)
+        if isinstance(step, float) and step > 0.0:
+            compute = round(compute / step) * step
+        if compute > 0.0:
+            backend.step(compute)
+        backend.apply(command)
+        return backend.time
 
     def _switch(self, name: str, t: float, reason: str = "") -> None:
         if name not in self.stages:  # a bug of the stage: reported, and the stage stays
@@ -286,7 +318,10 @@ class ControlLoop:
             self._hold_start = None
         else:
             self._held(t, output.status)
-        self.backend.apply(self.command)
+        if self.compute_delay:
+            self._pending = (self.command, time.perf_counter() - started)
+        else:
+            self.backend.apply(self.command)
         self._count(output.status, fault, t)
         return Cycle(
             index,

@@ -10,6 +10,7 @@ from wholehand.studies.base import SIZES, Study, TrialJob
 from wholehand.studies.consistency import ConsistencyStudy
 from wholehand.studies.contacts import ContactsStudy
 from wholehand.studies.dexgraspbench import DexGraspBenchStudy
+from wholehand.studies.disturbance import DisturbanceStudy
 from wholehand.studies.grasp_synthesis import GraspSynthesisStudy
 from wholehand.studies.gravity import GravityStudy
 from wholehand.studies.k_sweep import KSweepStudy
@@ -28,6 +29,7 @@ STUDIES: dict[str, type[Study]] = {
         PoseErrorStudy,
         KSweepStudy,
         RateStudy,
+        DisturbanceStudy,
         ConsistencyStudy,
         ContactsStudy,
         ReachStudy,

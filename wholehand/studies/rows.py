@@ -67,5 +67,7 @@ def record_row(record: RunRecord) -> dict[str, Any]:
         "wall_time_s": float(record.meta.get("wall_time_s", float("nan"))),
         "qp_p50_us": float(np.percentile(a["qp_time"], 50) * 1e6) if n else float("nan"),
         "cycle_mean_us": float(cycle.mean() * 1e6) if n else float("nan"),
+        "cycle_p99_us": float(np.percentile(cycle, 99) * 1e6) if n else float("nan"),
+        "cycle_max_us": float(cycle.max() * 1e6) if n else float("nan"),
         "control_rate_hz": float(1.0 / cycle.mean()) if n and cycle.mean() > 0 else float("nan"),
     }

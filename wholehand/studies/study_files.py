@@ -20,7 +20,14 @@ from wholehand.trials.trial import TrialSpec
 
 log = logging.getLogger(__name__)
 
-TIMING_COLUMNS = ("wall_time_s", "qp_p50_us", "cycle_mean_us", "control_rate_hz")
+TIMING_COLUMNS = (
+    "wall_time_s",
+    "qp_p50_us",
+    "cycle_mean_us",
+    "cycle_p99_us",
+    "cycle_max_us",
+    "control_rate_hz",
+)
 """Wall-clock columns of ``trials.csv``: they vary from run to run (not part of determinism)."""
 
 TEXT_COLUMNS = ("kind", "failure_stage", "error") + tuple(

@@ -184,11 +184,40 @@ def object_pusher(loop: ControlLoop, protocol: str) -> PushesObject:
     return backend
 
 
-class ProtocolDriver(Observer):
-    """Plays a :class:`PerturbationProtocol` over the loop's backend.
+class PhasedDriver(Observer):
+    """An observer that plays phases on the backend's clock from the start of the run.
 
     The phase of a cycle at backend time ``t`` (from the start of the run) is the one whose
     interval holds ``t + dt / 2``, so float rounding of the clock never shifts a boundary.
+    Subclasses call :meth:`start_clock` in ``on_start``.
+    """
+
+    def __init__(self, phases: list[Phase]) -> None:
+        self.phases = phases
+        self._ends = np.cumsum([p.duration for p in phases])
+        self.phase_index = 0
+        """Phase of the latest cycle."""
+        self._t0 = 0.0
+        self._half_dt = 0.0
+
+    @property
+    def phase_names(self) -> list[str]:
+        return [p.name for p in self.phases]
+
+    def start_clock(self, loop: ControlLoop) -> None:
+        """Phase 0 starts now, at the backend's current time."""
+        self._t0 = loop.backend.time
+        self._half_dt = 0.5 * loop.dt
+
+    def phase_at(self, t: float) -> int:
+        """Index of the phase at backend time ``t`` (the last one past the end)."""
+        i = int(np.searchsorted(self._ends, t - self._t0 + self._half_dt, side="right"))
+        return min(i, len(self.phases) - 1)
+
+
+class ProtocolDriver(PhasedDriver):
+    """Plays a :class:`PerturbationProtocol` over the loop's backend.
+
     After each cycle's command the driver sets that phase's load force, or the rotational
     spring during the pull; both are removed when the run ends. Run the loop for
     :attr:`PerturbationProtocol.duration`.
@@ -199,33 +228,19 @@ class ProtocolDriver(Observer):
     """
 
     def __init__(self, protocol: PerturbationProtocol, obj: ObjectModel) -> None:
+        super().__init__(protocol.phases())
         self.protocol, self.obj = protocol, obj
-        self.phases = protocol.phases()
-        self._ends = np.cumsum([p.duration for p in self.phases])
-        self.phase_index = 0
-        """Phase of the latest cycle."""
         self._backend: PushesObject | None = None
-        self._t0 = 0.0
         self._spring: str | None = None
         """The spring set on the object: ``"rotate"`` (the pull), ``"hold"`` or None."""
         self._wMo0 = np.eye(4)
 
-    @property
-    def phase_names(self) -> list[str]:
-        return [p.name for p in self.phases]
-
     def on_start(self, loop: ControlLoop) -> None:
         self._backend = object_pusher(loop, "perturbation")
-        self._t0 = loop.backend.time
-        self._half_dt = 0.5 * loop.dt
+        self.start_clock(loop)
         wMo = loop.backend.observe().wMo
         assert wMo is not None
         self._wMo0 = wMo.copy()
-
-    def phase_at(self, t: float) -> int:
-        """Index of the phase at backend time ``t`` (the last one past the end)."""
-        i = int(np.searchsorted(self._ends, t - self._t0 + self._half_dt, side="right"))
-        return min(i, len(self.phases) - 1)
 
     def on_cycle(self, cycle: Cycle) -> str | None:
         backend = self._backend

@@ -31,6 +31,7 @@ from wholehand.loop.regulation import EstimateAt, ForceRegulation
 from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
+from wholehand.trials.disturbance import DisturbanceDriver, DisturbanceProtocol
 from wholehand.trials.protocol import PerturbationProtocol, ProtocolDriver
 
 FloatArray = npt.NDArray[np.float64]
@@ -91,6 +92,14 @@ class TrialSpec:
     the latency is given), ``noise_mm``,
     ``noise_deg`` and ``noise_seed`` (:class:`~wholehand.loop.filters.PoseNoise`), ``dropouts``
     (``[[start_s, duration_s], ...]``). Empty: the exact pose every cycle."""
+    disturbance: str = ""
+    """A fast disturbance (:data:`~wholehand.trials.disturbance.DISTURBANCES`) instead of the
+    perturbation protocol: settle, the push, the recovery (``theta_deg`` then has no effect;
+    ``seed`` picks the push's direction or finger). Empty: the perturbation protocol."""
+    compute_delay: bool = False
+    """Simulated real time: each command takes effect after the cycle's compute time measured
+    on this computer (:class:`~wholehand.loop.control_loop.ControlLoop`'s ``compute_delay``), so
+    the trial depends on the computer's speed. False: computing takes no simulated time."""
     estimate_at: str = "object_stamp"
     """Where contacts are estimated: ``"object_stamp"`` (at q(stamp_object), the paper's) or
     ``"current"`` (:class:`~wholehand.loop.regulation.ForceRegulation`)."""
@@ -191,7 +200,9 @@ class TrialSetup:
     n_contacts_gt_init: int | None
     """Simulator contacts at the initial state (None when the backend has no ground truth)."""
 
-    def loop(self, observers: Sequence[Observer], rate: float = CONTROL_RATE) -> ControlLoop:
+    def loop(
+        self, observers: Sequence[Observer], rate: float = CONTROL_RATE, compute_delay: bool = False
+    ) -> ControlLoop:
         """A control loop of the trial's stage, filters and the given observers."""
         return ControlLoop(
             self.backend,
@@ -201,6 +212,7 @@ class TrialSetup:
             rate=rate,
             filters=self.filters,
             observers=observers,
+            compute_delay=compute_delay,
         )
 
 
@@ -316,21 +328,28 @@ def run_trial(
     (e.g. a live viewer).
     """
     started = time.perf_counter()
-    protocol = PerturbationProtocol(
-        theta_deg=spec.theta_deg, seed=spec.seed, **spec.protocol_params
-    )
+    protocol: PerturbationProtocol | DisturbanceProtocol
+    meta: dict[str, Any] = {"control_rate": spec.control_rate, "seed": spec.seed}
+    if spec.disturbance:
+        protocol = DisturbanceProtocol(spec.disturbance, spec.seed, **spec.protocol_params)
+        meta["disturbance"] = spec.disturbance
+    else:
+        protocol = PerturbationProtocol(spec.theta_deg, spec.seed, **spec.protocol_params)
+        meta["theta_deg"] = protocol.theta_deg
     protocol.check_rate(spec.control_rate)
     trial = set_up_trial(spec, hand, obj, grasp)
-    driver = ProtocolDriver(protocol, trial.obj)
+    driver: ProtocolDriver | DisturbanceDriver
+    if isinstance(protocol, DisturbanceProtocol):
+        driver = DisturbanceDriver(protocol, trial.hand, trial.obj)
+    else:
+        driver = ProtocolDriver(protocol, trial.obj)
     loss = GraspLossMonitor(trial.hand, trial.obj, stop_on_loss)
-    recorder = Recorder(
-        loss,
-        driver,
-        {"control_rate": spec.control_rate, "theta_deg": protocol.theta_deg, "seed": protocol.seed},
-    )
-    loop = trial.loop([driver, loss, recorder, *observers], spec.control_rate)
+    recorder = Recorder(loss, driver, meta)
+    loop = trial.loop([driver, loss, recorder, *observers], spec.control_rate, spec.compute_delay)
     report = loop.run(protocol.duration)
     record = recorder.record
+    if isinstance(driver, DisturbanceDriver):
+        record.meta["disturbance_event"] = driver.event
     backend = trial.backend
     record.meta.update(
         {

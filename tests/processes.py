@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import selectors
 import subprocess
 import sys
 import time
@@ -22,13 +23,28 @@ def wholehand(*args: str) -> subprocess.Popen[str]:
 
 
 def wait_for_line(proc: subprocess.Popen[str], text: str, timeout: float = 120.0) -> None:
-    """Read the process's stderr until a line holds ``text``; fail the test if it never does."""
-    deadline = time.monotonic() + timeout
+    """Read the process's stderr until a line holds ``text``; fail the test if none does within
+    ``timeout`` [s]. Reads byte by byte once the pipe has one (no read blocks: a child that
+    prints nothing cannot hang the test), and nothing past the line, which ``communicate()``
+    still gets."""
     assert proc.stderr is not None
-    while time.monotonic() < deadline:
-        line = proc.stderr.readline()
-        if text in line:
-            return
-        if not line and proc.poll() is not None:
-            break
-    pytest.fail(f"no {text!r} from {proc.args[3] if len(proc.args) > 3 else 'the process'}")
+    deadline = time.monotonic() + timeout
+    fd = proc.stderr.fileno()
+    line, seen = bytearray(), []
+    with selectors.DefaultSelector() as selector:
+        selector.register(fd, selectors.EVENT_READ)
+        while (left := deadline - time.monotonic()) > 0.0:
+            if not selector.select(left):
+                break  # the deadline passed with nothing to read
+            byte = os.read(fd, 1)
+            if not byte:  # end of the pipe: the process exited
+                break
+            if byte != b"\n":
+                line += byte
+                continue
+            seen.append(line.decode(errors="replace"))
+            if text in seen[-1]:
+                return
+            line.clear()
+    name = proc.args[3] if isinstance(proc.args, list) and len(proc.args) > 3 else "the process"
+    pytest.fail(f"no {text!r} from {name} within {timeout:g} s; its last lines: {seen[-5:]}")

@@ -156,7 +156,11 @@ class Ros2Backend(Backend):
             [hand.model.joints[hand.model.getJointId(n)].idx_q for n in hand.joint_names]
         )
         self.history = JointHistory(hand.nq, history)
-        self.guard = TorqueGuard(np.where(hand.actuated_dofs, hand.tau_max, 0.0), config.safety)
+        self.guard = TorqueGuard(
+            np.where(hand.actuated_dofs, hand.tau_max, 0.0),
+            config.safety,
+            period=1.0 / config.control_rate,
+        )
         self.hand_position_messages = 0
         """Position commands sent to the hand (``[topics] hand_position_command``)."""
         self._hand_in_position = False

@@ -335,6 +335,27 @@ def test_torques_are_clamped_and_rate_limited_from_the_measured_effort():
     np.testing.assert_array_equal(tau, [0.2, -0.5])
 
 
+def test_a_late_command_steps_no_more_than_one_period_allows():
+    """Commands at 100 Hz, one 40 ms late, then one on time 2 ms after it. The late one steps
+    one period's worth, not four: a robot that measures the rate on its own clock sees no
+    faster change as long as commands reach it at least a period apart, and by the commands'
+    stamps (the guard's times) no pair changes faster than the limit."""
+    guard = TorqueGuard([0.5], LIMITS, period=0.01)
+    guard.start_from(np.zeros(1), 0.0)
+    times = [0.0, 0.01, 0.05, 0.052, 0.06]
+    sent = [guard.filter(np.array([0.5]), t, 0.0, 0.0)[0][0] for t in times]
+    np.testing.assert_allclose(sent, [0.0, 0.02, 0.04, 0.044, 0.06])  # late: one period's step
+    rates = np.diff(sent) / np.diff(times)
+    assert rates.max() <= LIMITS.torque_rate * (1 + 1e-9)
+    # Without the period's bound the late command would step 0.08 and then 0.004 in 2 ms.
+    unbounded = TorqueGuard([0.5], LIMITS)
+    unbounded.start_from(np.zeros(1), 0.0)
+    late = [unbounded.filter(np.array([0.5]), t, 0.0, 0.0)[0][0] for t in times[:3]]
+    np.testing.assert_allclose(late, [0.0, 0.02, 0.1])
+    with pytest.raises(ConfigError, match="period must be > 0"):
+        TorqueGuard([0.5], LIMITS, period=0.0)
+
+
 def test_watchdog_ramps_the_last_torque_to_zero():
     guard = TorqueGuard([0.2], LIMITS)
     guard.start_from(np.array([0.2]), 0.0)
@@ -783,3 +804,34 @@ def test_the_benchmarks_link_controller_and_double_on_either_transport(transport
     else:
         assert link[0] == "--listen" and link[-1] == "--connect"
         assert config.connect == (link[1],) and config.listen == ("tcp/127.0.0.1:9999",)
+
+
+def test_the_double_reports_the_effort_its_motors_applied():
+    """Under a position command the joint state's effort is the servo's torque, which the
+    controller's first torque command starts from, not the command's zero torque."""
+    from types import SimpleNamespace as Ns
+
+    from wholehand.hardware.double import RobotPublisher
+
+    class Put:
+        def __init__(self) -> None:
+            self.payloads: list[bytes] = []
+
+        def put(self, payload: bytes, stamp_ns: int | None = None) -> int:
+            self.payloads.append(payload)
+            return 0
+
+    joints, poses = Put(), Put()
+    servo = np.array([0.12, -0.03])
+    publisher = RobotPublisher(joints, poses, ["a", "b"], "world", "image")
+    backend = Ns(time=0.0, applied_torques=lambda: servo)
+    publisher.on_start(Ns(backend=backend))
+    truth = Ns(stamp_q=0.5, q=np.zeros(2), dq=np.zeros(2))
+    cycle = Ns(truth=truth, context=Ns(obs=Ns(wMo=None)), command=Ns(tau=np.zeros(2)))
+    publisher.on_cycle(cycle)
+    np.testing.assert_array_equal(msgs.decode_joint_state(joints.payloads[0]).effort, servo)
+    # A backend that cannot say: the command's torque, as before.
+    publisher.on_start(Ns(backend=Ns(time=0.0)))
+    cycle.command.tau = np.array([0.2, 0.1])
+    publisher.on_cycle(cycle)
+    np.testing.assert_array_equal(msgs.decode_joint_state(joints.payloads[1]).effort, [0.2, 0.1])

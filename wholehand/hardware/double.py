@@ -181,7 +181,11 @@ class RemoteTorque(Stage):
 
 
 class RobotPublisher(Observer):
-    """Publishes each cycle's joint state and each new tracked pose, stamped in wall time."""
+    """Publishes each cycle's joint state and each new tracked pose, stamped in wall time.
+
+    The joint state's effort is the torque the motors applied in the last simulation step
+    (the backend's ``applied_torques()``, where it has one): under a position command that is
+    the servo's torque, not the zero torque command, as a drive reports it."""
 
     def __init__(
         self,
@@ -196,16 +200,17 @@ class RobotPublisher(Observer):
         self.wall0 = 0.0
         self._published = np.nan
         self.pose_messages = 0
+        self._applied: Callable[[], FloatArray] | None = None
 
     def on_start(self, loop: ControlLoop) -> None:
         self.wall0 = time.time() - loop.backend.time
+        self._applied = getattr(loop.backend, "applied_torques", None)
 
     def on_cycle(self, cycle: Cycle) -> str | None:
         truth, seen = cycle.truth, cycle.context.obs
+        effort = cycle.command.tau if self._applied is None else self._applied()
         self.joints.put(
-            encode_joint_state(
-                self.wall0 + truth.stamp_q, self.names, truth.q, truth.dq, cycle.command.tau
-            )
+            encode_joint_state(self.wall0 + truth.stamp_q, self.names, truth.q, truth.dq, effort)
         )
         if seen.wMo is not None and seen.stamp_object != self._published:
             self._published = seen.stamp_object

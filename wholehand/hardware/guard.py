@@ -16,8 +16,12 @@ in this order (the names are the statuses it counts):
    is held and ramped linearly to zero over ``pose_ramp``; a fresh pose ends the ramp.
 3. ``clamped``: every joint's torque within its limit ``tau_max``.
 4. ``rate_limited``: no joint's torque changes faster than ``torque_rate`` [N*m/s] from the
-   torque sent last. The first command starts from the measured effort (the torque the drives
-   apply now), so a controller restarted mid-grasp resumes without a jump.
+   torque sent last, and no command changes it by more than one control period's worth
+   (``torque_rate / control_rate``): a cycle that comes late does not send a larger step, so
+   a robot that receives two commands close together (a late one, then one on time) never
+   sees the torque change faster than the limit. The first command starts from the measured
+   effort (the torque the drives apply now), so a controller restarted mid-grasp resumes
+   without a jump.
 
 ``watchdog``: when the loop sends nothing for ``watchdog`` seconds (a cycle stuck past its
 deadline), :meth:`TorqueGuard.watchdog` gives the ramp from the last torque to zero, which the
@@ -48,9 +52,16 @@ class TorqueGuard:
     Args:
         tau_max: (n_v,) torque limit per joint [N*m] (0: the joint gets no torque).
         limits: the rules' times and rates.
+        period: the control period [s]: the longest time one command's rate-limited step
+            covers (None: no such bound, the step grows with the time since the last command).
     """
 
-    def __init__(self, tau_max: npt.ArrayLike, limits: SafetyLimits) -> None:
+    def __init__(
+        self, tau_max: npt.ArrayLike, limits: SafetyLimits, period: float | None = None
+    ) -> None:
+        if period is not None and not (np.isfinite(period) and period > 0.0):
+            raise ConfigError(f"TorqueGuard: period must be > 0 [s], got {period!r}")
+        self.max_step_time = np.inf if period is None else float(period)
         self.tau_max = np.asarray(tau_max, dtype=float).copy()
         if self.tau_max.ndim != 1 or (self.tau_max < 0.0).any():
             raise ConfigError("TorqueGuard: tau_max must be (n_v,) values >= 0 [N*m]")
@@ -95,7 +106,7 @@ class TorqueGuard:
         if not (out == tau).all():
             status = "clamped"
         assert self.last is not None
-        step = limits.torque_rate * max(now - self.t_last, 0.0)
+        step = limits.torque_rate * min(max(now - self.t_last, 0.0), self.max_step_time)
         limited = np.minimum(np.maximum(out, self.last - step), self.last + step)
         if not (limited == out).all():
             status = "rate_limited"

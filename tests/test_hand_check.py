@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from toy_hand import write_toy_hand
 
@@ -201,3 +202,25 @@ def test_hand_check_gives_the_palm_normal_and_flags_a_hand_toml_that_contradicts
     out = capsys.readouterr().out
     assert "hand.toml gives [-1.0, 0.0, 0.0], 180 deg apart; hand.toml's palm_normal is used" in out
     assert "WARNING: hand.toml's palm_normal is 180 deg from the direction the fingers close" in out
+
+
+def test_the_picture_draws_each_closing_direction_and_both_palm_normals(tmp_path):
+    """On the toy hand (fingers close toward +x of its root) with a contradicting palm_normal
+    of -x: the closing fingertips' arrows point toward +x, the model's palm normal is +x and
+    hand.toml's -x, both from the palm's middle; the PNG is written."""
+    from wholehand.models.hand import load_hand
+    from wholehand.models.hand_picture import closing_arrows, plot_samples
+
+    hand = load_hand(write_toy_hand(tmp_path / "flipped", top="palm_normal = [-1.0, 0.0, 0.0]"))
+    arrows = closing_arrows(hand)
+    tips = [a for a in arrows if a.label != "palm normal"]
+    assert sorted(a.label for a in tips) == ["f1_2", "f2_2"]  # the thumb gets no close_torque
+    assert all(a.direction[0] > 0.5 for a in tips)
+    for a in arrows:
+        assert np.linalg.norm(a.direction) == pytest.approx(1.0)
+    palms = {a.source: a for a in arrows if a.label == "palm normal"}
+    assert palms["model"].direction == pytest.approx([1.0, 0.0, 0.0], abs=1e-6)
+    assert palms["hand.toml"].direction == pytest.approx([-1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(palms["model"].origin, palms["hand.toml"].origin)
+    png = plot_samples(hand, tmp_path / "toy.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

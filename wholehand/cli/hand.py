@@ -26,7 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from wholehand.models.check import check_hand, plot_samples
+    from wholehand.models.check import check_hand
+    from wholehand.models.hand_picture import plot_samples
 
     report = check_hand(args.hand)
     if args.png and report.hand is not None:

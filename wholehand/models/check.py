@@ -349,36 +349,3 @@ def _simulation_findings(hand: HandModel, report: HandReport) -> None:
             "check the URDF's root link (a root named 'world' is handled; other names "
             "MuJoCo reserves are not), its fixed joints and their origins",
         )
-
-
-def plot_samples(hand: HandModel, path: str | Path) -> Path:
-    """PNG of the hand's surface samples at its neutral configuration, coloured by link, seen
-    from three sides (base frame axes)."""
-    from matplotlib import colormaps
-    from matplotlib.figure import Figure
-
-    from wholehand.models.kinematics import HandKinematics
-
-    kin = HandKinematics(hand)
-    kin.update(hand.neutral(), np.eye(4))
-    p = kin.transform_points(hand.samples.p_joint, hand.samples.joint)
-    colours = colormaps["tab20"](hand.samples.link % 20)
-    fig = Figure(figsize=(15, 5.5), dpi=100)
-    views = (("x", "y", 0, 1), ("x", "z", 0, 2), ("y", "z", 1, 2))
-    axes = fig.subplots(1, 3)
-    for ax, (a, b, i, j) in zip(axes, views, strict=True):
-        ax.scatter(p[:, i], p[:, j], s=3, c=colours, linewidths=0)
-        ax.set_xlabel(f"{a} [m]")
-        ax.set_ylabel(f"{b} [m]")
-        ax.set_aspect("equal")
-    for k, name in enumerate(hand.link_names):
-        axes[2].scatter([], [], s=20, color=colormaps["tab20"](k % 20), label=name)
-    axes[2].legend(fontsize=6, loc="center left", bbox_to_anchor=(1.02, 0.5), ncols=2)
-    fig.suptitle(
-        f"{hand.name}: {len(hand.samples)} surface samples on {len(hand.link_names)} links "
-        "(neutral configuration, base frame)"
-    )
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out)
-    return out

@@ -11,7 +11,13 @@ from wholehand.backends.observation import JointHistory, Observation, check_obse
 from wholehand.contacts.base import ContactSet
 from wholehand.errors import ConfigError, ObservationError
 from wholehand.loop.control_loop import Observer
-from wholehand.loop.filters import ConstantPoseError, PoseDropout, PoseNoise, PoseTracker
+from wholehand.loop.filters import (
+    ConstantPoseError,
+    PoseDropout,
+    PoseNoise,
+    PosePredictor,
+    PoseTracker,
+)
 from wholehand.models.kinematics import HandKinematics
 from wholehand.trials.trial import TrialSpec, run_trial, tracking_filters
 
@@ -125,6 +131,46 @@ def test_tracker_delivers_each_frame_late_and_keeps_it_until_the_next():
         PoseTracker(rate_hz=0.0)
     with pytest.raises(ConfigError, match="latency_s"):
         PoseTracker(latency_s=-1.0)
+
+
+def _screw(t: float) -> np.ndarray:
+    """The pose at time t [s] of an object moving at 0.3 m/s and turning at 2 rad/s (constant
+    velocities of its origin and about it, world axes)."""
+    M = np.eye(4)
+    M[:3, :3] = pin.exp3(np.array([0.0, 2.0 * t, 0.0])) @ pin.rpy.rpyToMatrix(0.1, 0.2, 0.3)
+    M[:3, 3] = np.array([0.3, -0.1, 0.05]) * t / np.linalg.norm([0.3, -0.1, 0.05]) * 0.3
+    return M
+
+
+def test_prediction_cancels_a_trackers_latency_at_constant_velocity():
+    """Behind a 30 Hz, 33 ms tracker, the predicted pose of an object at constant velocity is
+    its true pose at the joint state's time, stamped with that time, once two frames came;
+    past the horizon it stops; across a gap there is no velocity."""
+    tracker, predictor = PoseTracker(30.0, 0.033), PosePredictor(horizon_s=0.1)
+    history = JointHistory(2)
+    seen_stamps = []
+    for k in range(60):
+        t = k * 0.005
+        seen = predictor.apply(tracker.apply(_obs(wMo=_screw(t), t=t, history=history), t), t)
+        seen_stamps.append(seen.stamp_object)
+        if t >= 0.035 + 0.033 + 1e-9:  # the second frame has arrived
+            np.testing.assert_allclose(seen.wMo, _screw(t), atol=1e-12)
+            assert seen.stamp_object == pytest.approx(t)
+    assert seen_stamps[0] == 0.0  # one frame: as the tracker gives it
+    # The horizon: a pose 0.25 s old is carried 0.1 s, no further.
+    slow = PosePredictor(horizon_s=0.1)
+    for stamp in (0.0, 0.02):
+        slow.apply(_obs(wMo=_screw(stamp), t=stamp), stamp)
+    late = slow.apply(_obs(wMo=_screw(0.02), t=0.27, stamp_object=0.02), 0.27)
+    assert late.stamp_object == pytest.approx(0.12)
+    np.testing.assert_allclose(late.wMo, _screw(0.12), atol=1e-12)
+    # Two poses 0.5 s apart (a dropout) give no velocity: the newest pose as it is.
+    gap = PosePredictor(max_gap_s=0.2)
+    for stamp in (0.0, 0.5):
+        out = gap.apply(_obs(wMo=_screw(stamp), t=stamp + 0.03, stamp_object=stamp), 0.6)
+    np.testing.assert_array_equal(out.wMo, _screw(0.5))
+    with pytest.raises(ConfigError, match="horizon_s must be finite and > 0"):
+        PosePredictor(horizon_s=0.0)
 
 
 def test_dropout_holds_the_last_pose_with_its_stamp():

@@ -966,20 +966,20 @@ def test_what_a_stage_says_without_switching_is_noted_once_per_change() -> None:
 
 
 def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkeypatch) -> None:
-    """Each object and seed runs in process, with the tracker, with the deadline and with both;
-    the episode gets exactly that condition."""
+    """Each object and seed runs in process, with the tracker, with the deadline, with both and
+    with the tracker and the controller's pose prediction; the episode gets exactly that
+    condition."""
     from wholehand.reaching import episode as episode_module
     from wholehand.studies import get_study
-    from wholehand.studies.reach import ROBOT_DEADLINE, TRACKER, episode_row
+    from wholehand.studies.reach import PREDICTION, ROBOT_DEADLINE, TRACKER, episode_row
 
     jobs = get_study("robot-conditions").jobs("quick", seed=3)
     by_seed: dict[int, list[str]] = {}
     for job in jobs:
         by_seed.setdefault(job.spec.seed, []).append(job.labels["method"])
     assert len(by_seed) == 5
-    assert all(
-        m == ["in-process", "tracker", "deadline", "tracker+deadline"] for m in by_seed.values()
-    )
+    conditions = ["in-process", "tracker", "deadline", "tracker+deadline", "tracker+predict"]
+    assert all(m == conditions for m in by_seed.values())
     seen = []
 
     def fake_episode(spec, **kwargs):
@@ -990,9 +990,12 @@ def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkey
                 "mujoco_warnings": {}}  # fmt: skip
 
     monkeypatch.setattr(episode_module, "run_episode", fake_episode)
-    rows = [episode_row(job) for job in jobs[:4]]
-    plain, tracked, hurried, both = seen
+    rows = [episode_row(job) for job in jobs[:5]]
+    plain, tracked, hurried, both, predicted = seen
     assert (plain.tracker_rate, plain.qp_deadline) == (0.0, 0.0)
+    assert all(s.tracker_predict == 0.0 for s in seen[:4])
+    assert (predicted.tracker_rate, predicted.tracker_latency) == TRACKER
+    assert predicted.tracker_predict == PREDICTION and predicted.qp_deadline == 0.0
     assert (tracked.tracker_rate, tracked.tracker_latency) == TRACKER
     assert hurried.qp_deadline == ROBOT_DEADLINE and hurried.tracker_rate == 0.0
     assert (both.tracker_rate, both.qp_deadline) == (TRACKER[0], ROBOT_DEADLINE)
@@ -1001,7 +1004,12 @@ def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkey
 
 @pytest.mark.parametrize(
     ("field", "value"),
-    [("tracker_rate", -30.0), ("tracker_latency", float("nan")), ("qp_deadline", -1.0)],
+    [
+        ("tracker_rate", -30.0),
+        ("tracker_latency", float("nan")),
+        ("tracker_predict", -0.1),
+        ("qp_deadline", -1.0),
+    ],
 )
 def test_bad_robot_conditions_of_an_episode_are_named(field, value) -> None:
     from wholehand.reaching.episode import _check_spec

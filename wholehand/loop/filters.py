@@ -144,6 +144,59 @@ class PoseTracker(ObservationFilter):
         return obs.with_object(wMo, stamp)
 
 
+class PosePredictor(ObservationFilter):
+    """Carries the newest pose forward to the joint state's time at the object's velocity
+    between the last two poses (constant linear velocity of the object frame's origin and
+    constant angular velocity): what compensates a tracker's latency while the object moves.
+
+    The prediction reaches at most ``horizon_s`` past the newest pose's stamp, and the seen
+    pose is stamped with the time it was carried to. Two poses further apart than
+    ``max_gap_s`` (a dropout) give no velocity: the newest pose stays as it is until the next.
+
+    Args:
+        horizon_s: longest prediction [s], > 0.
+        max_gap_s: longest time between two poses whose difference is a velocity [s], > 0.
+    """
+
+    def __init__(self, horizon_s: float = 0.1, max_gap_s: float = 0.2) -> None:
+        for name, value in (("horizon_s", horizon_s), ("max_gap_s", max_gap_s)):
+            if not (isinstance(value, int | float) and 0.0 < value < np.inf):
+                raise ConfigError(
+                    f"PosePredictor: {name} must be finite and > 0 [s], got {value!r}"
+                )
+        self.horizon, self.max_gap = float(horizon_s), float(max_gap_s)
+        self._frames: deque[tuple[float, FloatArray]] = deque(maxlen=2)
+        self._velocity: tuple[FloatArray, FloatArray] | None = None
+
+    def apply(self, obs: Observation, t: float) -> Observation:
+        if obs.wMo is None:
+            return obs
+        stamp = obs.stamp_object
+        if not self._frames or stamp > self._frames[-1][0]:
+            self._frames.append((stamp, obs.wMo.copy()))
+            self._velocity = self._frame_velocity()
+        if self._velocity is None or stamp != self._frames[-1][0]:
+            return obs
+        ahead = min(max(obs.stamp_q - stamp, 0.0), self.horizon)
+        v, omega = self._velocity
+        seen = np.eye(4)
+        seen[:3, :3] = pin.exp3(omega * ahead) @ obs.wMo[:3, :3]
+        seen[:3, 3] = obs.wMo[:3, 3] + v * ahead
+        return obs.with_object(seen, stamp + ahead)
+
+    def _frame_velocity(self) -> tuple[FloatArray, FloatArray] | None:
+        """Linear velocity of the origin [m/s] and angular velocity [rad/s], world axes,
+        between the last two poses; None with fewer, or across a gap."""
+        if len(self._frames) < 2:
+            return None
+        (t0, M0), (t1, M1) = self._frames
+        dt = t1 - t0
+        if not 0.0 < dt <= self.max_gap:
+            return None
+        omega = pin.log3(M1[:3, :3] @ M0[:3, :3].T) / dt
+        return (M1[:3, 3] - M0[:3, 3]) / dt, omega
+
+
 class PoseDropout(ObservationFilter):
     """No new pose during given intervals of backend time: the last one before stays, with its
     stamp (so its age shows); a dropout from the start gives no pose at all.

@@ -192,7 +192,8 @@ def _check_spec(spec: EpisodeSpec) -> None:
         value = getattr(spec, name)
         if not (math.isfinite(value) and value >= 0.0):
             raise ConfigError(f"EpisodeSpec: {name} must be >= 0 [object weights], got {value!r}")
-    for name, unit in (("tracker_rate", "Hz"), ("tracker_latency", "s"), ("qp_deadline", "s")):
+    timed = (("tracker_rate", "Hz"), ("tracker_latency", "s"), ("tracker_predict", "s"))
+    for name, unit in (*timed, ("qp_deadline", "s")):
         value = getattr(spec, name)
         if not (math.isfinite(value) and value >= 0.0):
             raise ConfigError(f"EpisodeSpec: {name} must be >= 0 [{unit}] (0: none), got {value!r}")
@@ -247,7 +248,11 @@ def run_episode(
         watchers += [loss, recorder]
     filters = []
     if spec.tracker_rate > 0.0:  # the pose a tracker gives, as on a robot
-        tracking = {"rate_hz": spec.tracker_rate, "latency_s": spec.tracker_latency}
+        tracking = {
+            "rate_hz": spec.tracker_rate,
+            "latency_s": spec.tracker_latency,
+            "predict_s": spec.tracker_predict,
+        }
         filters = tracking_filters(tracking, obj.com)
     loop = ControlLoop(
         backend, hand, obj, stages, rate=spec.rate, filters=filters, observers=watchers

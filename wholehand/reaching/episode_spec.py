@@ -58,6 +58,10 @@ class EpisodeSpec:
     :attr:`tracker_latency`, as on a robot (0: the exact pose every cycle, the default)."""
     tracker_latency: float = 0.0
     """The tracker's latency [s] (with :attr:`tracker_rate`)."""
+    tracker_predict: float = 0.0
+    """With a tracker: the controller carries each pose forward to the joint state's time at
+    the object's velocity, at most this long [s]
+    (:class:`~wholehand.loop.filters.PosePredictor`; 0: no prediction, the default)."""
     qp_deadline: float = 0.0
     """The QP allocator's deadline [s] of wall time, as the robot's controller runs it (0: none,
     the default); a deadline makes the episode depend on the computer's speed."""

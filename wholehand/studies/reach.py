@@ -34,10 +34,14 @@ class Method:
     """The object pose as the robot's tracker gives it (:data:`TRACKER`)."""
     deadline: float = 0.0
     """The QP allocator's deadline [s] (0: none)."""
+    predict: float = 0.0
+    """With the tracker: the controller's pose prediction, at most this long [s] (0: none)."""
 
 
 TRACKER = (30.0, 0.033)
 """The robot path's tracker: frames at 30 Hz with 33 ms latency (``hw-sim``'s default)."""
+PREDICTION = 0.1
+"""The controller's longest pose prediction [s] (``PosePredictor``'s default)."""
 ROBOT_DEADLINE = 0.002
 """The robot controller's QP deadline [s] (``control --qp-deadline``'s default)."""
 
@@ -54,6 +58,7 @@ CONDITIONS = {
     "tracker": Method(True, tracker=True),
     "deadline": Method(True, deadline=ROBOT_DEADLINE),
     "tracker+deadline": Method(True, tracker=True, deadline=ROBOT_DEADLINE),
+    "tracker+predict": Method(True, tracker=True, predict=PREDICTION),
 }
 """The robot-conditions study's variants: the in-process episode with the robot path's
 conditions added one at a time (label -> how the episode runs)."""
@@ -96,6 +101,7 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
             start=str(job.labels.get("start", "held")),
             tracker_rate=tracker_rate,
             tracker_latency=tracker_latency,
+            tracker_predict=method.predict,
             qp_deadline=method.deadline,
         )
     )

@@ -23,6 +23,7 @@ from wholehand.loop.filters import (
     ObservationFilter,
     PoseDropout,
     PoseNoise,
+    PosePredictor,
     PoseTracker,
 )
 from wholehand.loop.grasp_loss import GraspLossMonitor
@@ -41,7 +42,15 @@ CONTROL_RATE = 200.0
 
 POSE_ERROR_KEYS = ("rot_deg", "trans_mm", "seed")
 """Keys of :attr:`TrialSpec.pose_error`."""
-TRACKING_KEYS = ("rate_hz", "latency_s", "noise_mm", "noise_deg", "noise_seed", "dropouts")
+TRACKING_KEYS = (
+    "rate_hz",
+    "latency_s",
+    "noise_mm",
+    "noise_deg",
+    "noise_seed",
+    "dropouts",
+    "predict_s",
+)
 """Keys of :attr:`TrialSpec.tracking`."""
 
 
@@ -91,7 +100,9 @@ class TrialSpec:
     ``latency_s`` (a tracker, :class:`~wholehand.loop.filters.PoseTracker`; rate 200 Hz if only
     the latency is given), ``noise_mm``,
     ``noise_deg`` and ``noise_seed`` (:class:`~wholehand.loop.filters.PoseNoise`), ``dropouts``
-    (``[[start_s, duration_s], ...]``). Empty: the exact pose every cycle."""
+    (``[[start_s, duration_s], ...]``), ``predict_s`` (the controller carries each pose
+    forward at the object's velocity, at most this long:
+    :class:`~wholehand.loop.filters.PosePredictor`). Empty: the exact pose every cycle."""
     disturbance: str = ""
     """A fast disturbance (:data:`~wholehand.trials.disturbance.DISTURBANCES`) instead of the
     perturbation protocol: settle, the push, the recovery (``theta_deg`` then has no effect;
@@ -152,7 +163,8 @@ def tracking_filters(
     tracking: dict[str, Any], centre: npt.ArrayLike = (0.0, 0.0, 0.0)
 ) -> list[ObservationFilter]:
     """The observation filters of :attr:`TrialSpec.tracking`, in the order a tracker applies
-    them: frames at a rate with a latency, noise on each frame, dropouts.
+    them: frames at a rate with a latency, noise on each frame, dropouts; then the
+    controller's prediction.
 
     Raises:
         ConfigError: an unknown key or a bad value (named).
@@ -183,6 +195,8 @@ def tracking_filters(
                 f"{tracking['dropouts']!r}"
             ) from None
         out.append(PoseDropout(intervals))
+    if tracking.get("predict_s"):
+        out.append(PosePredictor(number("predict_s", 0.0)))
     return out
 
 

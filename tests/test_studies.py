@@ -935,3 +935,14 @@ def test_success_stats_give_the_strict_rate_only_where_every_row_carries_it():
     assert stats["success"] == 1.0 and stats["success_strict"] == pytest.approx(0.25)
     del rows[1]["held_strict"]  # a row of a study run before the criterion
     assert np.isnan(success_stats(rows)["success_strict"])
+
+
+def test_a_study_records_the_code_it_started_with(tmp_path, monkeypatch):
+    """A commit made while a study runs is not the code its trials ran: the summary keeps the
+    provenance taken before the first trial."""
+    calls = iter(["first", "second", "third"])
+    monkeypatch.setattr(runner, "provenance", lambda: {"commit": next(calls)})
+    result = run_study(
+        get_study("perturbation"), "tiny", tmp_path, executor="serial", progress=False
+    )
+    assert json.loads(result.summary_path.read_text())["provenance"] == {"commit": "first"}

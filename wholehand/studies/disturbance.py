@@ -180,10 +180,8 @@ class DisturbanceStudy(Study):
             ax.set_xscale("log")
             ax.set_title(kind, fontsize=9)
             ax.set_xlabel("rate [Hz]")
-        for ax in axes[1:]:
-            ax.set_ylabel("")
-        title = f"{self.name} ({trials_label(summary)})"
-        save_success_figure(fig, axes[0], path, title)
+        fig.suptitle(f"{self.name} ({trials_label(summary)})", fontsize=10)
+        save_success_figure(fig, axes[0], path)
 
 
 def _enough(groups: list[dict[str, Any]]) -> float:

@@ -335,6 +335,7 @@ def run_study(
         # Keep every row of trials.csv in the journal: trials.csv is rewritten below.
         _journal_csv_rows(journal, from_csv, from_journal)
         started = time.perf_counter()
+        made_by = provenance()  # the code the trials run: a commit made meanwhile is not theirs
         with _terminate_as_interrupt() as termination:
             interrupted = _run_journaled(
                 study.name, todo, journal, done, termination, executor, workers, progress, address
@@ -342,7 +343,7 @@ def run_study(
             rows = [done[i] for i in sorted(done)]
             summary = {
                 "study": study.name,
-                "provenance": provenance(),
+                "provenance": made_by,
                 "description": study.description,
                 "hand": str(hand),
                 "grasps": "stored" if grasps is None else str(grasps),

@@ -289,3 +289,43 @@ def test_the_file_carries_rosbag2s_metadata_record_and_each_topics_type_hash(rec
         msgtype = TOPICS[channel.topic][0]
         assert channel.metadata["topic_type_hash"] == store.hash_rihs01(msgtype)
         assert channel.metadata["topic_type_hash"].startswith("RIHS01_")
+
+
+def test_a_humble_recording_carries_humbles_definitions_and_no_type_hashes(recorded, tmp_path):
+    """With ``distro = "humble"`` the schemas are Humble's (its Marker lacks Jazzy's
+    ARROW_STRIP constant; its fields, textures included, are the same) and nothing claims a
+    type hash (Humble has none): the file decodes with its own schemas, message for message
+    as the Jazzy one."""
+    from rosbags.typesys import Stores, get_typestore
+
+    path = tmp_path / "humble.mcap"
+    spec = TrialSpec(theta_deg=60.0, protocol_params=QUICK)
+    run_trial(spec, observers=[McapRecorder(path, {"spec": {"hand": spec.hand}}, "humble")])
+    _, summary, msgs = _read(path)
+    _, jazzy_summary, jazzy_msgs = _read(recorded[0])
+    humble = get_typestore(Stores.ROS2_HUMBLE)
+    for channel in summary.channels.values():
+        schema = summary.schemas[channel.schema_id]
+        assert schema.data.decode() == humble.generate_msgdef(schema.name, ros_version=2)[0]
+        assert "topic_type_hash" not in channel.metadata
+
+    def marker_array(s):
+        names = {x.name: x for x in s.schemas.values()}
+        return names["visualization_msgs/msg/MarkerArray"].data.decode()
+
+    assert "ARROW_STRIP" not in marker_array(summary) and "ARROW_STRIP" in marker_array(
+        jazzy_summary
+    )
+    assert "texture_resource" in marker_array(summary)
+    scene = msgs["/wholehand/scene"][0][1].markers
+    jazzy_scene = jazzy_msgs["/wholehand/scene"][0][1].markers
+    assert [(m.ns, m.id, len(m.points)) for m in scene] == [
+        (m.ns, m.id, len(m.points)) for m in jazzy_scene
+    ]
+    assert len(msgs["/joint_states"]) == len(jazzy_msgs["/joint_states"])
+    with open(path, "rb") as f:
+        (record,) = [r for r in make_reader(f).iter_metadata() if r.name == "rosbag2"]
+    info = json.loads(record.metadata["serialized_metadata"])["rosbag2_bagfile_information"]
+    assert info["ros_distro"] == "humble"
+    topics = info["topics_with_message_count"]
+    assert all("type_description_hash" not in t["topic_metadata"] for t in topics)

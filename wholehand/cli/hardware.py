@@ -28,8 +28,8 @@ def _config(args: argparse.Namespace) -> Any:
     return config
 
 
-def _recorders(args: argparse.Namespace, spec: object) -> list[Any]:
-    """The MCAP recorder of ``--record``, if given."""
+def _recorders(args: argparse.Namespace, spec: object, distro: str) -> list[Any]:
+    """The MCAP recorder of ``--record``, if given, in ``distro``'s message layout."""
     if not args.record:
         return []
     from dataclasses import asdict, is_dataclass
@@ -39,7 +39,7 @@ def _recorders(args: argparse.Namespace, spec: object) -> list[Any]:
     info: dict[str, Any] = {"hand": args.hand, "object": args.object}
     if is_dataclass(spec) and not isinstance(spec, type):
         info["spec"] = asdict(spec)
-    return [McapRecorder(args.record, info)]
+    return [McapRecorder(args.record, info, distro)]
 
 
 def _write(result: dict[str, Any], path: str | None, summary: dict[str, Any]) -> None:
@@ -64,15 +64,16 @@ def _cmd_control(args: argparse.Namespace) -> int:
         qp_deadline_after_miss=args.qp_deadline_after_miss,
         reacher=args.reacher,
     )
+    config = _config(args)
     result = run_controller(
         load_hand(args.hand),
         load_object(args.object),
-        _config(args),
+        config,
         spec,
         args.duration,
         trace=bool(args.json),
         announce=lambda line: print(line, file=sys.stderr, flush=True),
-        observers=_recorders(args, spec),
+        observers=_recorders(args, spec, config.distro),
     )
     _write(result, args.json, {k: v for k, v in result.items() if k != "trace"})
     return 0
@@ -105,11 +106,12 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
         gravity=args.gravity,
         protocol_params=params,
     )
+    config = _config(args)
     summary, record = run_double(
         spec,
-        _config(args),
+        config,
         args.wait,
-        observers=_recorders(args, spec),
+        observers=_recorders(args, spec, config.distro),
         announce=lambda line: print(line, file=sys.stderr, flush=True),
     )
     if args.save:
@@ -140,11 +142,12 @@ def _episode_double(args: argparse.Namespace) -> int:
         command_timeout=args.command_timeout,
         away=None if args.away is None else (float(args.away[0]), float(args.away[1])),
     )
+    config = _config(args)
     summary = run_episode_double(
         spec,
-        _config(args),
+        config,
         args.wait,
-        _recorders(args, spec),
+        _recorders(args, spec, config.distro),
         announce=lambda line: print(line, file=sys.stderr, flush=True),
     )
     _write(summary, args.json, summary)

@@ -142,10 +142,13 @@ class McapRecorder(Observer):
     The hand and the object are the loop's.
     """
 
-    def __init__(self, path: str | Path, info: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self, path: str | Path, info: dict[str, Any] | None = None, distro: str = "jazzy"
+    ) -> None:
         self.path = Path(path)
         self.info = dict(info or {})
-        self.types = MessageTypes()
+        self.distro = distro
+        self.types = MessageTypes(distro)
         self._writer: McapWriter | None = None
         self._stage = ""
         self._transitions = 0
@@ -173,7 +176,7 @@ class McapRecorder(Observer):
         """The joint of each velocity index."""
         for name in hand.joint_names:
             self.dof_names[hand.model.joints[hand.model.getJointId(name)].idx_v] = name
-        writer = self._writer = McapWriter(self.path)
+        writer = self._writer = McapWriter(self.path, self.distro)
         for topic, (msgtype, latched) in TOPICS.items():
             writer.channel(topic, msgtype, latched)
         self._started = False

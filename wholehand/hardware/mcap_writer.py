@@ -1,9 +1,12 @@
 """An MCAP file in rosbag2's layout, and the ROS 2 messages a recording is made of.
 
 :class:`McapWriter` writes rosbag2's MCAP storage: profile ``ros2``, one schema per message type
-(``ros2msg``, the definition with its dependencies, ROS 2 Jazzy's), CDR messages, each channel's
-``offered_qos_profiles``. :class:`MessageTypes` gives the rosbags message classes by their short
-names and builds their common parts (headers, transforms, poses, markers).
+(``ros2msg``, the definition with its dependencies, of the recording's ROS 2 distro: Jazzy's,
+or Humble's, whose Marker lacks only Jazzy's ``ARROW_STRIP`` constant: the bytes are the same),
+CDR messages, each channel's ``offered_qos_profiles`` (and from Iron on its
+``topic_type_hash``). :class:`MessageTypes`
+gives the rosbags message classes by their short names and builds their common parts
+(headers, transforms, poses, markers).
 """
 
 from __future__ import annotations
@@ -69,8 +72,8 @@ class MessageTypes:
     """The rosbags message classes by their short names (``T.Point``: the first of
     :data:`MESSAGE_PACKAGES` that has it), and builders of the messages' common parts."""
 
-    def __init__(self) -> None:
-        self._all = typestore().types
+    def __init__(self, distro: str = "jazzy") -> None:
+        self._all = typestore(distro).types
 
     def __getattr__(self, name: str) -> Any:
         for package in MESSAGE_PACKAGES:
@@ -132,10 +135,12 @@ class MessageTypes:
 class McapWriter:
     """An MCAP file of ROS 2 messages with rosbag2's conventions (module docstring)."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, distro: str = "jazzy") -> None:
         from mcap.writer import Writer
 
         self.path = Path(path)
+        self.distro = distro
+        self._store = typestore(distro)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
@@ -156,11 +161,13 @@ class McapWriter:
     def channel(self, topic: str, msgtype: str, latched: bool = False) -> None:
         """Declare ``topic`` of ``msgtype`` (e.g. ``std_msgs/msg/String``)."""
         if msgtype not in self._schemas:
-            msgdef = typestore().generate_msgdef(msgtype, ros_version=2)[0]
+            msgdef = self._store.generate_msgdef(msgtype, ros_version=2)[0]
             self._schemas[msgtype] = self._writer.register_schema(
                 msgtype, "ros2msg", msgdef.encode()
             )
-        metadata = {"offered_qos_profiles": _qos(latched), "topic_type_hash": type_hash(msgtype)}
+        metadata = {"offered_qos_profiles": _qos(latched)}
+        if self.distro != "humble":  # type hashes came with Iron
+            metadata["topic_type_hash"] = type_hash(msgtype)
         cid = self._writer.register_channel(topic, "cdr", self._schemas[msgtype], metadata)
         self._channels[topic] = (cid, msgtype)
         self._latched[topic] = latched
@@ -169,7 +176,7 @@ class McapWriter:
     def write(self, topic: str, message: Any, t: float) -> None:
         """Write ``message`` (a rosbags message of the topic's type) at time ``t`` [s]."""
         cid, msgtype = self._channels[topic]
-        data = bytes(typestore().serialize_cdr(message, msgtype))
+        data = bytes(self._store.serialize_cdr(message, msgtype))
         stamp = max(int(round(t * 1e9)), 0)
         self._sequence += 1
         self._writer.add_message(cid, stamp, data, stamp, self._sequence)
@@ -196,7 +203,11 @@ class McapWriter:
                     "type": msgtype,
                     "serialization_format": "cdr",
                     "offered_qos_profiles": [_qos_profile(self._latched[topic])],
-                    "type_description_hash": type_hash(msgtype),
+                    **(
+                        {}
+                        if self.distro == "humble"
+                        else {"type_description_hash": type_hash(msgtype)}
+                    ),
                 },
                 "message_count": self._counts[topic],
             }
@@ -221,6 +232,6 @@ class McapWriter:
                 }
             ],
             "custom_data": None,
-            "ros_distro": "jazzy",
+            "ros_distro": self.distro,
         }
         return json.dumps({"rosbag2_bagfile_information": info}, indent=1)

@@ -41,12 +41,19 @@ class MessageError(WholehandError):
     """A payload that is not the expected message (truncated, another type, garbage)."""
 
 
+RECORDING_STORES = {"humble": Stores.ROS2_HUMBLE}
+"""A distro whose message definitions differ from Jazzy's in what a recording writes: Humble's
+``visualization_msgs/msg/Marker`` lacks the ``ARROW_STRIP`` constant (its fields, textures
+included, are Jazzy's: the bytes are the same)."""
+
+
 @cache
-def typestore() -> Any:
-    """The ROS 2 Jazzy typestore (the three messages are the same in every ROS 2 distro), with
-    the (de)serialisers of wholehand's messages generated: rosbags writes a type's code on its
+def typestore(distro: str = "jazzy") -> Any:
+    """The ROS 2 typestore of ``distro`` (Jazzy's unless :data:`RECORDING_STORES` names
+    another; the messages on the wire are the same in every ROS 2 distro), with the
+    (de)serialisers of wholehand's messages generated: rosbags writes a type's code on its
     first use (about 5 ms), which must not fall in a control cycle."""
-    store = get_typestore(Stores.ROS2_JAZZY)
+    store = get_typestore(RECORDING_STORES.get(distro, Stores.ROS2_JAZZY))
     for msgtype in (JOINT_STATE, POSE_STAMPED, FLOAT64_ARRAY, JOINT_TRAJECTORY, BOOL):
         store.get_msgdef(msgtype)
     return store

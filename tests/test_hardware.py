@@ -54,6 +54,20 @@ def test_config_defaults_and_file(tmp_path):
     assert config.safety.pose_timeout == 0.1 and config.safety.pose_ramp == 0.5
 
 
+def test_the_controller_predicts_poses_unless_told_not_to():
+    """[object_pose] predict: the controller's PosePredictor and its horizon; 0 turns it off."""
+    from wholehand.hardware.controller import pose_filters
+    from wholehand.loop.filters import PosePredictor
+
+    (predictor,) = pose_filters(load_hardware_config())
+    assert isinstance(predictor, PosePredictor) and predictor.horizon == 0.1
+    raw = {"joints": {"command": ["a"]}, "object_pose": {"predict": 0.05}}
+    (predictor,) = pose_filters(parse_hardware_config(raw, "hw.toml"))
+    assert predictor.horizon == 0.05
+    raw["object_pose"] = {"predict": 0}
+    assert pose_filters(parse_hardware_config(raw, "hw.toml")) == []
+
+
 @pytest.mark.parametrize(
     ("raw", "named"),
     [
@@ -63,6 +77,7 @@ def test_config_defaults_and_file(tmp_path):
         ({"topics": {"torque_command": ""}}, "torque_command must name a topic"),
         ({"qos": {"object_pose": {"reliability": "sometimes"}}}, "reliability"),
         ({"object_pose": {"stamp_source": "image"}}, "stamp_source"),
+        ({"object_pose": {"predict": -0.1}}, "[object_pose] predict must be >= 0"),
         ({"safety": {"pose_timeout": -1.0}}, "pose_timeout must be > 0"),
         ({"safety": {"pose_timout": 1.0}}, "unknown keys ['pose_timout']"),
         ({"joints": {"command": ["a"], "ignore": "a"}}, "[joints] ignore must be a list"),

@@ -130,6 +130,11 @@ class HardwareConfig:
     qos: dict[str, QoS] = field(default_factory=dict)
     frame_id: str = "world"
     stamp_source: StampSource = "header"
+    pose_prediction: float = 0.1
+    """The controller carries each object pose forward to the joint state's time at the
+    object's velocity between the last two poses, at most this long [s] (0: not at all;
+    :class:`~wholehand.loop.filters.PosePredictor`): what makes up for the tracker's
+    latency while the object moves (``[object_pose] predict``)."""
     safety: SafetyLimits = field(default_factory=SafetyLimits)
     path: str = ""
 

@@ -66,6 +66,8 @@ Schema (times in s, rates in Hz, torques in N*m; every key optional, defaults be
     frame_id = "world"              # poses in another frame are rejected
     stamp_source = "header"         # "header": the message's stamp is the image time (the
                                     # paper's handling); "receipt": the time it arrived
+    predict = 0.1                   # carry each pose forward to the joint state's time at the
+                                    # object's velocity, at most this long [s] (0: off)
 
     [safety]
     joint_timeout = 0.05            # joint state older than this -> hold the last torque
@@ -140,6 +142,16 @@ def _number(value: Any, what: str, path: str, positive: bool = True) -> float:
     if positive and value <= 0.0:
         raise ConfigError(f"{_where(path)}: {what} must be > 0, got {value!r}")
     return float(value)
+
+
+def _prediction(value: Any, path: str) -> float:
+    horizon = _number(value, "[object_pose] predict", path, positive=False)
+    if horizon < 0.0:
+        raise ConfigError(
+            f"{_where(path)}: [object_pose] predict must be >= 0 [s] (0: no prediction), got "
+            f"{value!r}"
+        )
+    return horizon
 
 
 def _strings(value: Any, what: str, path: str) -> tuple[str, ...]:
@@ -358,7 +370,7 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
     qos = {
         topic: _qos(value, topic, path) for topic, value in _table(raw, "qos", TOPICS, path).items()
     }
-    pose = _table(raw, "object_pose", ("frame_id", "stamp_source"), path)
+    pose = _table(raw, "object_pose", ("frame_id", "stamp_source", "predict"), path)
     stamp_source = pose.get("stamp_source", "header")
     if stamp_source not in STAMP_SOURCES:
         raise ConfigError(
@@ -393,6 +405,7 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
         qos=qos,
         frame_id=str(pose.get("frame_id", "world")),
         stamp_source=stamp_source,
+        pose_prediction=_prediction(pose.get("predict", 0.1), path),
         safety=safety,
         path=path,
     )

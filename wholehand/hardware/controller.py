@@ -36,6 +36,7 @@ from wholehand.hardware.config import HardwareConfig
 from wholehand.hardware.inputs import model_joint_name
 from wholehand.hardware.stopping import signals_set
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.loop.filters import ObservationFilter, PosePredictor
 from wholehand.loop.gate import ObservationGate
 from wholehand.loop.regulation import AllocateEvery, EstimateAt, ForceRegulation
 from wholehand.loop.stage import Stage
@@ -241,6 +242,14 @@ STREAM_TIMEOUT = 30.0
 """How long the controller waits for the first joint state and object pose [s]."""
 
 
+def pose_filters(config: HardwareConfig) -> list[ObservationFilter]:
+    """What the controller does to the tracker's poses before the stages see them: carry each
+    forward to the joint state's time (``[object_pose] predict``; none with 0)."""
+    if config.pose_prediction > 0.0:
+        return [PosePredictor(config.pose_prediction)]
+    return []
+
+
 def run_controller(
     hand: HandModel,
     obj: ObjectModel,
@@ -295,7 +304,15 @@ def run_controller(
             first = PREGRASP if pipeline else None
             rate = config.control_rate
             loop = ControlLoop(
-                backend, hand, obj, stages, first=first, rate=rate, observers=watchers, gate=gate
+                backend,
+                hand,
+                obj,
+                stages,
+                first=first,
+                rate=rate,
+                filters=pose_filters(config),
+                observers=watchers,
+                gate=gate,
             )
             report = loop.run(duration)
         # After the backend's last commands (the exit ramp, when it closed), so they count.

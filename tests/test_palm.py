@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from toy_hand import write_toy_hand
+from toy_hand import CLAW_RADIUS, write_claw_hand, write_toy_hand
 
 from wholehand.errors import ConfigError
 from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import load_hand
-from wholehand.models.palm import palm_frame
+from wholehand.models.palm import CLAW_REACH, model_palm_normal, palm_frame
 from wholehand.models.poses import pose_from_xyz_rpy
 
 
@@ -75,3 +75,42 @@ def test_hand_toml_can_set_the_palm_normal_over_the_models(tmp_path):
     bad = write_toy_hand(tmp_path / "bad", top='palm_normal = "x"')
     with pytest.raises(ConfigError, match="palm_normal must be a list of 3 finite numbers"):
         parse_hand_config(bad)
+
+
+def test_a_claw_without_a_palm_closes_along_its_fingers(tmp_path):
+    """Three fingers around the z axis closing toward it, behind them only a small hub: the
+    tips' closing motions cancel, so the model's palm normal is the fingers' direction (+z),
+    and the object's place is among the finger roots (face: their plane z = 0; top: the axis
+    plus CLAW_REACH; centre: the axis), not in front of the hub. Every finger joint is a
+    flexion motor closing with +q."""
+    from wholehand.models.grasp_styles import derived_close_torque
+    from wholehand.models.motor_roles import motor_roles
+
+    hand = load_hand(write_claw_hand(tmp_path / "claw"))
+    derived = derived_close_torque(hand)
+    assert sorted(derived) == sorted(hand.joint_names) and min(derived.values()) > 0.0
+    assert {r.role for r in motor_roles(hand).values()} == {"flexion"}
+    q, tau, _ = style_arrays(hand, hand.config.grasp_styles["power"])
+    tau = np.array([derived.get(j, 0.0) for j in hand.joint_names])
+    np.testing.assert_allclose(model_palm_normal(hand, q, tau), [0.0, 0.0, 1.0], atol=1e-9)
+    palm = palm_frame(hand, q, tau)
+    np.testing.assert_allclose(palm.bRp[:, 0], [0.0, 0.0, 1.0], atol=1e-9)
+    # z of the palm frame points from the axis to the first finger's root (x of the root).
+    np.testing.assert_allclose(palm.bRp[:, 2], [1.0, 0.0, 0.0], atol=1e-9)
+    assert palm.face == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(palm.centre, 0.0, atol=1e-9)
+    assert palm.top == pytest.approx(CLAW_REACH)
+    assert CLAW_REACH < CLAW_RADIUS  # the object's place stays inside the ring of roots
+
+
+def test_a_thumb_at_the_palms_side_closes_across_the_palm(tmp_path):
+    """A thumb turning about +z at the palm's side: a flexion motor, closing with +q (its tip
+    moves toward +y, across the palm face); the palm normal is the fingers', +x."""
+    from wholehand.models.grasp_styles import derived_close_torque
+    from wholehand.models.motor_roles import motor_roles
+
+    hand = load_hand(write_toy_hand(tmp_path / "side", side_thumb=True))
+    assert motor_roles(hand)["t_j1"].role == "flexion"
+    assert derived_close_torque(hand)["t_j1"] > 0.0
+    q, tau, _ = style_arrays(hand, hand.config.grasp_styles["power"])
+    np.testing.assert_allclose(model_palm_normal(hand, q, tau), [1.0, 0.0, 0.0], atol=1e-9)

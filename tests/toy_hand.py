@@ -7,7 +7,9 @@ toward +x); a one-link thumb sticks out along +x at z = -0.07 and closes toward 
 The palm hangs from a root link through a fixed joint (``palm_xyz``, ``palm_rpy``), or through a
 revolute wrist joint about the root's x axis (``wrist=True``); ``forearm=True`` adds a large box
 below the palm on the root; ``knuckle=True`` a second palm box buried inside the first;
-``spread=True`` a spread (abduction) joint ``f1_j0`` about the palm normal at the index's root.
+``spread=True`` a spread (abduction) joint ``f1_j0`` about the palm normal at the index's root;
+``side_thumb=True`` puts the thumb at the palm's side instead (its root at y = -0.045, z = -0.04,
+pointing along +x), turning about +z, so that it closes across the palm face toward +y.
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ def toy_urdf(
     knuckle=False,
     mimic=False,
     spread=False,
+    side_thumb=False,
 ):
     body = _link("root", None, mass=0.1)
     if wrist:
@@ -104,7 +107,10 @@ def toy_urdf(
         tag = f'<mimic joint="f{k}_j1" multiplier="{MIMIC[0]}" offset="{MIMIC[1]}"/>'
         body += _joint(f"f{k}_j2", f"f{k}_1", f"f{k}_2", (0.0, 0.0, 0.04), inner=tag * mimic)
         body += _link(f"f{k}_2", (0.015, 0.015, 0.03), (0.0, 0.0, 0.015))
-    body += _joint("t_j1", "palm", "t_1", (0.0, 0.0, -0.07), axis="0 -1 0")
+    if side_thumb:
+        body += _joint("t_j1", "palm", "t_1", (0.0, -0.045, -0.04), axis="0 0 1")
+    else:
+        body += _joint("t_j1", "palm", "t_1", (0.0, 0.0, -0.07), axis="0 -1 0")
     body += _link("t_1", (0.06, 0.015, 0.015), (0.03, 0.0, 0.0))
     return f'<?xml version="1.0"?>\n<robot name="toy">\n{body}</robot>\n'
 
@@ -221,4 +227,55 @@ def write_toy_hand(
             model=model, top=textwrap.dedent(top), tables=textwrap.dedent(tables), close=close
         )
     )
+    return folder
+
+
+CLAW_RADIUS = 0.03
+"""Distance of the claw's finger roots from its axis [m]."""
+
+
+def claw_urdf() -> str:
+    """A three-fingered claw with no palm surface: a small hub block behind the finger roots
+    (z < -0.01, where no object reaches), three
+    fingers of two links each, their roots at :data:`CLAW_RADIUS` from the z axis at 0, 120 and
+    240 deg, pointing along +z; each joint turns about the tangent so that positive angles close
+    the finger toward the axis. The object sits on +z between the fingers."""
+    import math
+
+    body = _link("root", None, mass=0.1)
+    body += _joint("root_to_hub", "root", "hub", (0.0, 0.0, 0.0), kind="fixed")
+    body += _link("hub", (0.02, 0.02, 0.02), (0.0, 0.0, -0.02), mass=0.05)
+    for k in range(3):
+        a = 2.0 * math.pi * k / 3.0
+        root = (CLAW_RADIUS * math.cos(a), CLAW_RADIUS * math.sin(a), 0.0)
+        axis = f"{math.sin(a):.9f} {-math.cos(a):.9f} 0"  # minus the tangent: closes inward
+        body += _joint(f"c{k}_j1", "hub", f"c{k}_1", root, axis=axis, lower=-0.3, upper=1.4)
+        body += _link(f"c{k}_1", (0.015, 0.015, 0.05), (0.0, 0.0, 0.025))
+        body += _joint(f"c{k}_j2", f"c{k}_1", f"c{k}_2", (0.0, 0.0, 0.05), axis=axis, upper=1.4)
+        body += _link(f"c{k}_2", (0.015, 0.015, 0.04), (0.0, 0.0, 0.02))
+    return f'<?xml version="1.0"?>\n<robot name="claw">\n{body}</robot>\n'
+
+
+CLAW_TOML = """\
+name = "claw"
+urdf = "claw.urdf"
+palm_link = "hub"
+fingertip_links = ["c0_2", "c1_2", "c2_2"]
+
+[joints]
+torque_limit = { default = 0.5 }
+
+[fingers]
+a = ["c0_1", "c0_2"]
+b = ["c1_1", "c1_2"]
+c = ["c2_1", "c2_2"]
+"""
+
+
+def write_claw_hand(folder: Path) -> Path:
+    """Write the claw of :func:`claw_urdf` and a hand.toml with no [grasping] table (the
+    closing directions and the palm come from the model) into ``folder``; return it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "claw.urdf").write_text(claw_urdf())
+    (folder / "hand.toml").write_text(CLAW_TOML)
     return folder

@@ -13,6 +13,15 @@ instead:
 
 Along those axes the palm link's surface samples give the palm face (largest x), the top of the
 palm (largest z, toward the fingers) and the centre of their bounding box.
+
+A claw closes its fingers toward each other, not toward a palm: the closing motions of all its
+tips, the thumb's included, cancel (their sum is less than :data:`CANCELLING` of their
+sizes), and its fingers point where
+the object is. Then x is the fingers' mean direction (the approach axis), z points from the
+axis to the first finger's root, and the object's place is among the fingers instead of in
+front of a palm: the face is the plane of the finger roots (largest x among them), the centre
+their centroid and the top :data:`CLAW_REACH` past it along z, so that an object placed
+within 4 cm below the top sits around the axis.
 """
 
 from __future__ import annotations
@@ -53,6 +62,15 @@ class PalmFrame:
         return np.asarray(p_base) @ self.bRp
 
 
+CANCELLING = 0.25
+"""The fingers' tips close toward each other (a claw) when the sum of their closing velocities
+is smaller than this fraction of the sum of their sizes."""
+CLAW_ALIGNED_DEG = 30.0
+"""A hand whose fingers point within this angle of its palm normal is placed as a claw."""
+CLAW_REACH = 0.02
+"""A claw's ``top`` lies this far past the centroid of its finger roots [m]."""
+
+
 def _unit(v: FloatArray) -> FloatArray:
     return cast(FloatArray, v / np.linalg.norm(v))
 
@@ -70,10 +88,9 @@ def closing_direction(
     Raises:
         ConfigError: the torques do not move the tips.
     """
-    if hand.coupled:  # the closing torques drive the actuators, followers move with them
-        tau_close = hand.coupling @ (hand.coupling.T @ tau_close)
-    closing = (kin.point_jacobians(tip_joint, tips) @ tau_close).sum(axis=0)
-    if np.linalg.norm(closing) < 1e-9:
+    velocities = tip_velocities(hand, kin, tips, tip_joint, tau_close)
+    closing = velocities.sum(axis=0)
+    if np.linalg.norm(velocities, axis=1).sum() < 1e-9:
         cfg = hand.config
         links = [hand.link_names[i] for i in np.flatnonzero(np.isin(hand.link_joint, tip_joint))]
         raise ConfigError(
@@ -82,6 +99,20 @@ def closing_direction(
             "palm's normal in the hand's root frame) in hand.toml"
         )
     return cast(FloatArray, closing)
+
+
+def tip_velocities(
+    hand: HandModel,
+    kin: HandKinematics,
+    tips: FloatArray,
+    tip_joint: npt.NDArray[np.intp],
+    tau_close: FloatArray,
+) -> FloatArray:
+    """(F, 3) the velocity of each tip under the closing torques taken as joint velocities,
+    base frame (the followers of coupled joints moving with their leaders)."""
+    if hand.coupled:  # the closing torques drive the actuators, followers move with them
+        tau_close = hand.coupling @ (hand.coupling.T @ tau_close)
+    return cast(FloatArray, kin.point_jacobians(tip_joint, tips) @ tau_close)
 
 
 def _non_thumb_fingers(hand: HandModel) -> list[tuple[str, ...]]:
@@ -110,9 +141,23 @@ def model_palm_normal(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> 
     fingers = _non_thumb_fingers(hand)
     kin = HandKinematics(hand)
     kin.update(q, np.eye(4))
+    roots = np.array([kin.frame_pose(links[0])[:3, 3] for links in fingers])
     tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in fingers])
     tip_joint = np.array([hand.link_joint[hand.link_index(links[-1])] for links in fingers])
-    return _unit(closing_direction(hand, kin, tips, tip_joint, tau_close))
+    closing = closing_direction(hand, kin, tips, tip_joint, tau_close)
+    if _claw(hand, kin, tau_close):  # the fingers close toward each other: along them
+        return _unit(tips.mean(axis=0) - roots.mean(axis=0))
+    return _unit(closing)
+
+
+def _claw(hand: HandModel, kin: HandKinematics, tau_close: FloatArray) -> bool:
+    """Whether the tips of all the fingers, the thumb's included, close toward each other:
+    their closing velocities sum to less than :data:`CANCELLING` of their sizes."""
+    links = [links[-1] for links in hand.config.fingers.values()]
+    tips = np.array([kin.frame_pose(link)[:3, 3] for link in links])
+    joints = np.array([hand.link_joint[hand.link_index(link)] for link in links])
+    v = tip_velocities(hand, kin, tips, joints, tau_close)
+    return bool(np.linalg.norm(v.sum(axis=0)) < CANCELLING * np.linalg.norm(v, axis=1).sum())
 
 
 def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFrame:
@@ -135,13 +180,9 @@ def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFra
         closing = model_palm_normal(hand, q, tau_close)
     normal = _unit(np.round(_unit(closing), AXIS_DECIMALS))
     along = np.round(_unit(tips.mean(axis=0) - roots.mean(axis=0)), AXIS_DECIMALS)
-    along = along - (along @ normal) * normal
-    if np.linalg.norm(along) < 1e-6:
-        raise ConfigError(
-            f"{cfg.path}: the fingers close along their own length at the pre-shape; open them "
-            "in [grasping] preshape so that they point away from the palm"
-        )
-    along = _unit(along)
+    if along @ normal > np.cos(np.deg2rad(CLAW_ALIGNED_DEG)):
+        return _claw_frame(normal, roots, cfg.path)
+    along = _unit(along - (along @ normal) * normal)
     bRp = np.column_stack([normal, np.cross(along, normal), along])
     rows = hand.samples.link == hand.link_index(hand.palm_link)
     palm = kin.transform_points(hand.samples.p_joint[rows], hand.samples.joint[rows], np.eye(4))
@@ -152,3 +193,21 @@ def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFra
         top=float(p[:, 2].max()),
         centre=0.5 * (p.min(axis=0) + p.max(axis=0)),
     )
+
+
+def _claw_frame(normal: FloatArray, roots: FloatArray, path: object) -> PalmFrame:
+    """The palm frame of a claw (module docstring): the object among the finger roots."""
+    centroid = roots.mean(axis=0)
+    out = roots[0] - centroid
+    out = np.round(out - (out @ normal) * normal, AXIS_DECIMALS)
+    if np.linalg.norm(out) < 1e-6:
+        raise ConfigError(
+            f"{path}: the fingers point along the palm normal from one place; a claw needs its "
+            "finger roots apart around the axis, or set palm_normal in hand.toml"
+        )
+    along = _unit(out)
+    bRp = np.column_stack([normal, np.cross(along, normal), along])
+    p = roots @ bRp
+    centre = centroid @ bRp
+    return PalmFrame(bRp=bRp, face=float(p[:, 0].max()), top=float(centre[2] + CLAW_REACH),
+                     centre=centre)  # fmt: skip

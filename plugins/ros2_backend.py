@@ -13,25 +13,25 @@ state, within the torque limits. With ``[topics] hand_position_command`` set, a 
 hand targets (reaching) instead sends the targets, within the joint limits, on that topic in the
 torque command's joint order, for hand drivers that switch to a position interface on it, and
 a command without (regulating) sends torques. Arm targets pass
-:class:`~wholehand.hardware.arm_guard.ArmGuard`.
+:class:`~wholehand.robot.arm_guard.ArmGuard`.
 A stop request freezes the arm and ramps the hand torques to zero; on every exit (:meth:`close`,
 reached on the loop's end, Ctrl-C, SIGTERM and a fault of the loop) the arm holds its measured
 position and the hand torques ramp to zero over ``exit_ramp``.
 Topics, joint names, rates, QoS and the safety limits come from a hardware config
-(:mod:`wholehand.hardware.config_file`); messages go over zenoh as rmw_zenoh writes them
-(:mod:`wholehand.hardware.rmw_zenoh`) or over DDS as rmw_cyclonedds and rmw_fastrtps write them
-(:mod:`wholehand.hardware.ros2_dds`), by ``[ros2] transport``, so no ROS installation is
+(:mod:`wholehand.ros2.config_file`); messages go over zenoh as rmw_zenoh writes them
+(:mod:`wholehand.ros2.rmw_zenoh`) or over DDS as rmw_cyclonedds and rmw_fastrtps write them
+(:mod:`wholehand.ros2.ros2_dds`), by ``[ros2] transport``, so no ROS installation is
 needed.
 
 Every joint state is kept in the joint history, so the contacts of a pose are estimated at the
 joint configuration of the pose's stamp (paper Sec. V-D). With ``sync_to_joint_states`` (the
 default) a cycle whose newest joint state is no longer fresh waits for the next one, briefly
-(:mod:`wholehand.hardware.config_file`), so that the torque answers a joint state just measured.
-Incoming messages are read by :class:`~wholehand.hardware.streams.RobotStreams`: those that
-fail their checks (:mod:`wholehand.hardware.inputs`), and samples the transport drops (on zenoh
+(:mod:`wholehand.ros2.config_file`), so that the torque answers a joint state just measured.
+Incoming messages are read by :class:`~wholehand.ros2.streams.RobotStreams`: those that
+fail their checks (:mod:`wholehand.ros2.inputs`), and samples the transport drops (on zenoh
 those without rmw_zenoh's attachment, as rmw_zenoh drops them), are counted by reason and the
 last good sample stays. Every outgoing torque passes the safety rules of
-:class:`~wholehand.hardware.guard.TorqueGuard`, and a watchdog thread ramps the torque down when
+:class:`~wholehand.robot.guard.TorqueGuard`, and a watchdog thread ramps the torque down when
 the loop stops sending.
 """
 
@@ -51,19 +51,19 @@ import numpy.typing as npt
 from wholehand.backends.base import Backend
 from wholehand.backends.command import Command
 from wholehand.backends.observation import HISTORY_SAMPLES, JointHistory, Observation
-from wholehand.hardware.arm_guard import ArmGuard
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.config_file import load_hardware_config
-from wholehand.hardware.guard import TorqueGuard
-from wholehand.hardware.inputs import JointSample, JointStateReader, arm_command_dofs, command_dofs
-from wholehand.hardware.messages import (
+from wholehand.robot.arm_guard import ArmGuard
+from wholehand.robot.guard import TorqueGuard
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.config_file import load_hardware_config
+from wholehand.ros2.inputs import JointSample, JointStateReader, arm_command_dofs, command_dofs
+from wholehand.ros2.messages import (
     FLOAT64_ARRAY,
     JOINT_TRAJECTORY,
     encode_array,
     encode_joint_trajectory,
 )
-from wholehand.hardware.node import open_transport
-from wholehand.hardware.streams import Latest, RobotStreams
+from wholehand.ros2.node import open_transport
+from wholehand.ros2.streams import Latest, RobotStreams
 
 if TYPE_CHECKING:
     from wholehand.models.hand import HandModel
@@ -98,7 +98,7 @@ class Ros2Backend(Backend):
     Args:
         hand: the hand (or arm-hand assembly) model.
         obj: the object model (unused here; the tracker reports its pose).
-        config: a :class:`~wholehand.hardware.config.HardwareConfig` or the path of its TOML
+        config: a :class:`~wholehand.ros2.config.HardwareConfig` or the path of its TOML
             file (None: the defaults).
         q_init, wMo_init, gravity: ignored: a robot is where it is.
         history: joint samples kept for q at the pose's stamp.
@@ -203,7 +203,7 @@ class Ros2Backend(Backend):
     # --- the streams' counts, for callers and tests --------------------------------------------
     @property
     def received(self) -> Counter[str]:
-        """Accepted messages per stream (:class:`~wholehand.hardware.streams.RobotStreams`)."""
+        """Accepted messages per stream (:class:`~wholehand.ros2.streams.RobotStreams`)."""
         return self.streams.received
 
     @property
@@ -372,7 +372,7 @@ class Ros2Backend(Backend):
 
     def step(self, duration: float) -> None:
         """Wait ``duration`` [s], then, with ``sync_to_joint_states``, for a fresh joint state
-        (:mod:`wholehand.hardware.config_file`; counted in :attr:`sync`)."""
+        (:mod:`wholehand.ros2.config_file`; counted in :attr:`sync`)."""
         if duration > 0.0:
             time.sleep(duration)
         if self._max_sync_wait > 0.0:

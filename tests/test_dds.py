@@ -29,12 +29,12 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from wholehand.errors import ConfigError
-from wholehand.hardware import messages as msgs
-from wholehand.hardware.config import HardwareConfig, QoS
-from wholehand.hardware.config_file import load_hardware_config
-from wholehand.hardware.dds_messages import IDL_TYPES, ParticipantEntitiesInfo
-from wholehand.hardware.messages import MessageError
-from wholehand.hardware.ros2_dds import DdsTransport, dds_topic_name, domain_xml, endpoint_qos
+from wholehand.ros2 import messages as msgs
+from wholehand.ros2.config import HardwareConfig, QoS
+from wholehand.ros2.config_file import load_hardware_config
+from wholehand.ros2.dds_messages import IDL_TYPES, ParticipantEntitiesInfo
+from wholehand.ros2.messages import MessageError
+from wholehand.ros2.ros2_dds import DdsTransport, dds_topic_name, domain_xml, endpoint_qos
 
 DOMAIN = 100 + (os.getpid() + 50) % 100
 """A domain of this test process alone (apart from test_hardware's)."""

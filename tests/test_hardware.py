@@ -17,13 +17,13 @@ from cyclonedds._clayer import ddspy_write_ts
 
 from wholehand.allocation.options import SolveOptions
 from wholehand.errors import ConfigError
-from wholehand.hardware import messages as msgs
-from wholehand.hardware.config import HardwareConfig, QoS, SafetyLimits
-from wholehand.hardware.config_file import load_hardware_config, parse_hardware_config
-from wholehand.hardware.guard import TorqueGuard
-from wholehand.hardware.inputs import JointStateReader, RejectedMessage, read_pose
-from wholehand.hardware.node import open_transport
-from wholehand.hardware.rmw_zenoh import (
+from wholehand.robot.guard import TorqueGuard
+from wholehand.ros2 import messages as msgs
+from wholehand.ros2.config import HardwareConfig, QoS, SafetyLimits
+from wholehand.ros2.config_file import load_hardware_config, parse_hardware_config
+from wholehand.ros2.inputs import JointStateReader, RejectedMessage, read_pose
+from wholehand.ros2.node import open_transport
+from wholehand.ros2.rmw_zenoh import (
     Attachment,
     loopback_endpoint,
     open_session,
@@ -56,8 +56,8 @@ def test_config_defaults_and_file(tmp_path):
 
 def test_the_controller_predicts_poses_unless_told_not_to():
     """[object_pose] predict: the controller's PosePredictor and its horizon; 0 turns it off."""
-    from wholehand.hardware.controller import pose_filters
     from wholehand.loop.filters import PosePredictor
+    from wholehand.robot.controller import pose_filters
 
     (predictor,) = pose_filters(load_hardware_config())
     assert isinstance(predictor, PosePredictor) and predictor.horizon == 0.1
@@ -678,8 +678,8 @@ def test_control_cli_names_a_missing_config(tmp_path, capsys):
 
 
 def test_shipped_config_loads_against_the_allegro_in_its_urdf_order(allegro):
-    from wholehand.hardware.config_file import hand_hardware_config
-    from wholehand.hardware.inputs import command_dofs
+    from wholehand.ros2.config_file import hand_hardware_config
+    from wholehand.ros2.inputs import command_dofs
 
     config = load_hardware_config(hand_hardware_config("allegro_right"))
     reader = JointStateReader(allegro, config)
@@ -691,7 +691,7 @@ def test_shipped_config_loads_against_the_allegro_in_its_urdf_order(allegro):
 
 
 def test_a_hand_without_a_hardware_config_is_named(tmp_path):
-    from wholehand.hardware.config_file import hand_hardware_config
+    from wholehand.ros2.config_file import hand_hardware_config
 
     with pytest.raises(ConfigError, match="no hardware config for hand 'robotis_hx5_d20_right'"):
         hand_hardware_config("robotis_hx5_d20_right")
@@ -708,7 +708,7 @@ def test_a_hand_without_a_hardware_config_is_named(tmp_path):
     ],
 )
 def test_a_command_order_must_name_every_actuated_joint_once(allegro, order, named):
-    from wholehand.hardware.inputs import command_dofs
+    from wholehand.ros2.inputs import command_dofs
 
     config = HardwareConfig(command_joints=order, rename={"joint_0.0": "hand_joint_0"})
     with pytest.raises(ConfigError) as err:
@@ -717,7 +717,7 @@ def test_a_command_order_must_name_every_actuated_joint_once(allegro, order, nam
 
 
 def test_command_order_follows_the_config_by_model_or_robot_names(allegro):
-    from wholehand.hardware.inputs import command_dofs
+    from wholehand.ros2.inputs import command_dofs
 
     order = tuple(np.random.default_rng(3).permutation(ALLEGRO_ORDER))
     dofs = command_dofs(allegro, HardwareConfig(command_joints=order))
@@ -728,7 +728,7 @@ def test_command_order_follows_the_config_by_model_or_robot_names(allegro):
 
 
 def test_the_controller_allocator_gets_the_deadline_and_edge_screening(allegro):
-    from wholehand.hardware.controller import (
+    from wholehand.robot.controller import (
         AFTER_MISS,
         QP_DEADLINE,
         ControllerSpec,
@@ -841,7 +841,7 @@ def test_the_double_reports_the_effort_its_motors_applied():
     controller's first torque command starts from, not the command's zero torque."""
     from types import SimpleNamespace as Ns
 
-    from wholehand.hardware.double import RobotPublisher
+    from wholehand.doubles.double import RobotPublisher
 
     class Put:
         def __init__(self) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from processes import wait_for_line, wholehand
 
-from wholehand.hardware.rmw_zenoh import loopback_endpoint
+from wholehand.ros2.rmw_zenoh import loopback_endpoint
 
 
 def _controller(endpoint: str, duration: float, *extra: str) -> subprocess.Popen[str]:
@@ -152,7 +152,7 @@ time.sleep(float(sys.argv[2]))
 
 
 def test_controller_and_double_as_clients_of_a_router_hold_the_grasp(endpoint, tmp_path):
-    from wholehand.hardware.config_file import hand_hardware_config
+    from wholehand.ros2.config_file import hand_hardware_config
 
     router = subprocess.Popen(
         [sys.executable, "-c", ROUTER, endpoint, "120"], stdout=subprocess.PIPE, text=True
@@ -179,10 +179,10 @@ def test_controller_and_double_as_clients_of_a_router_hold_the_grasp(endpoint, t
 def test_the_drives_count_a_step_to_zero_as_a_stop_not_a_torque_rate():
     """The guard's ``joints_lost`` rule zeroes the torque at once: a stop, by design. The
     double's drives measure the torque rate between one controller's commands without it."""
-    from wholehand.hardware.double import RemoteTorque
-    from wholehand.hardware.messages import encode_array
-    from wholehand.hardware.transport import SampleMeta
+    from wholehand.doubles.double import RemoteTorque
     from wholehand.models.hand import load_hand
+    from wholehand.ros2.messages import encode_array
+    from wholehand.ros2.transport import SampleMeta
 
     hand = load_hand("allegro_right")
     dofs = np.flatnonzero(hand.actuated_dofs)

@@ -14,8 +14,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.mcap_recording import ARROW_SCALE, TOPICS, McapRecorder
-from wholehand.hardware.mcap_replay import read_mcap_record
+from wholehand.recording.mcap_recording import ARROW_SCALE, TOPICS, McapRecorder
+from wholehand.recording.mcap_replay import read_mcap_record
 from wholehand.trials.trial import TrialSpec, run_trial
 
 QUICK = {"settle_time": 0.3, "load_duration": 0.1}
@@ -131,7 +131,7 @@ def test_reading_names_a_missing_or_foreign_file(tmp_path):
 
 def _disk_full_after(messages: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """The recorder's writes fail as on a full disk after ``messages`` messages."""
-    from wholehand.hardware import mcap_recording
+    from wholehand.recording import mcap_recording
 
     calls = {"n": 0}
     write = mcap_recording.McapWriter.write

@@ -12,9 +12,9 @@ import pytest
 from clocks import RunAheadClock
 
 from wholehand.backends.command import Command, JointTargets
-from wholehand.hardware import messages as msgs
-from wholehand.hardware.config import ArmSettings, HardwareConfig, SafetyLimits
-from wholehand.hardware.rmw_zenoh import Publisher, Subscriber, loopback_endpoint, open_session
+from wholehand.ros2 import messages as msgs
+from wholehand.ros2.config import ArmSettings, HardwareConfig, SafetyLimits
+from wholehand.ros2.rmw_zenoh import Publisher, Subscriber, loopback_endpoint, open_session
 
 RIG = "flexiv_rizon4_hx5_d20_right"
 HAND_ORDER = tuple(f"finger_r_joint{i}" for i in range(1, 21))

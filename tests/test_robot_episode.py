@@ -12,7 +12,7 @@ import signal
 import pytest
 from processes import wait_for_line, wholehand
 
-from wholehand.hardware.rmw_zenoh import loopback_endpoint
+from wholehand.ros2.rmw_zenoh import loopback_endpoint
 
 RIG = "flexiv_rizon4_hx5_d20_right"
 
@@ -137,7 +137,7 @@ def test_sigterm_mid_reach_ends_on_the_last_commands_and_sigkill_leaves_it_to_th
 
 
 def test_a_hand_on_a_position_interface_reaches_and_then_regulates_in_torque(tmp_path):
-    from wholehand.hardware.config_file import hand_hardware_config
+    from wholehand.ros2.config_file import hand_hardware_config
 
     config = tmp_path / "position.toml"
     text = hand_hardware_config(RIG).read_text()

@@ -10,8 +10,6 @@ import pytest
 
 from wholehand.backends.observation import JointHistory, Observation
 from wholehand.errors import ConfigError
-from wholehand.hardware.arm_guard import ArmGuard
-from wholehand.hardware.config_file import parse_hardware_config
 from wholehand.loop.stage import CycleContext
 from wholehand.models.kinematics import HandKinematics
 from wholehand.reaching.base import Reacher, ReachTargets
@@ -19,6 +17,8 @@ from wholehand.reaching.home import HOME_DWELL, HOME_SPEED, HomeStage
 from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, home_configuration
 from wholehand.reaching.stages import HOME, PREGRASP, ReachPlanner, ReachStage
 from wholehand.reaching.workspace import Box, Workspace
+from wholehand.robot.arm_guard import ArmGuard
+from wholehand.ros2.config_file import parse_hardware_config
 
 RIG = "flexiv_rizon4_hx5_d20_right"
 HELD_AT = np.array([0.45, 0.0, 0.25])
@@ -282,7 +282,7 @@ def test_arm_config_errors_name_the_key(raw, named):
 
 
 def test_the_arm_command_must_name_every_arm_joint_once(rig):
-    from wholehand.hardware.inputs import arm_command_dofs
+    from wholehand.ros2.inputs import arm_command_dofs
 
     config = parse_hardware_config(changed("arm.joints", [f"joint{i}" for i in range(7, 0, -1)]))
     dofs = arm_command_dofs(rig, config)
@@ -293,8 +293,8 @@ def test_the_arm_command_must_name_every_arm_joint_once(rig):
 
 
 def test_the_shipped_arm_config_loads_against_the_rig(rig):
-    from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
-    from wholehand.hardware.inputs import arm_command_dofs, command_dofs
+    from wholehand.ros2.config_file import hand_hardware_config, load_hardware_config
+    from wholehand.ros2.inputs import arm_command_dofs, command_dofs
 
     config = load_hardware_config(hand_hardware_config(RIG))
     assert config.workspace is not None and config.workspace.object.contains(HELD_AT)

@@ -9,16 +9,16 @@ import time
 import numpy as np
 import pytest
 
-from wholehand.hardware import messages as msgs
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.inputs import JointStateReader
-from wholehand.hardware.streams import (
+from wholehand.ros2 import messages as msgs
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.inputs import JointStateReader
+from wholehand.ros2.streams import (
     DECODE_BURST,
     DECODE_SPACING,
     HISTORY_SPACING,
     RobotStreams,
 )
-from wholehand.hardware.transport import SampleMeta
+from wholehand.ros2.transport import SampleMeta
 
 
 class StoppedClock:

@@ -31,8 +31,6 @@ if TYPE_CHECKING:
     from wholehand.backends.base import Backend
     from wholehand.backends.command import Command, JointTargets
     from wholehand.contacts.base import ContactEstimator, ContactSet
-    from wholehand.hardware.mcap_recording import McapRecorder
-    from wholehand.hardware.mcap_replay import read_mcap_record
     from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
     from wholehand.loop.record import Recorder, RunRecord
     from wholehand.loop.regulation import ForceRegulation
@@ -41,6 +39,8 @@ if TYPE_CHECKING:
     from wholehand.models.kinematics import HandKinematics
     from wholehand.models.object_catalogue import PAPER_OBJECTS, load_object
     from wholehand.models.objects import ObjectModel
+    from wholehand.recording.mcap_recording import McapRecorder
+    from wholehand.recording.mcap_replay import read_mcap_record
     from wholehand.studies.base import derive_seed, protocol_for, success_stats
     from wholehand.studies.rows import record_row
     from wholehand.studies.runner import run_trials
@@ -62,8 +62,8 @@ _PUBLIC = {
     "ControlLoop": "wholehand.loop.control_loop",
     "Cycle": "wholehand.loop.control_loop",
     "Observer": "wholehand.loop.control_loop",
-    "McapRecorder": "wholehand.hardware.mcap_recording",
-    "read_mcap_record": "wholehand.hardware.mcap_replay",
+    "McapRecorder": "wholehand.recording.mcap_recording",
+    "read_mcap_record": "wholehand.recording.mcap_replay",
     "RunOutcome": "wholehand.trials.outcome",
     "outcome_of": "wholehand.trials.outcome",
     "Recorder": "wholehand.loop.record",

@@ -30,12 +30,12 @@ from types import FrameType
 
 import numpy as np
 
-from wholehand.hardware import messages as msgs
-from wholehand.hardware.config import HardwareConfig, QoS
-from wholehand.hardware.config_file import load_hardware_config
-from wholehand.hardware.node import open_transport
-from wholehand.hardware.transport import SampleMeta
 from wholehand.models.hand import load_hand
+from wholehand.ros2 import messages as msgs
+from wholehand.ros2.config import HardwareConfig, QoS
+from wholehand.ros2.config_file import load_hardware_config
+from wholehand.ros2.node import open_transport
+from wholehand.ros2.transport import SampleMeta
 
 KINDS = ("bad", "valid")
 """What the flood sends (module docstring)."""

@@ -34,12 +34,12 @@ import numpy as np
 
 from wholehand.bench.loopback import loopback
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import HardwareConfig, StampSource
-from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
-from wholehand.hardware.controller import ControllerSpec, run_controller
-from wholehand.hardware.rmw_zenoh import loopback_endpoint
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
+from wholehand.robot.controller import ControllerSpec, run_controller
+from wholehand.ros2.config import HardwareConfig, StampSource
+from wholehand.ros2.config_file import hand_hardware_config, load_hardware_config
+from wholehand.ros2.rmw_zenoh import loopback_endpoint
 from wholehand.timing import percentiles
 
 POINTS = (50, 95, 99)
@@ -63,7 +63,7 @@ def run_hw_benchmark(
 ) -> dict[str, Any]:
     """Run the double and the controller over each grasp of each object; latency percentiles
     over all messages, and whether each grasp held the load test. ``sync_to_joint_states``:
-    the controller's setting of that name (:mod:`wholehand.hardware.config_file`); ``config``: the
+    the controller's setting of that name (:mod:`wholehand.ros2.config_file`); ``config``: the
     hardware config both use (None: the hand folder's ``ros2.toml``); ``transport``: zenoh
     (a free TCP port on loopback) or dds (unicast on loopback, the domain of the config or
     ``$ROS_DOMAIN_ID``); ``flood``: ``bad`` or ``valid`` joint states sent at ``flood_rate``

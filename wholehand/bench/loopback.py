@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.rmw_zenoh import loopback_endpoint
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.rmw_zenoh import loopback_endpoint
 
 TRANSPORTS = ("zenoh", "dds")
 """The transports a benchmark can run the robot path over."""

@@ -26,12 +26,12 @@ import numpy as np
 
 from wholehand.bench.loopback import loopback
 from wholehand.errors import ConfigError
-from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
-from wholehand.hardware.controller import ControllerSpec, run_controller
 from wholehand.models.hand import load_hand
 from wholehand.models.object_catalogue import load_object
 from wholehand.provenance import provenance
 from wholehand.reaching.stages import HOME, PREGRASP, REGULATE
+from wholehand.robot.controller import ControllerSpec, run_controller
+from wholehand.ros2.config_file import hand_hardware_config, load_hardware_config
 from wholehand.studies.base import derive_seed
 from wholehand.timing import percentiles
 

@@ -146,7 +146,7 @@ def _cmd_thin_walls(args: argparse.Namespace) -> int:
 
 def _cmd_hw(args: argparse.Namespace) -> int:
     from wholehand.bench.hw import run_hw_benchmark
-    from wholehand.hardware.controller import ControllerSpec
+    from wholehand.robot.controller import ControllerSpec
 
     spec = ControllerSpec(estimate_at=args.estimate_at, allocate_every=args.allocate_every)
     from wholehand.models.object_catalogue import PAPER_OBJECTS

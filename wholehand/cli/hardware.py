@@ -13,7 +13,7 @@ from wholehand.cli.arguments import natural, positive_seconds, seconds
 
 
 def _config(args: argparse.Namespace) -> Any:
-    from wholehand.hardware.config_file import hand_hardware_config, load_hardware_config
+    from wholehand.ros2.config_file import hand_hardware_config, load_hardware_config
 
     config = load_hardware_config(args.config or hand_hardware_config(args.hand))
     connect = tuple(args.connect) if args.connect is not None else None
@@ -34,7 +34,7 @@ def _recorders(args: argparse.Namespace, spec: object, distro: str) -> list[Any]
         return []
     from dataclasses import asdict, is_dataclass
 
-    from wholehand.hardware.mcap_recording import McapRecorder
+    from wholehand.recording.mcap_recording import McapRecorder
 
     info: dict[str, Any] = {"hand": args.hand, "object": args.object}
     if is_dataclass(spec) and not isinstance(spec, type):
@@ -51,9 +51,9 @@ def _write(result: dict[str, Any], path: str | None, summary: dict[str, Any]) ->
 
 
 def _cmd_control(args: argparse.Namespace) -> int:
-    from wholehand.hardware.controller import ControllerSpec, run_controller
     from wholehand.models.hand import load_hand
     from wholehand.models.object_catalogue import load_object
+    from wholehand.robot.controller import ControllerSpec, run_controller
 
     spec = ControllerSpec(
         estimator=args.estimator,
@@ -80,7 +80,7 @@ def _cmd_control(args: argparse.Namespace) -> int:
 
 
 def _cmd_hw_sim(args: argparse.Namespace) -> int:
-    from wholehand.hardware.double import DoubleSpec, run_double
+    from wholehand.doubles.double import DoubleSpec, run_double
     from wholehand.models.hand import load_hand
 
     if load_hand(args.hand).arm_dofs.any():
@@ -124,7 +124,7 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
 
 
 def _episode_double(args: argparse.Namespace) -> int:
-    from wholehand.hardware.episode_double import EpisodeDoubleSpec, run_episode_double
+    from wholehand.doubles.episode_double import EpisodeDoubleSpec, run_episode_double
     from wholehand.reaching.episode_spec import EpisodeSpec
 
     episode = EpisodeSpec(

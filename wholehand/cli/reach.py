@@ -140,7 +140,7 @@ def _observers(args: argparse.Namespace, spec: EpisodeSpec, mcap: bool) -> list[
     table = episode_table(load_hand(spec.hand))
     observers: list[Any] = []
     if mcap:
-        from wholehand.hardware.mcap_recording import McapRecorder
+        from wholehand.recording.mcap_recording import McapRecorder
 
         observers.append(McapRecorder(args.record, {"spec": asdict(spec), "table": asdict(table)}))
     if args.view:

@@ -186,7 +186,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     observers = [live_view(spec, args.view_every)] if args.view else []
     recorder = None
     if args.record:
-        from wholehand.hardware.mcap_recording import McapRecorder
+        from wholehand.recording.mcap_recording import McapRecorder
 
         recorder = McapRecorder(args.record, {"spec": dataclasses.asdict(spec)})
         observers.append(recorder)

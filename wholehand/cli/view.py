@@ -47,7 +47,7 @@ def _read_record(path: Path) -> RunRecord:
     if path.suffix == ".mcap":
         import sys
 
-        from wholehand.hardware.mcap_replay import read_mcap_record
+        from wholehand.recording.mcap_replay import read_mcap_record
 
         record = read_mcap_record(path)
         if record.meta.get("cut_short"):

@@ -3,7 +3,7 @@
 :func:`pipeline_stages` gives ``reach_pregrasp``, ``reach_grasp`` and ``regulate``
 (:mod:`wholehand.reaching.stages`), and, for a robot's arm with a workspace, ``home``
 (:mod:`wholehand.reaching.home`). ``wholehand reach`` (:mod:`wholehand.reaching.episode`) and
-``wholehand control`` on an arm-hand (:mod:`wholehand.hardware.controller`) both run it.
+``wholehand control`` on an arm-hand (:mod:`wholehand.robot.controller`) both run it.
 """
 
 from __future__ import annotations

@@ -32,9 +32,6 @@ from wholehand.backends.observation import check_observation
 from wholehand.backends.table import HAND_MARGIN
 from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.inputs import model_joint_name
-from wholehand.hardware.stopping import signals_set
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.filters import ObservationFilter, PosePredictor
 from wholehand.loop.gate import ObservationGate
@@ -53,6 +50,9 @@ from wholehand.reaching.pipeline import (
 )
 from wholehand.reaching.pregrasp import GraspPlan, usable_on_table
 from wholehand.reaching.stages import PREGRASP, REGULATE, HoldStage, ReachPlanner
+from wholehand.robot.stopping import signals_set
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.inputs import model_joint_name
 from wholehand.timing import percentiles
 from wholehand.trials.trial import load_allocator
 

@@ -6,8 +6,8 @@ domain ``ROS_DOMAIN_ID``, with plain little-endian CDR (XCDR1) payloads; from Ir
 endpoint's USER_DATA QoS carries ``typehash=RIHS01_<sha256>;`` and the participant's
 ``enclave=/;``. This module does the same through Cyclone DDS's Python binding (its wheel
 carries the C library, so no ROS installation is needed): the message types below are the ROS 2
-messages wholehand speaks as Cyclone IDL structs (:mod:`wholehand.hardware.dds_messages`), their
-serialised bytes those of :mod:`wholehand.hardware.messages` (tested byte for byte).
+messages wholehand speaks as Cyclone IDL structs (:mod:`wholehand.ros2.dds_messages`), their
+serialised bytes those of :mod:`wholehand.ros2.messages` (tested byte for byte).
 
 QoS as rmw_cyclonedds maps it: reliable (blocking up to 100 ms; rmw uses forever) or best
 effort, keep last ``depth`` or keep all, volatile, automatic liveliness, no auto-dispose.
@@ -49,10 +49,10 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import HardwareConfig, QoS
-from wholehand.hardware.dds_messages import IDL_TYPES, ParticipantEntitiesInfo, graph_message
-from wholehand.hardware.messages import MessageError, type_hash
-from wholehand.hardware.transport import Received, Rejected, SampleMeta
+from wholehand.ros2.config import HardwareConfig, QoS
+from wholehand.ros2.dds_messages import IDL_TYPES, ParticipantEntitiesInfo, graph_message
+from wholehand.ros2.messages import MessageError, type_hash
+from wholehand.ros2.transport import Received, Rejected, SampleMeta
 
 TOPIC_PREFIX = "rt"
 """ROS 2's prefix of a topic's DDS name (``rt/joint_states``)."""
@@ -150,7 +150,7 @@ def endpoint_qos(qos: QoS, msgtype: str, distro: str) -> Qos:
 
 
 class DdsPublisher:
-    """Publishes CDR payloads on one ROS 2 topic over DDS (:class:`~wholehand.hardware.
+    """Publishes CDR payloads on one ROS 2 topic over DDS (:class:`~wholehand.ros2.
     transport.TopicPublisher`)."""
 
     def __init__(self, participant: DomainParticipant, config: HardwareConfig, topic_name: str,
@@ -164,7 +164,7 @@ class DdsPublisher:
 
     def put(self, payload: bytes, stamp_ns: int | None = None) -> int:
         """Publish ``payload`` (a CDR message of the topic's type, as
-        :mod:`wholehand.hardware.messages` encodes it); returns its source timestamp [ns,
+        :mod:`wholehand.ros2.messages` encodes it); returns its source timestamp [ns,
         system clock] (``stamp_ns``, or now). Raises :class:`MessageError` when ``payload`` is
         not little-endian CDR.
 
@@ -190,7 +190,7 @@ class DdsPublisher:
 
 class DdsSubscriber:
     """Calls ``callback`` from Cyclone DDS's thread for every sample of one ROS 2 topic
-    (:class:`~wholehand.hardware.transport.TopicSubscriber`); a sample that does not
+    (:class:`~wholehand.ros2.transport.TopicSubscriber`); a sample that does not
     re-serialise goes to ``rejected`` as ``malformed``."""
 
     def __init__(self, participant: DomainParticipant, config: HardwareConfig, topic_name: str,
@@ -228,7 +228,7 @@ class DdsSubscriber:
 
 
 class DdsTransport:
-    """A ROS 2 node on DDS (module docstring; :class:`~wholehand.hardware.transport.Transport`):
+    """A ROS 2 node on DDS (module docstring; :class:`~wholehand.ros2.transport.Transport`):
     a participant of the config's domain with ROS 2's participant USER_DATA."""
 
     def __init__(self, config: HardwareConfig, node_name: str) -> None:

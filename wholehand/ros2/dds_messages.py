@@ -1,11 +1,11 @@
 # Cyclone's IDL annotations (sequence[float64], ...) are run-time objects mypy cannot read.
 # mypy: disable-error-code="type-arg, assignment, valid-type, arg-type"
 """The ROS 2 messages wholehand speaks as Cyclone DDS IDL structs, for the DDS transport
-(:mod:`wholehand.hardware.ros2_dds`).
+(:mod:`wholehand.ros2.ros2_dds`).
 
 Each struct has the DDS type name ROS 2 gives the message (``sensor_msgs::msg::dds_::JointState_``)
 and the fields of its ``.msg`` file in order, so that its CDR bytes are the message's
-(:mod:`wholehand.hardware.messages`; tested byte for byte). No ``from __future__ import
+(:mod:`wholehand.ros2.messages`; tested byte for byte). No ``from __future__ import
 annotations`` here: Cyclone reads the field types from the annotations at run time.
 """
 
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, bounded_str, float64, int32, sequence, uint8, uint32
 
-from wholehand.hardware.messages import (
+from wholehand.ros2.messages import (
     BOOL,
     FLOAT64_ARRAY,
     JOINT_STATE,

@@ -1,4 +1,4 @@
-"""MCAP recordings of :mod:`wholehand.hardware.mcap_recording` read back as run records, for
+"""MCAP recordings of :mod:`wholehand.recording.mcap_recording` read back as run records, for
 ``wholehand view run.mcap``.
 
 Decoded with ``mcap`` and ``mcap_ros2``'s CDR decoder, not the rosbags that wrote them, so that
@@ -17,8 +17,8 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.mcap_recording import ARROW_SCALE
 from wholehand.loop.record import RunRecord
+from wholehand.recording.mcap_recording import ARROW_SCALE
 
 FloatArray = npt.NDArray[np.float64]
 

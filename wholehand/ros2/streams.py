@@ -1,7 +1,7 @@
 """What the robot sends the controller: joint states, object poses and stop requests.
 
 Each message is decoded and checked when it arrives, on the transport's thread
-(:mod:`wholehand.hardware.inputs`); the newest good one of each stream is kept with its receipt
+(:mod:`wholehand.ros2.inputs`); the newest good one of each stream is kept with its receipt
 time on the streams' clock (``time.monotonic`` unless a test gives its own), and a message that
 fails a check, or is older than the newest, is counted by reason (:attr:`RobotStreams.rejected`)
 while the last good one stays.
@@ -31,9 +31,9 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.inputs import JointSample, JointStateReader, RejectedMessage, read_pose
-from wholehand.hardware.messages import (
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.inputs import JointSample, JointStateReader, RejectedMessage, read_pose
+from wholehand.ros2.messages import (
     BOOL,
     JOINT_STATE,
     POSE_STAMPED,
@@ -42,7 +42,7 @@ from wholehand.hardware.messages import (
     decode_joint_state,
     decode_pose,
 )
-from wholehand.hardware.transport import SampleMeta, TopicSubscriber, Transport
+from wholehand.ros2.transport import SampleMeta, TopicSubscriber, Transport
 
 log = logging.getLogger(__name__)
 

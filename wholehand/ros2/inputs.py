@@ -20,10 +20,10 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand.errors import ConfigError, WholehandError
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.messages import JointStateMsg, PoseMsg
 from wholehand.loop.control_loop import BROKEN_READING
 from wholehand.models.hand import HandModel
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.messages import JointStateMsg, PoseMsg
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]

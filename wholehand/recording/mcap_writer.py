@@ -21,7 +21,7 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.messages import type_hash, typestore
+from wholehand.ros2.messages import type_hash, typestore
 
 FloatArray = npt.NDArray[np.float64]
 

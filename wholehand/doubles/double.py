@@ -28,20 +28,6 @@ from wholehand.backends.command import Command
 from wholehand.backends.observation import check_observation
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.inputs import JointStateReader, command_dofs
-from wholehand.hardware.messages import (
-    FLOAT64_ARRAY,
-    JOINT_STATE,
-    POSE_STAMPED,
-    MessageError,
-    decode_array,
-    encode_joint_state,
-    encode_pose,
-)
-from wholehand.hardware.node import open_transport
-from wholehand.hardware.stopping import StopOnEvent, signals_set
-from wholehand.hardware.transport import SampleMeta, TopicPublisher
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.loop.grasp_loss import GraspLossMonitor
 from wholehand.loop.record import Recorder, RunRecord
@@ -50,6 +36,20 @@ from wholehand.models.hand import HandModel, load_hand
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
+from wholehand.robot.stopping import StopOnEvent, signals_set
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.inputs import JointStateReader, command_dofs
+from wholehand.ros2.messages import (
+    FLOAT64_ARRAY,
+    JOINT_STATE,
+    POSE_STAMPED,
+    MessageError,
+    decode_array,
+    encode_joint_state,
+    encode_pose,
+)
+from wholehand.ros2.node import open_transport
+from wholehand.ros2.transport import SampleMeta, TopicPublisher
 from wholehand.trials.protocol import PerturbationProtocol, ProtocolDriver
 from wholehand.trials.trial import tracking_filters
 

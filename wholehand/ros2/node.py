@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.transport import Transport
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.transport import Transport
 
 
 def open_transport(config: HardwareConfig, node_name: str) -> Transport:
     """The node ``node_name`` on the config's transport (``[ros2] transport``)."""
     if config.transport == "dds":
-        from wholehand.hardware.ros2_dds import DdsTransport
+        from wholehand.ros2.ros2_dds import DdsTransport
 
         return DdsTransport(config, node_name)
-    from wholehand.hardware.rmw_zenoh import ZenohTransport
+    from wholehand.ros2.rmw_zenoh import ZenohTransport
 
     return ZenohTransport(config, node_name)

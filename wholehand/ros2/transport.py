@@ -2,7 +2,7 @@
 and rmw_fastrtps), chosen by the hardware config's ``[ros2] transport``.
 
 A transport is one ROS 2 node's presence on the network. It publishes and subscribes CDR
-payloads (the 4-byte encapsulation header included, :mod:`wholehand.hardware.messages`) on the
+payloads (the 4-byte encapsulation header included, :mod:`wholehand.ros2.messages`) on the
 config's topics with their QoS, and hands every received sample to a callback with its
 :class:`SampleMeta`. A sample the transport itself must drop (a zenoh sample without rmw_zenoh's
 attachment, a DDS sample whose payload does not decode) goes to the ``rejected`` callback with a

@@ -36,9 +36,9 @@ import zenoh
 import zenoh.ext
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import HardwareConfig, QoS
-from wholehand.hardware.messages import MessageError, dds_type_name, type_hash
-from wholehand.hardware.transport import Received, Rejected, SampleMeta
+from wholehand.ros2.config import HardwareConfig, QoS
+from wholehand.ros2.messages import MessageError, dds_type_name, type_hash
+from wholehand.ros2.transport import Received, Rejected, SampleMeta
 
 GID_BYTES = 16
 
@@ -275,7 +275,7 @@ def _reliability(qos: QoS) -> zenoh.Reliability:
 
 
 class ZenohTransport:
-    """A ROS 2 node on zenoh as rmw_zenoh makes one (:class:`~wholehand.hardware.transport.
+    """A ROS 2 node on zenoh as rmw_zenoh makes one (:class:`~wholehand.ros2.transport.
     Transport`): a session with the config's endpoints, the node's liveliness tokens, and
     subscribers that drop samples without rmw_zenoh's attachment (reason ``no_attachment``) or
     with a malformed one (``bad_attachment``), as rmw_zenoh does."""

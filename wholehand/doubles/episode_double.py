@@ -5,14 +5,14 @@ episode_scene`: the arm at home, the person holding the object out) runs in MuJo
 The arm is behind a position controller (the newest target of the arm topic, held, tracked by
 the arm's PD law with gravity feed-forward, as ros2_control's forward command controller on a
 position interface and the arm's drives do), the hand behind a torque controller
-(:class:`~wholehand.hardware.double.RemoteTorque`). The person of ``wholehand reach`` moves the
+(:class:`~wholehand.doubles.double.RemoteTorque`). The person of ``wholehand reach`` moves the
 object while the hand reaches, lets go once it is held, pushes and twists it, and snatches it
 away; the double cannot see the controller's stage, so the person judges that the hand holds the
 object by the simulated contacts (the thumb and two other fingers touching). With ``away`` the
 person instead carries the object out of the arm's workspace and back, for the home rule.
 
 Joint states (arm and hand) go out at the joint-state rate, the tracked pose at the tracker's
-rate with its latency, noise and dropouts, as in :mod:`wholehand.hardware.double`.
+rate with its latency, noise and dropouts, as in :mod:`wholehand.doubles.double`.
 """
 
 from __future__ import annotations
@@ -27,17 +27,25 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.backends.command import Command, JointTargets
-from wholehand.errors import ConfigError
-from wholehand.hardware.config import HardwareConfig
-from wholehand.hardware.double import (
+from wholehand.doubles.double import (
     DOUBLE_NODE,
     RealTimePacer,
     RemoteTorque,
     RobotPublisher,
     wait_for_command,
 )
-from wholehand.hardware.inputs import JointStateReader, arm_command_dofs, command_dofs
-from wholehand.hardware.messages import (
+from wholehand.errors import ConfigError
+from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
+from wholehand.loop.stage import CycleContext, Stage, StageOutput
+from wholehand.models.hand import HandModel
+from wholehand.reaching.episode import episode_scene
+from wholehand.reaching.episode_spec import EpisodeSpec
+from wholehand.reaching.person import PERTURBATIONS, Event, Person, grip
+from wholehand.reaching.stages import FINGER_KD, FINGER_KP, ArmServo
+from wholehand.robot.stopping import StopOnEvent, signals_set
+from wholehand.ros2.config import HardwareConfig
+from wholehand.ros2.inputs import JointStateReader, arm_command_dofs, command_dofs
+from wholehand.ros2.messages import (
     FLOAT64_ARRAY,
     JOINT_STATE,
     JOINT_TRAJECTORY,
@@ -46,16 +54,8 @@ from wholehand.hardware.messages import (
     decode_array,
     decode_joint_trajectory,
 )
-from wholehand.hardware.node import open_transport
-from wholehand.hardware.stopping import StopOnEvent, signals_set
-from wholehand.hardware.transport import SampleMeta
-from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
-from wholehand.loop.stage import CycleContext, Stage, StageOutput
-from wholehand.models.hand import HandModel
-from wholehand.reaching.episode import episode_scene
-from wholehand.reaching.episode_spec import EpisodeSpec
-from wholehand.reaching.person import PERTURBATIONS, Event, Person, grip
-from wholehand.reaching.stages import FINGER_KD, FINGER_KP, ArmServo
+from wholehand.ros2.node import open_transport
+from wholehand.ros2.transport import SampleMeta
 from wholehand.trials.trial import tracking_filters
 
 FloatArray = npt.NDArray[np.float64]

@@ -101,7 +101,8 @@ from typing import Any
 
 from wholehand.backends.table import Table
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import (
+from wholehand.reaching.workspace import Box, Workspace
+from wholehand.ros2.config import (
     DISTROS,
     STAMP_SOURCES,
     TOPICS,
@@ -111,7 +112,6 @@ from wholehand.hardware.config import (
     QoS,
     SafetyLimits,
 )
-from wholehand.reaching.workspace import Box, Workspace
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -49,7 +49,7 @@ Topics (frames: ``world``, every link of the model by its name, and ``object``):
 The contacts are two markers: their points (a SPHERE_LIST) and their forces (a LINE_LIST from
 each point to ``point + ARROW_SCALE * force``), coloured by the force's magnitude from blue to
 red; contacts without an allocated force are grey, with short lines along the object normal.
-:func:`~wholehand.hardware.mcap_replay.read_mcap_record` turns a recording back into a run record
+:func:`~wholehand.recording.mcap_replay.read_mcap_record` turns a recording back into a run record
 for ``wholehand view``.
 """
 
@@ -66,11 +66,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.hardware.mcap_writer import McapWriter, MessageTypes
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.mesh_files import resolve_mesh_uri
+from wholehand.recording.mcap_writer import McapWriter, MessageTypes
 
 FloatArray = npt.NDArray[np.float64]
 log = logging.getLogger(__name__)

@@ -1,5 +1,5 @@
 """The hardware config's types: topics, joint names, rates, QoS and safety limits of a ROS 2
-robot. Its TOML file, its schema and its checks are :mod:`wholehand.hardware.config_file`."""
+robot. Its TOML file, its schema and its checks are :mod:`wholehand.ros2.config_file`."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ class QoS:
 
 @dataclass(frozen=True)
 class SafetyLimits:
-    """The safety rules' times and rates (see :mod:`wholehand.hardware.guard`)."""
+    """The safety rules' times and rates (see :mod:`wholehand.robot.guard`)."""
 
     joint_timeout: float = 0.05
     """A joint state older than this [s]: the loop's torque is not sent, the last one is held
@@ -94,8 +94,8 @@ class HardwareConfig:
     schema). ``path`` is the file it came from ("" for the defaults)."""
 
     transport: str = "zenoh"
-    """``"zenoh"`` (:mod:`wholehand.hardware.rmw_zenoh`) or ``"dds"``
-    (:mod:`wholehand.hardware.ros2_dds`)."""
+    """``"zenoh"`` (:mod:`wholehand.ros2.rmw_zenoh`) or ``"dds"``
+    (:mod:`wholehand.ros2.ros2_dds`)."""
     domain_id: int = 0
     distro: str = "jazzy"
     mode: str = "peer"

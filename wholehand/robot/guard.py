@@ -41,7 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand.errors import ConfigError
-from wholehand.hardware.config import SafetyLimits
+from wholehand.ros2.config import SafetyLimits
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -185,6 +185,7 @@ def run_pipeline_benchmark(
     if episodes < 1:
         raise ConfigError(f"bench pipeline: episodes must be >= 1, got {episodes}")
     config_path = hand_hardware_config(hand) if config is None else Path(config)
+    made_by = provenance()  # the code the episodes run, not a commit made meanwhile
     ros, local, rows = [], [], []
     for oi, obj in enumerate(objects):
         for episode in range(episodes):
@@ -202,7 +203,7 @@ def run_pipeline_benchmark(
                     f"regrasps={b['regrasps']} complete={b['complete']}"
                 )
     return {
-        "provenance": provenance(),
+        "provenance": made_by,
         "hand": hand,
         "objects": list(objects),
         "episodes_per_object": episodes,

@@ -114,3 +114,22 @@ def test_a_thumb_at_the_palms_side_closes_across_the_palm(tmp_path):
     assert derived_close_torque(hand)["t_j1"] > 0.0
     q, tau, _ = style_arrays(hand, hand.config.grasp_styles["power"])
     np.testing.assert_allclose(model_palm_normal(hand, q, tau), [1.0, 0.0, 0.0], atol=1e-9)
+
+
+def test_a_claw_with_a_thumb_is_still_a_claw_where_the_optimiser_starts(tmp_path):
+    """Naming one claw finger the thumb (for power grasps) and starting from mid-range, where
+    the curled tips also move back toward the hub together: the synthesiser's palm frame is
+    still the claw's, its normal the fingers' direction (+z) over all three fingers."""
+    from wholehand.grasps.generate import named_style
+    from wholehand.grasps.synthesis import GraspSynthesizer
+    from wholehand.models.grasp_styles import with_close_torque
+    from wholehand.models.object_catalogue import load_object
+
+    folder = write_claw_hand(tmp_path / "claw")
+    toml = folder / "hand.toml"
+    toml.write_text(toml.read_text().replace('palm_link = "hub"', 'palm_link = "hub"\nthumb = "a"'))
+    hand = load_hand(folder)
+    style = with_close_torque(hand, named_style(hand, "power"))
+    palm = GraspSynthesizer(hand, load_object("058_golf_ball"), style).palm
+    np.testing.assert_allclose(palm.bRp[:, 0], [0.0, 0.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(palm.centre[1:], 0.0, atol=1e-9)  # on the axis

@@ -14,9 +14,9 @@ instead:
 Along those axes the palm link's surface samples give the palm face (largest x), the top of the
 palm (largest z, toward the fingers) and the centre of their bounding box.
 
-A claw closes its fingers toward each other, not toward a palm: the closing motions of all its
-tips, the thumb's included, cancel (their sum is less than :data:`CANCELLING` of their
-sizes), and its fingers point where
+A claw closes its fingers toward each other, not toward a palm: with its joints at zero the
+closing motions of all its tips, the thumb's included, cancel (their sum is less than
+:data:`CANCELLING` of their sizes), and its fingers point where
 the object is. Then x is the fingers' mean direction (the approach axis), z points from the
 axis to the first finger's root, and the object's place is among the fingers instead of in
 front of a palm: the face is the plane of the finger roots (largest x among them), the centre
@@ -31,6 +31,7 @@ from typing import cast
 
 import numpy as np
 import numpy.typing as npt
+import pinocchio as pin
 
 from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel
@@ -145,14 +146,23 @@ def model_palm_normal(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> 
     tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in fingers])
     tip_joint = np.array([hand.link_joint[hand.link_index(links[-1])] for links in fingers])
     closing = closing_direction(hand, kin, tips, tip_joint, tau_close)
-    if _claw(hand, kin, tau_close):  # the fingers close toward each other: along them
+    if is_claw(hand, tau_close):  # the fingers, the thumb's too, close toward each other
+        every = list(hand.config.fingers.values())
+        roots = np.array([kin.frame_pose(links[0])[:3, 3] for links in every])
+        tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in every])
         return _unit(tips.mean(axis=0) - roots.mean(axis=0))
     return _unit(closing)
 
 
-def _claw(hand: HandModel, kin: HandKinematics, tau_close: FloatArray) -> bool:
-    """Whether the tips of all the fingers, the thumb's included, close toward each other:
-    their closing velocities sum to less than :data:`CANCELLING` of their sizes."""
+def is_claw(hand: HandModel, tau_close: FloatArray) -> bool:
+    """Whether the tips of all the fingers, the thumb's included, close toward each other with
+    the joints at zero (within their limits), as the model lays the fingers out: their closing
+    velocities there sum to less than :data:`CANCELLING` of their sizes. (Curled, a claw's
+    tips also move back toward its hub together.)"""
+    laid_out = pin.neutral(hand.model)
+    laid_out = hand.couple(np.clip(laid_out, hand.q_lower, hand.q_upper))
+    kin = HandKinematics(hand)
+    kin.update(laid_out, np.eye(4))
     links = [links[-1] for links in hand.config.fingers.values()]
     tips = np.array([kin.frame_pose(link)[:3, 3] for link in links])
     joints = np.array([hand.link_joint[hand.link_index(link)] for link in links])
@@ -180,8 +190,9 @@ def palm_frame(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> PalmFra
         closing = model_palm_normal(hand, q, tau_close)
     normal = _unit(np.round(_unit(closing), AXIS_DECIMALS))
     along = np.round(_unit(tips.mean(axis=0) - roots.mean(axis=0)), AXIS_DECIMALS)
-    if along @ normal > np.cos(np.deg2rad(CLAW_ALIGNED_DEG)):
-        return _claw_frame(normal, roots, cfg.path)
+    if along @ normal > np.cos(np.deg2rad(CLAW_ALIGNED_DEG)):  # a claw: among all its fingers
+        every = [kin.frame_pose(links[0])[:3, 3] for links in cfg.fingers.values()]
+        return _claw_frame(normal, np.array(every), cfg.path)
     along = _unit(along - (along @ normal) * normal)
     bRp = np.column_stack([normal, np.cross(along, normal), along])
     rows = hand.samples.link == hand.link_index(hand.palm_link)

@@ -189,7 +189,6 @@ class ControlLoop:
             raise ConfigError(f"ControlLoop.run: duration must be >= 0 [s], got {duration!r}")
         backend = self.backend
         t0 = backend.time
-        self._pending = None  # a command the last run computed but never applied is gone
         for observer in self.observers:
             observer.on_start(self)
         report = self.report

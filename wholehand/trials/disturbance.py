@@ -38,8 +38,8 @@ load test, applied within one simulation step instead of held for a second."""
 PULL_TIME = 0.3
 """How long the sudden pull lasts [s]."""
 KNOCK_FORCE = 5.0
-"""Force of the knock on one finger's link, away from the object [N]: above what an
-Allegro fingertip presses with at its motors' limits (about 0.7 N*m on 0.1 m)."""
+"""Force of the knock on one finger's link, away from the object [N]: more than twice what a
+fingertip of the shipped hands presses with at its motors' 0.2 N*m on about 0.1 m (2 N)."""
 KNOCK_TIME = 0.03
 """How long the knock lasts [s]."""
 RECOVERY_TIME = 0.5

@@ -16,12 +16,12 @@ palm (largest z, toward the fingers) and the centre of their bounding box.
 
 A claw closes its fingers toward each other, not toward a palm: with its joints at zero the
 closing motions of all its tips, the thumb's included, cancel (their sum is less than
-:data:`CANCELLING` of their sizes), and its fingers point where
-the object is. Then x is the fingers' mean direction (the approach axis), z points from the
-axis to the first finger's root, and the object's place is among the fingers instead of in
-front of a palm: the face is the plane of the finger roots (largest x among them), the centre
-their centroid and the top :data:`CLAW_REACH` past it along z, so that an object placed
-within 4 cm below the top sits around the axis.
+:data:`CANCELLING` of their sizes), and its fingers point where the object is. Then x is the
+fingers' mean direction (the approach axis), z points from the axis to the first finger's root,
+and the object's place is among the fingers instead of in front of a palm: the face is the
+plane of the finger roots (largest x among them), the centre their centroid and the top
+:data:`CLAW_REACH` past it along z, so that an object placed within 4 cm below the top sits
+around the axis.
 """
 
 from __future__ import annotations
@@ -142,7 +142,6 @@ def model_palm_normal(hand: HandModel, q: FloatArray, tau_close: FloatArray) -> 
     fingers = _non_thumb_fingers(hand)
     kin = HandKinematics(hand)
     kin.update(q, np.eye(4))
-    roots = np.array([kin.frame_pose(links[0])[:3, 3] for links in fingers])
     tips = np.array([kin.frame_pose(links[-1])[:3, 3] for links in fingers])
     tip_joint = np.array([hand.link_joint[hand.link_index(links[-1])] for links in fingers])
     closing = closing_direction(hand, kin, tips, tip_joint, tau_close)

@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, Any
 import mujoco
 import numpy as np
 import numpy.typing as npt
-import pinocchio as pin
 
 from wholehand.backends.base import (
     Backend,
@@ -33,6 +32,7 @@ from wholehand.errors import ConfigError
 from wholehand.models.poses import check_pose
 
 from .contacts import hand_object_contacts, warning_counts
+from .external_forces import ExternalForces
 from .poses import mujoco_quat, pose_from_mujoco
 from .scene import HandObjectScene, build_scene
 from .scene_options import (
@@ -65,15 +65,6 @@ _WARNING_MEANING = {
 
 _STEP_EPS = 1e-9
 """Relative slack so that e.g. a 5 ms duration at 1 ms is 5 steps, not 6 (float rounding)."""
-
-
-def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``a x b`` of two 3-vectors, as ``np.cross`` computes it (the same products and
-    differences), without its overhead (it runs before every MuJoCo step while a spring holds
-    the object)."""
-    a0, a1, a2 = a
-    b0, b1, b2 = b
-    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def _vector(value: Any, n: int, name: str) -> FloatArray:
@@ -205,11 +196,7 @@ class MujocoBackend(
         if opts.base == "floating":
             self._wrist_q = int(self.model.joint(WRIST_JOINT).qposadr[0])
         self._targets: _PDTerms | None = None
-        self._spring: tuple[FloatArray, FloatArray, FloatArray] | None = None
-        self._pushes: list[tuple[int, float, float, FloatArray]] = []
-        """Scheduled pushes: MuJoCo body, first and end step time [s], force [N]."""
-        self._pushed_links: npt.NDArray[np.intp] = np.zeros(0, dtype=np.intp)
-        """Hand bodies with a scheduled push (their xfrc_applied is the pushes' alone)."""
+        self._forces = ExternalForces(self.data, self.scene, obj.com)
         wMo = self.object_pose_in_model() if wMo_init is None else wMo_init
         self.reset(hand.neutral() if q_init is None else q_init, wMo)
 
@@ -284,18 +271,14 @@ class MujocoBackend(
             raise ConfigError(f"MujocoBackend.step: duration must be >= 0 [s], got {duration!r}")
         n = math.ceil(duration / self.model.opt.timestep - _STEP_EPS)
         t_before = float(self.data.time)
-        body = self.scene.object_body
+        forces = self._forces
         for _ in range(n):
-            if self._spring is not None:
-                self.data.xfrc_applied[body] = self._wrench + self._spring_wrench()
-            if self._pushes:
-                self._push_at(self.time)
+            if forces.varying:
+                forces.before_step(self.time)
             if self._targets is not None:
                 self._set_ctrl(self._pd_torque())
             self._guard.step(self.data)
-        self.data.xfrc_applied[body] = self._wrench
-        if self._pushes:
-            self.data.xfrc_applied[self._pushed_links] = 0.0
+        forces.after_steps()
         if n > 0:
             if self.data.time < t_before:  # MuJoCo diverged and reset its data, time included
                 self._time_offset += t_before + n * self.model.opt.timestep - self.data.time
@@ -312,8 +295,7 @@ class MujocoBackend(
         until changed (MuJoCo ``xfrc_applied``)."""
         force = _vector(force_world, 3, "force_world")
         torque = _vector(torque_world, 3, "torque_world")
-        self._wrench = np.concatenate((force, torque))
-        self.data.xfrc_applied[self.scene.object_body] = self._wrench
+        self._forces.set_wrench(np.concatenate((force, torque)))
 
     def set_object_spring(
         self,
@@ -325,7 +307,7 @@ class MujocoBackend(
         every MuJoCo step and added to the wrench of :meth:`apply_object_wrench`; None removes it.
         Stiffness: [N/m], [N*m/rad]; damping: [N*s/m], [N*m*s/rad]."""
         if wMo_target is None:
-            self._spring = None
+            self._forces.spring = None
             return
         target = check_pose(wMo_target, "wMo_target")
         gains = np.asarray([*stiffness, *damping], dtype=float)
@@ -335,21 +317,7 @@ class MujocoBackend(
                 f"values >= 0 each, got {stiffness!r} and {damping!r}"
             )
         p_com = target[:3, :3] @ self.obj.com + target[:3, 3]
-        self._spring = (p_com, target[:3, :3].copy(), gains)
-
-    def _spring_wrench(self) -> FloatArray:
-        assert self._spring is not None
-        p_target, R_target, (k_lin, k_rot, d_lin, d_rot) = self._spring
-        d, a = self.data, self.scene.object_qpos
-        flat = np.empty(9)
-        mujoco.mju_quat2Mat(flat, d.qpos[a + 3 : a + 7])
-        R = flat.reshape(3, 3)
-        r_com = R @ self.obj.com
-        v_origin, omega = self.object_velocity()
-        v_com = v_origin + _cross(omega, r_com)
-        force = k_lin * (p_target - (d.qpos[a : a + 3] + r_com)) - d_lin * v_com
-        torque = k_rot * pin.log3(R_target @ R.T) - d_rot * omega
-        return np.concatenate((force, torque))
+        self._forces.spring = (p_com, target[:3, :3].copy(), gains)
 
     def schedule_push(
         self, force_world: FloatArray, start: float, duration: float, link: str | None = None
@@ -373,27 +341,12 @@ class MujocoBackend(
                     f"{self.hand.name!r}; use one of {self.hand.link_names}"
                 )
             body = int(self.scene.link_body[self.hand.link_index(link)])
-            self._pushed_links = np.union1d(self._pushed_links, [body]).astype(np.intp)
         half = 0.5 * self.timestep
-        self._pushes.append((body, start - half, start + duration - half, force))
+        self._forces.add_push(body, start - half, start + duration - half, force, link is not None)
 
     def clear_pushes(self) -> None:
         """Remove every scheduled push (and the force of one under way)."""
-        self._pushes = []
-        self.data.xfrc_applied[self._pushed_links] = 0.0
-        self._pushed_links = np.zeros(0, dtype=np.intp)
-
-    def _push_at(self, t: float) -> None:
-        """Set the scheduled pushes of the step starting at ``t`` [s] on top of the other
-        external forces (the object's wrench and spring are set just before)."""
-        xfrc = self.data.xfrc_applied
-        object_body = self.scene.object_body
-        if self._spring is None:
-            xfrc[object_body] = self._wrench
-        xfrc[self._pushed_links] = 0.0
-        for body, begin, end, force in self._pushes:
-            if begin <= t < end:
-                xfrc[body, :3] += force
+        self._forces.clear_pushes()
 
     # --- extras -------------------------------------------------------------------------------
     @property
@@ -412,10 +365,7 @@ class MujocoBackend(
         self._time_offset = 0.0
         self._tau = np.zeros(self.hand.nv)
         self._targets = None
-        self._wrench = np.zeros(6)
-        self._spring = None
-        self._pushes = []
-        self._pushed_links = np.zeros(0, dtype=np.intp)
+        self._forces.clear()
         d.qpos[s.qpos_index] = q
         d.qpos[s.object_qpos : s.object_qpos + 3] = wMo[:3, 3]
         d.qpos[s.object_qpos + 3 : s.object_qpos + 7] = mujoco_quat(wMo)
@@ -487,10 +437,7 @@ class MujocoBackend(
     def object_velocity(self) -> tuple[FloatArray, FloatArray]:
         """Linear velocity of the object frame origin [m/s] and angular velocity [rad/s], both
         in world axes."""
-        a = self.scene.object_qvel
-        v = self.data.qvel[a : a + 3].copy()
-        R = self.data.xmat[self.scene.object_body].reshape(3, 3)
-        return v, R @ self.data.qvel[a + 3 : a + 6]
+        return self._forces.object_velocity()
 
     def applied_torques(self) -> FloatArray:
         """(n_v,) torques the motors exert [N*m] after clipping, Pinocchio order."""

@@ -39,24 +39,22 @@ def closing_arrows(hand: HandModel) -> list[Arrow]:
     hand.toml's ``palm_normal`` where given. A direction the model cannot give is left out
     (``hand check`` reports why)."""
     from wholehand.models.grasp_styles import style_arrays, with_close_torque
-    from wholehand.models.palm import model_palm_normal
+    from wholehand.models.palm import model_palm_normal, tip_velocities
 
     q0 = hand.neutral()
     kin = HandKinematics(hand)
     kin.update(q0, np.eye(4))
     cfg = hand.config
     q_pre, tau, _ = style_arrays(hand, with_close_torque(hand, cfg.grasp_styles["power"]))
-    if hand.coupled:  # the torques drive the actuators; the followers move with them
-        tau = hand.coupling @ (hand.coupling.T @ tau)
     source = "hand.toml" if any(cfg.grasp_styles["power"].close_torque.values()) else "model"
+    links = np.flatnonzero(hand.link_fingertip)
+    tips = np.array([kin.frame_pose(hand.link_names[link])[:3, 3] for link in links])
+    velocities = tip_velocities(hand, kin, tips, hand.link_joint[links], tau)
     out: list[Arrow] = []
-    for link in np.flatnonzero(hand.link_fingertip):
-        name = hand.link_names[link]
-        tip = kin.frame_pose(name)[:3, 3]
-        joint = np.array([hand.link_joint[link]])
-        velocity = (kin.point_jacobians(joint, tip[None]) @ tau)[0]
+    for link, tip, velocity in zip(links, tips, velocities, strict=True):
         if np.linalg.norm(velocity) > 1e-9:
-            out.append(Arrow(name, tip, velocity / np.linalg.norm(velocity), source))
+            direction = velocity / np.linalg.norm(velocity)
+            out.append(Arrow(hand.link_names[link], tip, direction, source))
     rows = hand.samples.link == hand.link_index(hand.palm_link)
     if rows.any():
         palm = kin.transform_points(hand.samples.p_joint[rows], hand.samples.joint[rows])

@@ -25,7 +25,7 @@ from wholehand.errors import ConfigError
 from wholehand.loop.control_loop import ControlLoop, Cycle
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
-from wholehand.trials.protocol import SETTLE_TIME, Phase, PhasedDriver
+from wholehand.trials.protocol import SETTLE_TIME, Phase, PhasedDriver, check_phases_rate
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -128,12 +128,7 @@ class DisturbanceProtocol:
 
     def check_rate(self, rate: float) -> None:
         """Raise :class:`ConfigError` unless every phase gets a control cycle at ``rate`` [Hz]."""
-        for phase in self.phases():
-            if phase.duration * rate < 0.5:
-                raise ConfigError(
-                    f"control rate {rate} Hz gives no cycle in phase {phase.name!r} "
-                    f"({phase.duration} s); use at least {1.0 / phase.duration:g} Hz"
-                )
+        check_phases_rate(self.phases(), rate)
 
 
 class DisturbanceDriver(PhasedDriver):

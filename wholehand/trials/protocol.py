@@ -67,6 +67,17 @@ class Phase:
     """Unit load direction in the world, for load phases."""
 
 
+def check_phases_rate(phases: list[Phase], rate: float) -> None:
+    """Raise :class:`ConfigError` unless each of ``phases`` with a duration gets a control
+    cycle at ``rate`` [Hz] (a phase shorter than half a period would be skipped silently)."""
+    for phase in phases:
+        if phase.duration > 0.0 and phase.duration * rate < 0.5:
+            raise ConfigError(
+                f"control rate {rate} Hz gives no cycle in phase {phase.name!r} "
+                f"({phase.duration} s); use at least {1.0 / phase.duration:g} Hz"
+            )
+
+
 @dataclass(frozen=True)
 class PerturbationProtocol:
     """Phase sequence and the external wrench applied in each phase.
@@ -108,12 +119,7 @@ class PerturbationProtocol:
     def check_rate(self, rate: float) -> None:
         """Raise :class:`ConfigError` unless every phase with a duration gets a control cycle at
         ``rate`` [Hz] (a phase shorter than half a period would be skipped silently)."""
-        for phase in self.phases():
-            if phase.duration > 0.0 and phase.duration * rate < 0.5:
-                raise ConfigError(
-                    f"control rate {rate} Hz gives no cycle in phase {phase.name!r} "
-                    f"({phase.duration} s); use at least {1.0 / phase.duration:g} Hz"
-                )
+        check_phases_rate(self.phases(), rate)
 
     def phases(self) -> list[Phase]:
         """The phases in order."""

@@ -59,8 +59,10 @@ from wholehand.ros2.inputs import JointSample, JointStateReader, arm_command_dof
 from wholehand.ros2.messages import (
     FLOAT64_ARRAY,
     JOINT_TRAJECTORY,
+    STRING,
     encode_array,
     encode_joint_trajectory,
+    encode_string,
 )
 from wholehand.ros2.node import open_transport
 from wholehand.ros2.streams import Latest, RobotStreams
@@ -163,6 +165,8 @@ class Ros2Backend(Backend):
         )
         self.hand_position_messages = 0
         """Position commands sent to the hand (``[topics] hand_position_command``)."""
+        self.status_messages = 0
+        """Status messages sent (``[topics] status``)."""
         self._hand_in_position = False
         self.trace: deque[tuple[int, float, int]] | None = (
             deque(maxlen=TRACE_SAMPLES) if trace else None
@@ -191,6 +195,7 @@ class Ros2Backend(Backend):
                 if config.topic("hand_position_command")
                 else None
             )
+            self._status = transport.publisher("status", STRING) if config.topic("status") else None
             self.streams = RobotStreams(config, self.reader, transport, clock)
         except Exception:
             transport.close()
@@ -370,6 +375,15 @@ class Ros2Backend(Backend):
         if self.trace is not None:
             self.trace.append((self._torque.sequence_number, self._stamp_q_seen, stamp_ns))
 
+    def publish_status(self, text: str) -> None:
+        """Publish ``text`` (the controller's stage) on the status topic (nothing without one)."""
+        if self._status is None:
+            return
+        payload = encode_string(text)
+        with self._lock:
+            self._status.put(payload)
+            self.status_messages += 1
+
     def step(self, duration: float) -> None:
         """Wait ``duration`` [s], then, with ``sync_to_joint_states``, for a fresh joint state
         (:mod:`wholehand.ros2.config_file`; counted in :attr:`sync`)."""
@@ -417,6 +431,7 @@ class Ros2Backend(Backend):
                 "arm_joints": self.arm_names,
                 "stops": streams.stops,
                 "hand_position_messages": self.hand_position_messages,
+                "status_messages": self.status_messages,
                 "sync": dict(self.sync),
                 "sync_wait_s": self.sync_wait,
             }

@@ -55,6 +55,7 @@ PAYLOADS = {
     msgs.FLOAT64_ARRAY: msgs.encode_array([0.5, -0.25, 0.125]),
     msgs.JOINT_TRAJECTORY: msgs.encode_joint_trajectory(("a", "b"), np.array([0.3, 0.4]), 0.05),
     msgs.BOOL: msgs.encode_bool(True),
+    msgs.STRING: msgs.encode_string("regulate"),
 }
 
 

@@ -8,6 +8,7 @@ import os
 import struct
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pinocchio as pin
@@ -29,6 +30,7 @@ from wholehand.ros2.rmw_zenoh import (
     open_session,
     topic_key,
 )
+from wholehand.ros2.transport import SampleMeta
 
 ALLEGRO_ORDER = tuple(f"joint_{i}.0" for i in range(16))
 """The Allegro's joints in its URDF's order (Pinocchio's model order differs)."""
@@ -117,6 +119,10 @@ def test_cdr_payloads_round_trip_with_the_encapsulation_header():
     # data: uint32 length then float64s, 8-byte aligned after the 4-byte header
     np.testing.assert_array_equal(msgs.decode_array(array), [1.0, -2.0])
     assert struct.unpack("<dd", array[-16:]) == (1.0, -2.0)
+    status = msgs.encode_string("regulate")
+    # data: uint32 length with the terminating NUL, then the bytes
+    assert status[4:] == struct.pack("<I", 9) + b"regulate\x00"
+    assert msgs.decode_string(status) == "regulate"
 
 
 def test_the_messages_code_is_generated_with_the_typestore_not_in_a_cycle(monkeypatch):
@@ -133,9 +139,12 @@ def test_the_messages_code_is_generated_with_the_typestore_not_in_a_cycle(monkey
     msgs.decode_array(msgs.encode_array(np.zeros(16)))
     msgs.decode_joint_state(msgs.encode_joint_state(1.0, ["a"], [0.0], [0.0], [0.0]))
     msgs.decode_pose(msgs.encode_pose(1.0, "world", np.eye(4)))
+    msgs.decode_string(msgs.encode_string("regulate"))
 
 
-@pytest.mark.parametrize("decode", [msgs.decode_joint_state, msgs.decode_pose, msgs.decode_array])
+@pytest.mark.parametrize(
+    "decode", [msgs.decode_joint_state, msgs.decode_pose, msgs.decode_array, msgs.decode_string]
+)
 def test_malformed_payloads_raise_message_error(decode):
     for payload in (b"", b"\x00\x01\x00\x00\x01", b"garbage" * 3):
         with pytest.raises(msgs.MessageError):
@@ -793,7 +802,7 @@ def test_the_controller_declares_rmw_zenohs_liveliness_tokens(allegro):
         with Ros2Backend(allegro, None, config) as backend:
             entities = []
             deadline = time.monotonic() + 5.0
-            while len(entities) < 5 and time.monotonic() < deadline:
+            while len(entities) < 6 and time.monotonic() < deadline:
                 replies = watcher.liveliness().get("@ros2_lv/**")
                 entities = [_parse_token(str(r.ok.key_expr)) for r in replies if r.ok]
                 time.sleep(0.05)
@@ -806,6 +815,7 @@ def test_the_controller_declares_rmw_zenohs_liveliness_tokens(allegro):
             "/joint_states": "MS",
             "/object_pose": "MS",
             "/wholehand/stop": "MS",
+            "/wholehand/status": "MP",
         }
         torque = by_topic["/hand_effort_controller/commands"]
         assert torque["qos"] == (2, 2, 1, 3)  # best effort, volatile, keep last 3
@@ -865,3 +875,32 @@ def test_the_double_reports_the_effort_its_motors_applied():
     cycle.command.tau = np.array([0.2, 0.1])
     publisher.on_cycle(cycle)
     np.testing.assert_array_equal(msgs.decode_joint_state(joints.payloads[1]).effort, [0.2, 0.1])
+
+
+def test_the_controller_publishes_its_stage_on_each_change_and_every_second():
+    from wholehand.robot.controller import STATUS_PERIOD, StatusPublisher
+
+    sent: list[str] = []
+    status = StatusPublisher(sent.append)
+    ran = [(0.0, "reach_grasp"), (0.005, "reach_grasp"), (STATUS_PERIOD, "reach_grasp")]
+    ran += [(1.2, "regulate"), (1.205, "regulate"), (1.3, "reach_pregrasp")]
+    for t, stage in ran:
+        status.on_cycle(SimpleNamespace(t=t, stage=stage))
+    assert sent == ["reach_grasp", "reach_grasp", "regulate", "reach_pregrasp"]
+
+
+def test_the_doubles_person_sees_the_controllers_stage_and_the_contacts_before_it():
+    from wholehand.doubles.episode_double import ControllerHolds
+
+    touching = [True]
+    holds = ControllerHolds(lambda cycle: touching[0])
+    cycle = SimpleNamespace(t=0.0, stage="robot_double")
+    meta = SampleMeta(0, bytes(16))
+    assert holds(cycle)  # no status yet: the contacts decide
+    holds.on_status(msgs.encode_string("reach_grasp"), meta, 0.0)
+    assert not holds(cycle)  # touching, but the controller still reaches
+    holds.on_status(msgs.encode_string("regulate"), meta, 0.0)
+    touching[0] = False
+    assert holds(cycle)
+    holds.on_status(b"garbage", meta, 0.0)
+    assert holds(cycle) and (holds.messages, holds.malformed) == (2, 1)

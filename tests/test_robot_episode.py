@@ -75,6 +75,9 @@ def test_the_controller_reaches_grasps_and_regulates_through_the_perturbations_o
             assert ctl["loop"]["transitions"][i]["reason"].startswith("grasp lost"), seen
     assert robot["perturbations"] >= 1, seen  # the person moved the object during the reach
     assert robot["malformed_commands"] == 0 and robot["arm_messages"] > 500, seen
+    # The person saw the controller's stage on its status topic, as in process.
+    # The controller may outlive the double by a few messages.
+    assert len(stages) < robot["status_messages"] <= ctl["backend"]["status_messages"], seen
     assert robot["max_torque_rate_Nm_s"] <= 20.0 * 1.05, seen
     guard = ctl["backend"]["guard"]
     rules = ("joints_lost", "exit", "stop", "watchdog")

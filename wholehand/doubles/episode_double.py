@@ -7,8 +7,10 @@ the arm's PD law with gravity feed-forward, as ros2_control's forward command co
 position interface and the arm's drives do), the hand behind a torque controller
 (:class:`~wholehand.doubles.double.RemoteTorque`). The person of ``wholehand reach`` moves the
 object while the hand reaches, lets go once it is held, pushes and twists it, and snatches it
-away; the double cannot see the controller's stage, so the person judges that the hand holds the
-object by the simulated contacts (the thumb and two other fingers touching). With ``away`` the
+away. The person judges that the hand holds the object as in process, by the controller's stage
+(``regulate``), which the controller publishes on its status topic; from a controller that
+publishes none, by the simulated contacts (the thumb and two other fingers touching). With
+``away`` the
 person instead carries the object out of the arm's workspace and back, for the home rule.
 
 Joint states (arm and hand) go out at the joint-state rate, the tracked pose at the tracker's
@@ -41,7 +43,7 @@ from wholehand.models.hand import HandModel
 from wholehand.reaching.episode import episode_scene
 from wholehand.reaching.episode_spec import EpisodeSpec
 from wholehand.reaching.person import PERTURBATIONS, Event, Person, grip
-from wholehand.reaching.stages import FINGER_KD, FINGER_KP, ArmServo
+from wholehand.reaching.stages import FINGER_KD, FINGER_KP, REGULATE, ArmServo
 from wholehand.robot.stopping import StopOnEvent, signals_set
 from wholehand.ros2.config import HardwareConfig
 from wholehand.ros2.inputs import JointStateReader, arm_command_dofs, command_dofs
@@ -50,9 +52,11 @@ from wholehand.ros2.messages import (
     JOINT_STATE,
     JOINT_TRAJECTORY,
     POSE_STAMPED,
+    STRING,
     MessageError,
     decode_array,
     decode_joint_trajectory,
+    decode_string,
 )
 from wholehand.ros2.node import open_transport
 from wholehand.ros2.transport import SampleMeta
@@ -220,6 +224,36 @@ class ContactHolds:
         return cycle.t - self._touched <= HOLD_MEMORY
 
 
+class ControllerHolds:
+    """The person's view of a grasp as in process: the hand holds the object while the
+    controller's status topic says it regulates (``std_msgs/msg/String``, the stage's name);
+    until a first status arrives (a controller that publishes none), the ``contacts`` decide."""
+
+    def __init__(self, contacts: Callable[[Cycle], bool]) -> None:
+        self.contacts = contacts
+        self.stage: str | None = None
+        """The controller's newest stage; None before its first status message."""
+        self.messages = 0
+        self.malformed = 0
+        self._lock = threading.Lock()
+
+    def on_status(self, payload: bytes, meta: SampleMeta, received: float) -> None:
+        """A status message (the transport's thread)."""
+        try:
+            stage = decode_string(payload)
+        except MessageError:
+            self.malformed += 1
+            return
+        with self._lock:
+            self.stage = stage
+            self.messages += 1
+
+    def __call__(self, cycle: Cycle) -> bool:
+        with self._lock:
+            stage = self.stage
+        return self.contacts(cycle) if stage is None else stage == REGULATE
+
+
 class CarryAway(Observer):
     """The person holds the object out, carries it out of the arm's workspace at ``start``, and
     back to where it was held after ``duration`` [s]; then holds it there."""
@@ -297,8 +331,8 @@ def run_episode_double(
     mass_inertia = (obj.mass, inertia)
     rim = 0.5 * float(np.max(obj.extents))
     script: Person | CarryAway
+    holds = ControllerHolds(ContactHolds(hand, backend))
     if spec.away is None:
-        holds = ContactHolds(hand, backend)
         script = Person(
             spec.episode,
             backend,
@@ -336,6 +370,8 @@ def run_episode_double(
         if config.topic("hand_position_command"):
             topic = "hand_position_command"
             subs.append(transport.subscriber(topic, FLOAT64_ARRAY, drives.on_hand_position))
+        if config.topic("status"):
+            subs.append(transport.subscriber("status", STRING, holds.on_status))
         publisher = RobotPublisher(joints, poses, names, config.frame_id, "image")
         pacer = RealTimePacer()
         stopped = threading.Event()  # Ctrl-C or SIGTERM: the run ends and its summary is written
@@ -380,6 +416,7 @@ def run_episode_double(
         "malformed_commands": drives.torque.malformed + drives.malformed_arm,
         "arm_messages": drives.arm_messages,
         "hand_position_messages": drives.hand_position_messages,
+        "status_messages": holds.messages,
         "pose_messages": publisher.pose_messages,
         "max_torque_rate_Nm_s": drives.torque.max_rate,
         "stops_to_zero": drives.torque.stops,

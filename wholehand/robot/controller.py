@@ -217,6 +217,28 @@ class _StopWhen(Observer):
         return None
 
 
+STATUS_PERIOD = 1.0
+"""The controller repeats its stage on the status topic this often [s] (and on each change), so
+that a listener that joins late learns it."""
+
+
+class StatusPublisher(Observer):
+    """Publishes the stage each cycle ran on the backend's status topic
+    (:meth:`~wholehand_plugins.ros2_backend.Ros2Backend.publish_status`) when it changes and
+    every :data:`STATUS_PERIOD` seconds."""
+
+    def __init__(self, publish: Callable[[str], None]) -> None:
+        self.publish = publish
+        self._stage = ""
+        self._sent = -np.inf
+
+    def on_cycle(self, cycle: Cycle) -> str | None:
+        if cycle.stage != self._stage or cycle.t - self._sent >= STATUS_PERIOD:
+            self.publish(cycle.stage)
+            self._stage, self._sent = cycle.stage, cycle.t
+        return None
+
+
 class _AnnounceTransitions(Observer):
     """Calls ``announce`` with a line for each switch between stages as the run goes (an
     operator watches the pipeline's progress; a test waits for a stage instead of a time)."""
@@ -301,6 +323,7 @@ def run_controller(
                     f"{config.topics['torque_command']}"
                 )
             gate = ObservationGate(hand)
+            status = StatusPublisher(backend.publish_status)
             first = PREGRASP if pipeline else None
             rate = config.control_rate
             loop = ControlLoop(
@@ -311,7 +334,7 @@ def run_controller(
                 first=first,
                 rate=rate,
                 filters=pose_filters(config),
-                observers=watchers,
+                observers=[*watchers, status],
                 gate=gate,
             )
             report = loop.run(duration)

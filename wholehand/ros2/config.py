@@ -21,7 +21,7 @@ TRANSPORTS = ("zenoh", "dds")
 
 TOPICS = (
     "joint_states", "object_pose", "torque_command", "arm_command", "hand_position_command",
-    "stop",
+    "stop", "status",
 )  # fmt: skip
 STAMP_SOURCES: tuple[StampSource, ...] = ("header", "receipt")
 
@@ -113,6 +113,7 @@ class HardwareConfig:
             "arm_command": "",
             "hand_position_command": "",
             "stop": "/wholehand/stop",
+            "status": "/wholehand/status",
         }
     )
     rename: dict[str, str] = field(default_factory=dict)

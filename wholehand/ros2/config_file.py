@@ -27,6 +27,8 @@ Schema (times in s, rates in Hz, torques in N*m; every key optional, defaults be
                                     # interface on it; torques go on torque_command while
                                     # regulating ("" = torques throughout: a PD law in torque)
     stop = "/wholehand/stop"        # std_msgs/msg/Bool, in: true stops the robot ("" = none)
+    status = "/wholehand/status"    # std_msgs/msg/String, out: the controller's stage on each
+                                    # change and every second, e.g. "regulate" ("" = none)
 
     [joints]
     rename = { joint_0 = "allegro_joint_0" }   # model joint -> name in JointState messages

@@ -20,6 +20,7 @@ from wholehand.ros2.messages import (
     JOINT_STATE,
     JOINT_TRAJECTORY,
     POSE_STAMPED,
+    STRING,
     dds_type_name,
 )
 
@@ -118,12 +119,18 @@ class Bool(IdlStruct, typename=dds_type_name(BOOL)):
     data: bool = False
 
 
+@dataclass
+class String(IdlStruct, typename=dds_type_name(STRING)):
+    data: str = ""
+
+
 IDL_TYPES: dict[str, type[IdlStruct]] = {
     JOINT_STATE: JointState,
     POSE_STAMPED: PoseStamped,
     FLOAT64_ARRAY: Float64MultiArray,
     JOINT_TRAJECTORY: JointTrajectory,
     BOOL: Bool,
+    STRING: String,
 }
 """The Cyclone IDL struct of each message type wholehand speaks."""
 

@@ -9,6 +9,7 @@
 - ``trajectory_msgs/msg/JointTrajectory`` (out): arm position targets as one point for
   ``joint_trajectory_controller``.
 - ``std_msgs/msg/Bool`` (in): the stop topic (true: stop).
+- ``std_msgs/msg/String`` (out): the status topic (the controller's stage).
 
 Payloads are CDR with the 4-byte encapsulation header (little endian ``00 01 00 00``), exactly as
 a ROS 2 node serialises them. Decoding a payload that is not such a message raises
@@ -35,6 +36,7 @@ POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 JOINT_TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
 BOOL = "std_msgs/msg/Bool"
+STRING = "std_msgs/msg/String"
 
 
 class MessageError(WholehandError):
@@ -54,7 +56,7 @@ def typestore(distro: str = "jazzy") -> Any:
     (de)serialisers of wholehand's messages generated: rosbags writes a type's code on its
     first use (about 5 ms), which must not fall in a control cycle."""
     store = get_typestore(RECORDING_STORES.get(distro, Stores.ROS2_JAZZY))
-    for msgtype in (JOINT_STATE, POSE_STAMPED, FLOAT64_ARRAY, JOINT_TRAJECTORY, BOOL):
+    for msgtype in (JOINT_STATE, POSE_STAMPED, FLOAT64_ARRAY, JOINT_TRAJECTORY, BOOL, STRING):
         store.get_msgdef(msgtype)
     return store
 
@@ -265,3 +267,19 @@ def decode_bool(payload: bytes) -> bool:
         MessageError: not a CDR Bool.
     """
     return bool(_decode(payload, BOOL).data)
+
+
+# --- String -------------------------------------------------------------------------------------
+def encode_string(value: str) -> bytes:
+    """CDR bytes of a std_msgs/msg/String."""
+    ts = typestore()
+    return bytes(ts.serialize_cdr(ts.types[STRING](data=str(value)), STRING))
+
+
+def decode_string(payload: bytes) -> str:
+    """The data of the std_msgs/msg/String in ``payload``.
+
+    Raises:
+        MessageError: not a CDR String.
+    """
+    return str(_decode(payload, STRING).data)

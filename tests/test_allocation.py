@@ -12,11 +12,12 @@ import pytest
 import qpsolvers
 from kernels_loaded import kernel_versions, loaded_since
 from wholehand_plugins.fingertip_only import FingertipOnlyAllocator
-from wholehand_plugins.qp import SOLVE_SHARE, QPAllocator, QPNoConsistencyAllocator
+from wholehand_plugins.qp import QPAllocator, QPNoConsistencyAllocator
 
 from wholehand import registry
 from wholehand.allocation import solve as solve_module
 from wholehand.allocation.base import Allocation, AllocationStatus, hand_keywords
+from wholehand.allocation.cycle_solver import SOLVE_SHARE
 from wholehand.allocation.kernel_loading import load_kernels
 from wholehand.allocation.kernels import sigma_min_lower_bound
 from wholehand.allocation.null_space import ActuationNullSpace
@@ -314,18 +315,18 @@ class _DeadlineOnSecondSolve:
 def test_a_deadline_cycle_hands_its_progress_to_the_next() -> None:
     cs, J, com = near_loss()
     alloc = QPAllocator(options=SolveOptions(solver="daqp", screen_edges=True, deadline=60.0))
-    alloc.qp_solver = _DeadlineOnSecondSolve()  # type: ignore[assignment]
+    alloc.cycle_solver.qp_solver = _DeadlineOnSecondSolve()  # type: ignore[assignment]
     first = alloc.allocate(cs, J, com)
     assert first.status is AllocationStatus.DEADLINE and first.tau is None
     sol = alloc.last_solution
     assert sol is not None and sol.x_relaxed is not None and sol.rounds == 2
     # The next cycle starts from the first round's forces and the rows it found violated.
-    warm = alloc._warm
+    warm = alloc.cycle_solver.warm
     assert warm.lam is not None
     np.testing.assert_array_equal(warm.lam.ravel(), sol.x_relaxed[: 4 * len(cs)])
     assert warm.torque_dofs.size + warm.null_rows.size > 0
     exact = QPAllocator(options=SolveOptions(solver="daqp", screen_edges=True)).allocate(cs, J, com)
-    alloc.qp_solver = make_solver("daqp")
+    alloc.cycle_solver.qp_solver = make_solver("daqp")
     again = alloc.allocate(cs, J, com)
     assert again.fresh
     np.testing.assert_allclose(again.tau, exact.tau, rtol=1e-6, atol=1e-8)
@@ -367,7 +368,7 @@ class _TimeLimits:
 def test_the_solver_gets_its_share_of_the_deadline() -> None:
     cs, J, com = near_loss()
     alloc = QPAllocator(options=SolveOptions(solver="daqp", deadline=10.0))
-    alloc.qp_solver = solver = _TimeLimits()  # type: ignore[assignment]
+    alloc.cycle_solver.qp_solver = solver = _TimeLimits()  # type: ignore[assignment]
     assert alloc.allocate(cs, J, com).fresh
     # Each round's limit is what is left of SOLVE_SHARE of the budget once it is built.
     assert solver.limits and all(0.0 < t <= 10.0 * SOLVE_SHARE for t in solver.limits)
@@ -394,7 +395,7 @@ def test_the_allocation_after_a_missed_deadline_gets_the_longer_budget() -> None
     cs, J, com = near_loss()
     options = SolveOptions(solver="daqp", deadline=10.0, deadline_after_miss=30.0)
     alloc = QPAllocator(options=options)
-    alloc.qp_solver = solver = _MissFirst()  # type: ignore[assignment]
+    alloc.cycle_solver.qp_solver = solver = _MissFirst()  # type: ignore[assignment]
     assert alloc.allocate(cs, J, com).status is AllocationStatus.DEADLINE
     assert 10.0 * SOLVE_SHARE - 0.5 < solver.limits[0] <= 10.0 * SOLVE_SHARE
     solver.limits.clear()
@@ -767,7 +768,7 @@ def test_the_feasibility_tolerance_is_relative_to_each_limit(scale: float) -> No
     params = {"f_n_min": 10.0 * scale, "tau_max": 0.05 * scale, "options": options}
     for excess, status in ((1e-3, AllocationStatus.INACCURATE), (1e-5, AllocationStatus.OK)):
         alloc = QPAllocator(**params)
-        alloc.qp_solver = Inflated(alloc.qp_solver, excess)  # type: ignore[assignment]
+        alloc.cycle_solver.qp_solver = Inflated(alloc.cycle_solver.qp_solver, excess)  # type: ignore[assignment]
         out = alloc.allocate(cs, J, com)
         sol = alloc.last_solution
         assert sol is not None
@@ -876,7 +877,7 @@ def test_solver_exception_in_the_loop_becomes_a_status() -> None:
     def boom(*args: Any) -> None:
         raise RuntimeError("solver crashed")
 
-    alloc.qp_solver._solve = boom  # type: ignore[method-assign]
+    alloc.cycle_solver.qp_solver._solve = boom  # type: ignore[method-assign]
     out = alloc.allocate(cs, J, com)
     assert first.ok and out.status is AllocationStatus.SOLVER_FAILED and out.tau is None
 

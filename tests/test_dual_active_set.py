@@ -164,7 +164,7 @@ def test_the_iteration_limit_fails_and_the_allocator_falls_back_to_daqp(monkeypa
     import wholehand.allocation.solvers.dual_active_set as das
 
     monkeypatch.setattr(
-        "wholehand_plugins.qp.solve_dual_active_set",
+        "wholehand.allocation.cycle_solver.solve_dual_active_set",
         lambda qp, free, rows, scale, max_steps: das.solve_dual_active_set(
             qp, free, rows, max_steps=5
         ),
@@ -212,7 +212,7 @@ def test_an_exception_in_the_solver_falls_back_to_daqp(monkeypatch):
     def boom(*args, **kwargs):
         raise RuntimeError("kernel crashed")
 
-    monkeypatch.setattr("wholehand_plugins.qp.solve_dual_active_set", boom)
+    monkeypatch.setattr("wholehand.allocation.cycle_solver.solve_dual_active_set", boom)
     cs, J, com = antipodal()
     out = QPAllocator().allocate(cs, J, com)
     assert out.ok and out.solver == "dual_active_set"
@@ -228,9 +228,9 @@ def test_a_deadline_budgets_the_steps_by_their_measured_time():
     assert out.status is AllocationStatus.DEADLINE and out.tau is None
     assert hurried.last_solution.status == "deadline"
     relaxed = QPAllocator(options=SolveOptions(deadline=60.0, warm_start=False))
-    before = relaxed._step_ns
+    before = relaxed.cycle_solver.step_ns
     assert relaxed.allocate(cs, J, com).fresh
-    assert relaxed.last_solution.iterations > 100 and relaxed._step_ns != before
+    assert relaxed.last_solution.iterations > 100 and relaxed.cycle_solver.step_ns != before
 
 
 def _farkas_ray(qp: AllocationQP) -> np.ndarray | None:
@@ -320,7 +320,7 @@ def test_diverging_multipliers_are_certified_infeasible_without_the_fallback(mon
     def no_fallback(*args, **kwargs):
         raise AssertionError("the fallback solver was asked")
 
-    monkeypatch.setattr("wholehand_plugins.qp.solve_allocation", no_fallback)
+    monkeypatch.setattr("wholehand.allocation.cycle_solver.solve_allocation", no_fallback)
     out = QPAllocator().allocate(cs, J, com)
     assert out.status is AllocationStatus.INFEASIBLE and out.tau is None
 
@@ -336,7 +336,7 @@ def test_a_warm_start_that_fails_is_retried_cold_before_the_fallback(monkeypatch
             return das.solve_dual_active_set(qp, max_steps=1)
         return das.solve_dual_active_set(qp, max_steps=max_steps)
 
-    monkeypatch.setattr("wholehand_plugins.qp.solve_dual_active_set", led_astray)
+    monkeypatch.setattr("wholehand.allocation.cycle_solver.solve_dual_active_set", led_astray)
     cs, J, com = near_loss()
     alloc = QPAllocator()
     assert alloc.allocate(cs, J, com).fresh  # cold: no previous cycle

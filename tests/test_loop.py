@@ -235,15 +235,15 @@ def test_a_rate_off_the_simulation_step_holds_on_average(allegro, cube, rate):
 
 
 class FaultyBackend(Backend):
-    """MuJoCo, with given cycles' observations corrupted or made impossible."""
+    """MuJoCo, with given cycles' observations corrupted or made impossible (cycle n of a 200 Hz
+    loop, by its time: the loop may observe more than once a cycle, before its first)."""
 
     def __init__(self, sim, faults):
-        self.sim, self.faults, self.n = sim, faults, 0
+        self.sim, self.faults, self.t0 = sim, faults, sim.time
 
     def observe(self):
         obs = self.sim.observe()
-        fault = self.faults.get(self.n)
-        self.n += 1
+        fault = self.faults.get(round((self.sim.time - self.t0) * 200.0))
         if fault is None:
             return obs
         q, wMb, wMo = obs.q.copy(), obs.wMb.copy(), obs.wMo.copy()
@@ -577,7 +577,7 @@ def test_a_bad_observation_is_recorded_as_unknown_and_a_bad_switch_is_reported(a
 
 
 def test_no_pose_yet_keeps_the_last_command_and_a_pose_free_stage_runs(allegro, cube):
-    from wholehand.grasps.generate import ClosingStage
+    from wholehand.grasps.closing import ClosingStage
     from wholehand.loop.filters import PoseDropout
 
     seen = Last()

@@ -130,8 +130,6 @@ class MeshSDFEstimator(ContactEstimator):
         self._kept = np.zeros(len(self._p), dtype=np.bool_)
         self.rows: IntArray = np.zeros(0, dtype=np.intp)
         """Sample rows of the last cycle's contacts (the estimator's own numbering)."""
-        # Load the compiled kernel now (milliseconds on its first call), not in a cycle.
-        self._kernel(HandKinematics(hand), np.eye(4))
         self.reset()
 
     def reset(self) -> None:

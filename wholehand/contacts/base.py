@@ -182,6 +182,18 @@ class ContactEstimator(abc.ABC):
             stamp: Time of the state [s], copied into the result.
         """
 
+    def preload(self, kinematics: HandKinematics, wMo: FloatArray) -> None:
+        r"""Load now what a first estimate would load in a control cycle (a compiled kernel, a
+        lazily built structure); the control loop calls it once, before its first cycle, with
+        its first reading. The default estimates once and :meth:`reset`\ s.
+
+        Args:
+            kinematics: Hand kinematics updated to the first reading's q and base pose.
+            wMo: (4, 4) the first reading's object pose in the world.
+        """
+        self.estimate(kinematics, wMo)
+        self.reset()
+
     def reset(self) -> None:  # noqa: B027 - an optional hook, stateless estimators keep it
         """Forget what earlier cycles left (the contacts kept for the next selection); called
-        after warm-up calls, so that the first cycle of a grasp starts afresh."""
+        after :meth:`preload` and when a grasp starts afresh."""

@@ -177,6 +177,7 @@ class ControlLoop:
         self._hold_cycles = 0
         self._hold_status = ""
         self._hold_warned = False
+        self._preloaded = False
         load_observation_check(hand.nq, hand.nv)  # now rather than in the first cycle
 
     # --------------------------------------------------------------------------------------------
@@ -189,6 +190,7 @@ class ControlLoop:
             raise ConfigError(f"ControlLoop.run: duration must be >= 0 [s], got {duration!r}")
         backend = self.backend
         t0 = backend.time
+        self._preload(t0)
         for observer in self.observers:
             observer.on_start(self)
         report = self.report
@@ -213,6 +215,23 @@ class ControlLoop:
             for observer in self.observers:
                 observer.on_end(self)
         return report
+
+    def _preload(self, t: float) -> None:
+        """Once per loop: every stage's :meth:`~wholehand.loop.stage.Stage.preload` with the
+        backend's first reading (skipped when the reading is not a valid one yet)."""
+        if self._preloaded:
+            return
+        self._preloaded = True
+        first = self.backend.observe()
+        try:
+            check_observation(first, self.hand.nq, self.hand.nv)
+        except ObservationError:
+            return
+        context = CycleContext(
+            t, self.dt, first, self.hand, self.obj, self._kin_now, self._kin_then
+        )
+        for stage in {id(s): s for s in self.stages.values()}.values():
+            stage.preload(context)
 
     def _after(self, cycle: Cycle) -> str | None:
         """Show the cycle to the observers and switch to the stage it asks for; why the run

@@ -146,7 +146,14 @@ class ForceRegulation(Stage):
         self.lost_since: float | None = None
         """Time tracking was lost [s] (None: it is not)."""
         self._last: Command | None = None
-        unit_normals(np.zeros((0, 3)), UNIT_TOL)  # load the compiled check now
+
+    def preload(self, context: CycleContext) -> None:
+        """Load the estimator's kernels and the normals' compiled check."""
+        unit_normals(np.zeros((0, 3)), UNIT_TOL)
+        # A wrapper that does not subclass ContactEstimator may have no preload.
+        preload = getattr(self.estimator, "preload", None)
+        if preload is not None and context.obs.wMo is not None:
+            preload(context.kinematics, context.obs.wMo)
 
     def start(self, context: CycleContext) -> None:
         """Let the allocator prepare (baselines allocate once here)."""

@@ -121,6 +121,12 @@ class Stage(abc.ABC):
     """Until a first object pose arrives, the loop runs no stage that needs one (status
     ``no_pose``, last feasible command kept)."""
 
+    def preload(self, context: CycleContext) -> None:  # noqa: B027 - optional hook
+        """Called once by the loop before its first cycle, with the first reading (its object
+        pose may be None): load now what a first :meth:`step` would load in a control cycle
+        (a plug-in's compiled kernels, :meth:`ContactEstimator.preload
+        <wholehand.contacts.base.ContactEstimator.preload>`), leaving no state behind."""
+
     def start(self, context: CycleContext) -> None:  # noqa: B027 - optional hook
         """Called on the first cycle the stage is active, before :meth:`step`."""
 

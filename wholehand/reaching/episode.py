@@ -280,11 +280,6 @@ def _episode_stages(
         return usable_on_table(grasp_hand, plan, wMo_now, table, HAND_MARGIN, kin)
 
     estimator = registry.load("contact_estimators", spec.estimator, hand=hand, obj=obj)
-    # The first estimate loads its compiled kernel (~0.1 s): done here, not in the first cycle.
-    warm, first = HandKinematics(hand), scene.backend.observe()
-    warm.update(first.q, first.wMb)
-    estimator.estimate(warm, scene.wMo)
-    estimator.reset()
     # Passed only when asked for, so that a reacher without the option still loads.
     avoid = {"self_collision": True} if spec.self_collision else {}
     reacher = registry.load("reachers", spec.reacher, hand=hand, obj=obj, table=table, **avoid)

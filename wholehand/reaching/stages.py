@@ -419,6 +419,9 @@ class HoldStage(Stage):
         self.arm = ArmServo(hand) if hand.arm_dofs.any() else None
         self._hold = np.zeros(0)
 
+    def preload(self, context: CycleContext) -> None:
+        self.regulation.preload(context)
+
     def start(self, context: CycleContext) -> None:
         self.regulation.start(context)
         if self.arm is not None:

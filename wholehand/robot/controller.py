@@ -27,8 +27,6 @@ import numpy.typing as npt
 from wholehand import defaults, registry
 from wholehand.allocation.base import Allocator
 from wholehand.allocation.options import SolveOptions
-from wholehand.backends.base import Backend
-from wholehand.backends.observation import check_observation
 from wholehand.backends.table import HAND_MARGIN
 from wholehand.contacts.base import ContactEstimator
 from wholehand.errors import ConfigError
@@ -315,7 +313,6 @@ def run_controller(
             "backends", "ros2", hand=hand, obj=obj, config=config, trace=trace
         ) as backend:
             backend.wait_for_streams(wait)
-            _first_estimate(backend, hand, estimator)
             if announce is not None:
                 what = "the pipeline" if pipeline else "regulating"
                 announce(
@@ -353,18 +350,6 @@ def run_controller(
         out["trace"] = traced
         out["cycle_times_s"] = list(stopper.cycle_times)
     return out
-
-
-def _first_estimate(backend: Backend, hand: HandModel, estimator: ContactEstimator) -> None:
-    """Check the robot's first reading and estimate contacts from it once: wholehand's kernels
-    load when built, but a third-party estimator's load in its first call (~0.1-0.2 s each),
-    which must not fall in a cycle."""
-    first, warm = backend.observe(), HandKinematics(hand)
-    check_observation(first, hand.nq, hand.nv)
-    warm.update(first.q, first.wMb)
-    assert first.wMo is not None
-    estimator.estimate(warm, first.wMo)
-    estimator.reset()
 
 
 def _regulation_of(stages: dict[str, Stage] | Stage) -> ForceRegulation:

@@ -44,15 +44,14 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from wholehand import registry
-from wholehand.backends.command import Command
 from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
 from wholehand.grasps.checks import GraspCheck, passes
+from wholehand.grasps.closing import Closing, ClosingStage
 from wholehand.grasps.face_schedule import FaceSchedule
 from wholehand.grasps.store import LIMIT_SLACK, Grasp, joint_past_limits
 from wholehand.loop.control_loop import ControlLoop
 from wholehand.loop.grasp_loss import GraspLossCheck
-from wholehand.loop.stage import END, CycleContext, Stage, StageOutput
 from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import HandModel
 from wholehand.models.hand_config import GraspStyle
@@ -84,19 +83,12 @@ PRESHAPE_DEPTH = 0.001
 """Deepest a pre-shape may reach into the object before the candidate is rejected [m]."""
 MAX_CANDIDATES = 400
 """Candidates tried per object before the generator gives up on finding ``count`` grasps."""
-PD_GAINS = (2.0, 0.05)
-"""PD gains holding the non-closing joints at the pre-shape: [N*m/rad], [N*m*s/rad]."""
 MAX_TILT = np.radians(60.0)
 """On a table: largest tilt of the palm normal from straight down [rad]."""
 GENERATOR_TABLE = Table(top=0.0, centre=(0.0, 0.0), size=(0.8, 0.8))
 """The table of table-top generation; the object rests on it at the world origin."""
 TABLE_CLEAR = GENERATOR_TABLE.top + HAND_MARGIN
 """Lowest height a table-top candidate's hand may reach [m]."""
-
-
-Closing = tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]
-"""How a hand closes (:class:`ClosingStage`): the pose the other joints hold (n_q,) [rad], the
-closing torques (n_v,) [N*m] and which joints close (n_v,) bool."""
 
 
 def named_style(hand: HandModel, name: str) -> GraspStyle:
@@ -109,52 +101,6 @@ def named_style(hand: HandModel, name: str) -> GraspStyle:
             f"{sorted(cfg.grasp_styles)} (add a [grasping.{name}] table)"
         )
     return cfg.grasp_styles[name]
-
-
-class ClosingStage(Stage):
-    """The generator's closing phase: constant torques on the closing joints, a PD law holding
-    the other joints at the pre-shape; the PD law runs at the control rate (it is part of the
-    stage, not the backend's servo).
-
-    Exit: when ``until`` (if given) holds, checked every ``check_every`` cycles (from the
-    ``check_every``-th) on the state the cycle observes; :attr:`closed` then says so.
-
-    Args:
-        q_pre: (n_q,) pre-shape [rad]; tau_close: (n_v,) closing torques [N*m]; closing: (n_v,)
-            bool, the closing joints; gains: PD gains [N*m/rad], [N*m*s/rad].
-    """
-
-    name = "close"
-    needs_object_pose = False
-
-    def __init__(
-        self,
-        q_pre: FloatArray,
-        tau_close: FloatArray,
-        closing: npt.NDArray[np.bool_],
-        gains: tuple[float, float] = PD_GAINS,
-        until: Callable[[], bool] | None = None,
-        check_every: int = 5,
-    ) -> None:
-        self.q_pre, self.tau_close, self.closing = q_pre, tau_close, closing
-        self.gains, self.until, self.check_every = gains, until, check_every
-        self.cycles = 0
-        self.closed = False
-
-    def step(self, context: CycleContext) -> StageOutput:
-        if (
-            self.until is not None
-            and self.cycles
-            and self.cycles % self.check_every == 0
-            and self.until()
-        ):
-            self.closed = True
-            return StageOutput(None, "closed", next=END)
-        self.cycles += 1
-        obs = context.obs
-        tau = self.gains[0] * (self.q_pre - obs.q) - self.gains[1] * obs.dq
-        tau[self.closing] = self.tau_close[self.closing]
-        return StageOutput(Command.torques(tau), "closing")
 
 
 class GraspGenerator:

@@ -16,14 +16,17 @@ chain (a follower of a follower) is resolved to its first leader.
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from wholehand.errors import ConfigError
+from wholehand.models.toml_values import joint_numbers
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -174,3 +177,28 @@ def coupling_matrix(
         if m.leader in column:
             C[index[follower], column[m.leader]] = m.multiplier
     return C, d
+
+
+def parse_couplings(table: Any, where: Path) -> dict[str, Mimic]:
+    """``[joints] coupled``: follower -> { leader = "j", multiplier = 1.0, offset = 0.0 }."""
+    example = 'coupled = { j2 = { leader = "j1", multiplier = 0.8, offset = 0.0 } }'
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: [joints] coupled must be a table, e.g. {example}")
+    out = {}
+    for follower, spec in table.items():
+        what = f"[joints] coupled.{follower}"
+        if not isinstance(spec, dict) or not isinstance(spec.get("leader"), str):
+            raise ConfigError(f"{where}: {what} must name its leader joint, e.g. {example}")
+        unknown = sorted(set(spec) - {"leader", "multiplier", "offset"})
+        if unknown:
+            raise ConfigError(
+                f"{where}: unknown keys {unknown} in {what}; valid keys are leader, multiplier "
+                "and offset"
+            )
+        numbers = joint_numbers(
+            {k: spec.get(k, d) for k, d in (("multiplier", 1.0), ("offset", 0.0))}, what, where
+        )
+        if not all(math.isfinite(v) for v in numbers.values()):
+            raise ConfigError(f"{where}: {what}: multiplier and offset must be finite")
+        out[follower] = Mimic(spec["leader"], numbers["multiplier"], numbers["offset"])
+    return out

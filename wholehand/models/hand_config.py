@@ -58,7 +58,7 @@ from typing import Any
 from wholehand import defaults
 from wholehand.errors import AssetError, ConfigError
 from wholehand.models.assembly import merged_urdf, moving_joints, parse_assembly, write_merged
-from wholehand.models.coupling import Mimic
+from wholehand.models.coupling import Mimic, parse_couplings
 from wholehand.models.toml_values import joint_numbers, number, str_list, three_numbers
 
 if sys.version_info >= (3, 11):
@@ -326,7 +326,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     }
     grasp_styles = _grasp_styles(raw.get("grasping", {}), fingers, thumb, path)
     locked = joint_numbers(joints.get("locked", {}), "[joints] locked", path)
-    coupled = _couplings(joints.get("coupled", {}), path)
+    coupled = parse_couplings(joints.get("coupled", {}), path)
     outer = raw.get("outer_surface_only", False)
     if not isinstance(outer, bool):
         raise ConfigError(f"{path}: outer_surface_only must be true or false, got {outer!r}")
@@ -370,31 +370,6 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         mount_rpy=rpy,
         palm_normal=palm_normal,
     )
-
-
-def _couplings(table: Any, where: Path) -> dict[str, Mimic]:
-    """``[joints] coupled``: follower -> { leader = "j", multiplier = 1.0, offset = 0.0 }."""
-    example = 'coupled = { j2 = { leader = "j1", multiplier = 0.8, offset = 0.0 } }'
-    if not isinstance(table, dict):
-        raise ConfigError(f"{where}: [joints] coupled must be a table, e.g. {example}")
-    out = {}
-    for follower, spec in table.items():
-        what = f"[joints] coupled.{follower}"
-        if not isinstance(spec, dict) or not isinstance(spec.get("leader"), str):
-            raise ConfigError(f"{where}: {what} must name its leader joint, e.g. {example}")
-        unknown = sorted(set(spec) - {"leader", "multiplier", "offset"})
-        if unknown:
-            raise ConfigError(
-                f"{where}: unknown keys {unknown} in {what}; valid keys are leader, multiplier "
-                "and offset"
-            )
-        numbers = joint_numbers(
-            {k: spec.get(k, d) for k, d in (("multiplier", 1.0), ("offset", 0.0))}, what, where
-        )
-        if not all(math.isfinite(v) for v in numbers.values()):
-            raise ConfigError(f"{where}: {what}: multiplier and offset must be finite")
-        out[follower] = Mimic(spec["leader"], numbers["multiplier"], numbers["offset"])
-    return out
 
 
 def _grasp_styles(

@@ -966,9 +966,9 @@ def test_what_a_stage_says_without_switching_is_noted_once_per_change() -> None:
 
 
 def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkeypatch) -> None:
-    """Each object and seed runs in process, with the tracker, with the deadline, with both and
-    with the tracker and the controller's pose prediction; the episode gets exactly that
-    condition."""
+    """Each object and seed runs in process, with the tracker, with the deadline, with both,
+    with the tracker and the controller's pose prediction, and with those and a person who lets
+    go on touch; the episode gets exactly that condition."""
     from wholehand.reaching import episode as episode_module
     from wholehand.studies import get_study
     from wholehand.studies.reach import PREDICTION, ROBOT_DEADLINE, TRACKER, episode_row
@@ -979,6 +979,7 @@ def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkey
         by_seed.setdefault(job.spec.seed, []).append(job.labels["method"])
     assert len(by_seed) == 5
     conditions = ["in-process", "tracker", "deadline", "tracker+deadline", "tracker+predict"]
+    conditions.append("tracker+predict+touch")
     assert all(m == conditions for m in by_seed.values())
     seen = []
 
@@ -990,8 +991,10 @@ def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkey
                 "mujoco_warnings": {}}  # fmt: skip
 
     monkeypatch.setattr(episode_module, "run_episode", fake_episode)
-    rows = [episode_row(job) for job in jobs[:5]]
-    plain, tracked, hurried, both, predicted = seen
+    rows = [episode_row(job) for job in jobs[:6]]
+    plain, tracked, hurried, both, predicted, touched = seen
+    assert all(s.person_sees == "stage" for s in seen[:5]) and touched.person_sees == "contacts"
+    assert (touched.tracker_rate, touched.tracker_predict) == (TRACKER[0], PREDICTION)
     assert (plain.tracker_rate, plain.qp_deadline) == (0.0, 0.0)
     assert all(s.tracker_predict == 0.0 for s in seen[:4])
     assert (predicted.tracker_rate, predicted.tracker_latency) == TRACKER
@@ -1017,3 +1020,11 @@ def test_bad_robot_conditions_of_an_episode_are_named(field, value) -> None:
 
     with pytest.raises(ConfigError, match=f"EpisodeSpec: {field} must be >= 0"):
         _check_spec(EpisodeSpec(**{field: value}))
+
+
+def test_an_unknown_way_for_the_person_to_judge_a_grasp_is_named() -> None:
+    from wholehand.reaching.episode import _check_spec
+    from wholehand.reaching.episode_spec import EpisodeSpec
+
+    with pytest.raises(ConfigError, match="person_sees must be one of .*'contacts'.*'touch'"):
+        _check_spec(EpisodeSpec(person_sees="touch"))

@@ -42,7 +42,7 @@ from wholehand.loop.stage import CycleContext, Stage, StageOutput
 from wholehand.models.hand import HandModel
 from wholehand.reaching.episode import episode_scene
 from wholehand.reaching.episode_spec import EpisodeSpec
-from wholehand.reaching.person import PERTURBATIONS, Event, Person, grip
+from wholehand.reaching.person import PERTURBATIONS, ContactHolds, Event, Person, grip
 from wholehand.reaching.stages import FINGER_KD, FINGER_KP, REGULATE, ArmServo
 from wholehand.robot.stopping import StopOnEvent, signals_set
 from wholehand.ros2.config import HardwareConfig
@@ -188,40 +188,6 @@ class RemoteArmHand(Stage):
             groups.append(JointTargets(dofs, hand[0], None, kp_hand, kd_hand, name="hand"))
             status = "remote_position"
         return StageOutput(Command(tau, tuple(groups)), status)
-
-
-HOLD_MEMORY = 0.25
-"""The person believes the hand holds the object for this long [s] after the thumb and two
-other fingers last touched it together (contacts flicker while a grasp is regulated)."""
-
-
-class ContactHolds:
-    """The person's view of a grasp: the thumb and two other fingers touched the object in the
-    simulation within the last :data:`HOLD_MEMORY` (checked once per cycle; MuJoCo's forward
-    pass gives the contacts)."""
-
-    def __init__(self, hand: HandModel, backend: Any) -> None:
-        self.backend = backend
-        finger_of = {}
-        for finger, links in hand.config.fingers.items():
-            for link in links:
-                if link in hand.link_names:
-                    finger_of[hand.link_index(link)] = finger
-        self.finger_of, self.thumb = finger_of, hand.config.thumb
-        self._checked = -np.inf
-        self._touched = -np.inf
-
-    def __call__(self, cycle: Cycle) -> bool:
-        if self._checked != cycle.t:
-            self._checked = cycle.t
-            touching = {
-                self.finger_of[int(i)]
-                for i in self.backend.ground_truth_contacts().link
-                if int(i) in self.finger_of
-            }
-            if self.thumb in touching and len(touching - {self.thumb}) >= 2:
-                self._touched = cycle.t
-        return cycle.t - self._touched <= HOLD_MEMORY
 
 
 class ControllerHolds:

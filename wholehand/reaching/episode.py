@@ -45,7 +45,7 @@ from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
 from wholehand.models.resting import resting_pose
 from wholehand.reaching.episode_spec import EpisodeSpec
-from wholehand.reaching.person import PERTURBATIONS, Person, loss_cause
+from wholehand.reaching.person import PERTURBATIONS, ContactHolds, Person, loss_cause
 from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, pipeline_stages
 from wholehand.reaching.pregrasp import GraspPlan, hand_clearance, usable_on_table
 from wholehand.reaching.stages import PREGRASP, REGULATE, ReachPlanner, ReachStage
@@ -71,6 +71,8 @@ START_DRAWS = 20
 """Draws tried before starting at the pre-grasp itself."""
 STARTS = ("held", "table")
 """Values of :attr:`EpisodeSpec.start`."""
+PERSON_SEES = ("stage", "contacts")
+"""Values of :attr:`EpisodeSpec.person_sees`."""
 
 
 def episode_table(hand: HandModel) -> Table:
@@ -188,6 +190,10 @@ def _check_spec(spec: EpisodeSpec) -> None:
         raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
     if spec.start not in STARTS:
         raise ConfigError(f"EpisodeSpec: start must be one of {STARTS}, got {spec.start!r}")
+    if spec.person_sees not in PERSON_SEES:
+        raise ConfigError(
+            f"EpisodeSpec: person_sees must be one of {PERSON_SEES}, got {spec.person_sees!r}"
+        )
     for name in ("push", "twist"):
         value = getattr(spec, name)
         if not (math.isfinite(value) and value >= 0.0):
@@ -237,6 +243,7 @@ def run_episode(
         hand.palm_link,
         rim,
         scene.on_table,
+        holds=ContactHolds(hand, backend) if spec.person_sees == "contacts" else None,
     )
     timer = _CycleTimes()
     watchers: list[Observer] = [person, timer, *observers]

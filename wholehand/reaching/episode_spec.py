@@ -65,3 +65,9 @@ class EpisodeSpec:
     qp_deadline: float = 0.0
     """The QP allocator's deadline [s] of wall time, as the robot's controller runs it (0: none,
     the default); a deadline makes the episode depend on the computer's speed."""
+    person_sees: str = "stage"
+    """How the person judges that the hand holds the object before letting go: ``"stage"``, the
+    controller regulates (the default, and the robot double's person on the controller's
+    status topic); ``"contacts"``, the thumb and two other fingers touch it
+    (:class:`~wholehand.reaching.person.ContactHolds`), which can be while the hand still
+    closes."""

@@ -18,6 +18,7 @@ from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
 from wholehand.reaching.stages import REGULATE
 
 if TYPE_CHECKING:
+    from wholehand.models.hand import HandModel
     from wholehand.reaching.episode_spec import EpisodeSpec
 
 FloatArray = npt.NDArray[np.float64]
@@ -328,3 +329,37 @@ def loss_cause(events: list[Event], t: float) -> str:
         return "none"
     what = before[-1].what
     return next((cause for prefix, cause in CAUSES.items() if what.startswith(prefix)), "other")
+
+
+HOLD_MEMORY = 0.25
+"""The person believes the hand holds the object for this long [s] after the thumb and two
+other fingers last touched it together (contacts flicker while a grasp is regulated)."""
+
+
+class ContactHolds:
+    """The person's view of a grasp: the thumb and two other fingers touched the object in the
+    simulation within the last :data:`HOLD_MEMORY` (checked once per cycle; MuJoCo's forward
+    pass gives the contacts)."""
+
+    def __init__(self, hand: HandModel, backend: Any) -> None:
+        self.backend = backend
+        finger_of = {}
+        for finger, links in hand.config.fingers.items():
+            for link in links:
+                if link in hand.link_names:
+                    finger_of[hand.link_index(link)] = finger
+        self.finger_of, self.thumb = finger_of, hand.config.thumb
+        self._checked = -np.inf
+        self._touched = -np.inf
+
+    def __call__(self, cycle: Cycle) -> bool:
+        if self._checked != cycle.t:
+            self._checked = cycle.t
+            touching = {
+                self.finger_of[int(i)]
+                for i in self.backend.ground_truth_contacts().link
+                if int(i) in self.finger_of
+            }
+            if self.thumb in touching and len(touching - {self.thumb}) >= 2:
+                self._touched = cycle.t
+        return cycle.t - self._touched <= HOLD_MEMORY

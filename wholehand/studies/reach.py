@@ -36,6 +36,8 @@ class Method:
     """The QP allocator's deadline [s] (0: none)."""
     predict: float = 0.0
     """With the tracker: the controller's pose prediction, at most this long [s] (0: none)."""
+    person_sees: str = "stage"
+    """How the person judges a grasp before letting go (``EpisodeSpec.person_sees``)."""
 
 
 TRACKER = (30.0, 0.033)
@@ -59,6 +61,7 @@ CONDITIONS = {
     "deadline": Method(True, deadline=ROBOT_DEADLINE),
     "tracker+deadline": Method(True, tracker=True, deadline=ROBOT_DEADLINE),
     "tracker+predict": Method(True, tracker=True, predict=PREDICTION),
+    "tracker+predict+touch": Method(True, tracker=True, predict=PREDICTION, person_sees="contacts"),
 }
 """The robot-conditions study's variants: the in-process episode with the robot path's
 conditions added one at a time (label -> how the episode runs)."""
@@ -103,6 +106,7 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
             tracker_latency=tracker_latency,
             tracker_predict=method.predict,
             qp_deadline=method.deadline,
+            person_sees=method.person_sees,
         )
     )
     warnings = summary["mujoco_warnings"]
@@ -261,13 +265,17 @@ class RobotConditionsStudy(ReachStudy):
     """Which of the robot path's conditions costs grasps: the reach episode in process (as
     ``wholehand reach`` and ``bench pipeline``'s in-process half run it, the object's weight
     balanced), then with the tracker the robot double has (30 Hz, 33 ms), with the robot
-    controller's 2 ms QP deadline, and with both, on the same seeds. The deadline is on wall
-    time: those rows depend on the computer, as the robot's do."""
+    controller's 2 ms QP deadline, and with both, on the same seeds; then behind the tracker with
+    the controller's pose prediction, and with that and a person who lets go once the thumb and
+    two fingers touch the object (``tracker+predict+touch``: the robot double's person before
+    the controller published its stage). The deadline is on wall time: those rows depend on
+    the computer, as the robot's do."""
 
     name = "robot-conditions"
     description = (
         "the reach episode in process with the robot path's conditions added one at a time "
-        "(tracker 30 Hz / 33 ms, 2 ms QP deadline, both): which one costs grasps"
+        "(tracker 30 Hz / 33 ms, 2 ms QP deadline, both, pose prediction, a person who lets go "
+        "on touch): which one costs grasps"
     )
 
     def methods(self, cfg: ReachConfig) -> tuple[str, ...]:

@@ -79,6 +79,9 @@ def test_offset_goes_to_the_controller_only(monkeypatch):
     record = run_trial(_spec(pose_error=ERROR), observers=[Truth()])
     T = pose_error_offset(ERROR, load_object("077_rubiks_cube").com)
     a = record.arrays()
+    # The loop's preload, before the first cycle, puts the object at the origin, not the truth.
+    preload = seen["estimator"].pop(0)
+    np.testing.assert_array_equal(preload, np.eye(4))
     assert len(seen["estimator"]) == len(seen["loss"]) == len(seen["truth"]) == a["t"].size > 0
     for given, true, loss_pose, p in zip(
         seen["estimator"], seen["truth"], seen["loss"], a["p_object"], strict=True

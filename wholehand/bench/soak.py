@@ -123,14 +123,19 @@ class FaultSchedule:
 
 class FaultyBackend(Backend):
     """A backend whose observations get the schedule's observation faults (the schedule ticks
-    here, once per cycle: the loop observes once per cycle)."""
+    here, once per cycle: on the first observation at each backend time, since the loop also
+    observes once before its first cycle, to preload)."""
 
     def __init__(self, backend: Backend, schedule: FaultSchedule) -> None:
         self.backend, self.schedule = backend, schedule
+        self._ticked_at = float("nan")
 
     def observe(self) -> Observation:
         obs = self.backend.observe()
-        fault = self.schedule.tick()
+        if self.backend.time != self._ticked_at:
+            self._ticked_at = self.backend.time
+            self.schedule.tick()
+        fault = self.schedule.current
         return OBSERVATION_FAULTS[fault](obs) if fault in OBSERVATION_FAULTS else obs
 
     def apply(self, command: Command) -> None:

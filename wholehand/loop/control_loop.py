@@ -46,7 +46,7 @@ from wholehand.errors import ConfigError, ObservationError
 from wholehand.loop.filters import ObservationFilter
 from wholehand.loop.gate import ObservationGate
 from wholehand.loop.report import MAX_KEPT_ERRORS, LoopReport, Note, StageError, Transition
-from wholehand.loop.stage import END, CycleContext, LoopStatus, Stage, StageOutput
+from wholehand.loop.stage import END, CycleContext, LoopStatus, Stage, StageOutput, preload_all
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
@@ -190,7 +190,9 @@ class ControlLoop:
             raise ConfigError(f"ControlLoop.run: duration must be >= 0 [s], got {duration!r}")
         backend = self.backend
         t0 = backend.time
-        self._preload(t0)
+        if not self._preloaded:
+            self._preloaded = True
+            self._preload(t0)
         for observer in self.observers:
             observer.on_start(self)
         report = self.report
@@ -217,21 +219,19 @@ class ControlLoop:
         return report
 
     def _preload(self, t: float) -> None:
-        """Once per loop: every stage's :meth:`~wholehand.loop.stage.Stage.preload` with the
-        backend's first reading (skipped when the reading is not a valid one yet)."""
-        if self._preloaded:
-            return
-        self._preloaded = True
+        """Once per loop, before its first cycle: :func:`~wholehand.loop.stage.preload_all`
+        with the backend's first joint reading (none while it is not a valid one) and the object
+        at the world origin: what the controller sees of the object comes through its filters
+        (a tracker, a study's pose error), in the cycles."""
         first = self.backend.observe()
         try:
             check_observation(first, self.hand.nq, self.hand.nv)
         except ObservationError:
             return
-        context = CycleContext(
-            t, self.dt, first, self.hand, self.obj, self._kin_now, self._kin_then
-        )
-        for stage in {id(s): s for s in self.stages.values()}.values():
-            stage.preload(context)
+        first = dataclasses.replace(first, wMo=np.eye(4))
+        kin = self._kin_now, self._kin_then
+        context = CycleContext(t, self.dt, first, self.hand, self.obj, *kin)
+        preload_all(self.stages.values(), context)
 
     def _after(self, cycle: Cycle) -> str | None:
         """Show the cycle to the observers and switch to the stage it asks for; why the run

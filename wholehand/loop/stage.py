@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import abc
 import enum
-from collections.abc import Callable
+import logging
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, ClassVar
 
 from wholehand.backends.command import Command
 from wholehand.backends.observation import Observation
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from wholehand.allocation.base import Allocation
@@ -133,3 +136,13 @@ class Stage(abc.ABC):
     @abc.abstractmethod
     def step(self, context: CycleContext) -> StageOutput:
         """One cycle: the command and status; ``next`` set when the exit condition holds."""
+
+
+def preload_all(stages: Iterable[Stage], context: CycleContext) -> None:
+    """Each distinct stage's :meth:`Stage.preload` with ``context``. A preload that raises is
+    logged; the stage's cycles then meet the fault and report it."""
+    for stage in {id(s): s for s in stages}.values():
+        try:
+            stage.preload(context)
+        except Exception as err:  # noqa: BLE001 - not in a cycle; the cycles report it
+            log.warning("stage %r: preload raised %s: %s", stage.name, type(err).__name__, err)

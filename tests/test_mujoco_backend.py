@@ -243,6 +243,35 @@ def test_joint_torque_accelerates_that_joint_its_way(allegro, joint, sign):
     assert abs(dq[i]) > 5.0 * np.max(np.abs(np.delete(dq, i)))  # it is this joint that moves
 
 
+@pytest.mark.parametrize("servo", ["step", "command"])
+def test_the_hand_servo_runs_every_step_or_once_per_command(allegro, servo):
+    """A target group's PD law on the state of every step (drives), or on the state when the
+    command is applied, held (a controller's servo at its rate)."""
+    from wholehand.backends.command import JointTargets
+
+    backend = MujocoBackend(allegro, make_sphere(), hand_servo=servo)
+    dofs = np.arange(allegro.nv)
+    q0, dq0 = backend.observe().q, backend.observe().dq
+    q_ref = np.clip(q0 + 0.3, allegro.q_lower, allegro.q_upper)
+    kp, kd = np.full(allegro.nv, 0.2), np.full(allegro.nv, 0.01)
+    bias = np.full(allegro.nv, 0.01)
+    backend.apply(Command(bias, (JointTargets(dofs, q_ref, None, kp, kd),)))
+    expected = np.clip(bias + kp * (q_ref - q0) - kd * dq0, -allegro.tau_max, allegro.tau_max)
+    sent = []
+    for _ in range(5):
+        backend.step(0.001)
+        mujoco.mj_forward(backend.model, backend.data)
+        sent.append(backend.applied_torques())
+    np.testing.assert_allclose(sent[0], expected, atol=1e-12)  # the first step: the same state
+    moved = np.abs(np.diff(sent, axis=0)).max()
+    assert moved == 0.0 if servo == "command" else moved > 1e-4
+
+
+def test_an_unknown_hand_servo_is_named(allegro):
+    with pytest.raises(ConfigError, match="hand_servo must be one of .*'command'"):
+        MujocoBackend(allegro, make_sphere(), hand_servo="drives")
+
+
 def test_step_counts_whole_timesteps(allegro):
     backend = MujocoBackend(allegro, make_sphere())
     backend.step(0.005)  # 0.005 / 0.001 is 5.000000000000001 in floating point

@@ -979,7 +979,7 @@ def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkey
         by_seed.setdefault(job.spec.seed, []).append(job.labels["method"])
     assert len(by_seed) == 5
     conditions = ["in-process", "tracker", "deadline", "tracker+deadline", "tracker+predict"]
-    conditions.append("tracker+predict+touch")
+    conditions += ["tracker+predict+touch", "tracker+predict+servo"]
     assert all(m == conditions for m in by_seed.values())
     seen = []
 
@@ -991,9 +991,10 @@ def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkey
                 "mujoco_warnings": {}}  # fmt: skip
 
     monkeypatch.setattr(episode_module, "run_episode", fake_episode)
-    rows = [episode_row(job) for job in jobs[:6]]
-    plain, tracked, hurried, both, predicted, touched = seen
+    rows = [episode_row(job) for job in jobs[:7]]
+    plain, tracked, hurried, both, predicted, touched, servoed = seen
     assert all(s.person_sees == "stage" for s in seen[:5]) and touched.person_sees == "contacts"
+    assert all(s.hand_servo == "step" for s in seen[:6]) and servoed.hand_servo == "command"
     assert (touched.tracker_rate, touched.tracker_predict) == (TRACKER[0], PREDICTION)
     assert (plain.tracker_rate, plain.qp_deadline) == (0.0, 0.0)
     assert all(s.tracker_predict == 0.0 for s in seen[:4])
@@ -1028,3 +1029,11 @@ def test_an_unknown_way_for_the_person_to_judge_a_grasp_is_named() -> None:
 
     with pytest.raises(ConfigError, match="person_sees must be one of .*'contacts'.*'touch'"):
         _check_spec(EpisodeSpec(person_sees="touch"))
+
+
+def test_an_unknown_hand_servo_of_an_episode_is_named() -> None:
+    from wholehand.reaching.episode import _check_spec
+    from wholehand.reaching.episode_spec import EpisodeSpec
+
+    with pytest.raises(ConfigError, match="EpisodeSpec: hand_servo must be one of"):
+        _check_spec(EpisodeSpec(hand_servo="drives"))

@@ -24,7 +24,7 @@ from wholehand.backends.base import (
     ReportsWarnings,
     Resettable,
 )
-from wholehand.backends.command import Command
+from wholehand.backends.command import HAND_SERVOS, Command
 from wholehand.backends.ground_truth import SimContacts
 from wholehand.backends.observation import HISTORY_SAMPLES, JointHistory, Observation
 from wholehand.backends.table import TABLE_GEOM
@@ -44,6 +44,7 @@ from .scene_options import (
     WRIST_TARGET,
     SceneOptions,
 )
+from .servo import PDTerms, check_arm_servo, pd_terms, pd_torque, terms_of
 from .step_guard import StepGuard
 
 if TYPE_CHECKING:
@@ -76,56 +77,6 @@ def _vector(value: Any, n: int, name: str) -> FloatArray:
     return arr
 
 
-_PDTerms = tuple[
-    npt.NDArray[np.intp],
-    npt.NDArray[np.intp],
-    FloatArray | None,
-    FloatArray,
-    FloatArray,
-    FloatArray,
-]
-"""Target dofs, their q indices, q targets, dq targets, kp, kd (all groups concatenated)."""
-
-
-ARM_SERVO_STEP_LIMIT = 1.0
-"""Largest ``kd * timestep / armature`` accepted for an arm joint's servo: its damping is applied
-once per step, so the joint's velocity changes by that fraction of itself per step from the
-damping alone (past 1 it changes sign every step, past 2 it grows)."""
-
-
-def _check_arm_servo(hand: HandModel, timestep: float) -> None:
-    """Refuse an assembly whose arm servo's damping would overshoot within one step."""
-    cfg = hand.config
-    if not cfg.arm_joints:
-        return
-    kd = cfg.arm_gains[1]
-    ratio = kd * timestep / cfg.arm_armature
-    if ratio > ARM_SERVO_STEP_LIMIT:
-        raise ConfigError(
-            f"{cfg.path}: the arm servo's kd = {kd} N*m*s/rad with arm_armature = "
-            f"{cfg.arm_armature} kg*m^2 at a {timestep} s step gives kd * dt / armature = "
-            f"{ratio:.2f} > {ARM_SERVO_STEP_LIMIT}: the arm would shake. Raise [assembly] "
-            f"arm_armature to at least {kd * timestep / ARM_SERVO_STEP_LIMIT:g}, lower "
-            "arm_gains.kd, or the timestep"
-        )
-
-
-def _pd_terms(command: Command) -> _PDTerms:
-    """The command's target groups as flat arrays (hand joints have one dof each: nq = nv)."""
-    dofs, q_ref, dq_ref, kp, kd = [], [], [], [], []
-    for g in command.targets:
-        dofs.append(g.dofs)
-        q_ref.append(g.q if g.q is not None else np.full(g.dofs.shape, np.nan))
-        dq_ref.append(g.dq if g.dq is not None else np.zeros(g.dofs.shape))
-        kp.append(g.kp if g.q is not None else np.zeros(g.dofs.shape))
-        kd.append(g.kd)
-    all_dofs = np.concatenate(dofs)
-    qidx = all_dofs
-    q_all = np.concatenate(q_ref)
-    q_out = None if np.isnan(q_all).all() else np.nan_to_num(q_all)
-    return all_dofs, qidx, q_out, np.concatenate(dq_ref), np.concatenate(kp), np.concatenate(kd)
-
-
 class MujocoBackend(
     Backend, PushesObject, PushesBodies, HasGroundTruth, Resettable, ReportsWarnings
 ):
@@ -142,6 +93,11 @@ class MujocoBackend(
         timestep: simulation step [s] (default 1 ms).
         history: joint samples kept for :meth:`Observation.q_at` (one per :meth:`observe`).
         wMb: (4, 4) pose of the hand base in the world; default: the mount pose ``hand.wMb``.
+        hand_servo: where the hand's target groups are servoed: ``"step"``, a PD law before
+            every MuJoCo step on that step's state (a servo in the drives); ``"command"``, once
+            when the command is applied, on the state then, held until the next (a servo in
+            the controller at the control rate, as the robot controller runs a hand without a
+            position interface). An arm's targets are servoed every step either way.
         **options: further :class:`~wholehand_plugins.mujoco.scene_options.SceneOptions` fields
             (``cone``, ``impratio``, ``condim``, ``friction``, ``solref``, ``solimp``, ``base``,
             ``self_collision``, ``collision``, ``coacd``, ``iterations``, ``visual_mesh``).
@@ -161,6 +117,7 @@ class MujocoBackend(
         timestep: float = DEFAULT_TIMESTEP,
         wMb: FloatArray | None = None,
         history: int = HISTORY_SAMPLES,
+        hand_servo: str = "step",
         **options: Any,
     ) -> None:
         if isinstance(hand, str):
@@ -177,10 +134,15 @@ class MujocoBackend(
             raise ConfigError(
                 f"MujocoBackend: unknown options {unknown}; valid options: {sorted(fields)}"
             )
+        if hand_servo not in HAND_SERVOS:
+            raise ConfigError(
+                f"MujocoBackend: hand_servo must be one of {HAND_SERVOS}, got {hand_servo!r}"
+            )
+        self.hand_servo = hand_servo
         self.hand = hand
         self.obj = obj
         opts = SceneOptions(gravity=bool(gravity), timestep=timestep, **options)
-        _check_arm_servo(hand, opts.timestep)
+        check_arm_servo(hand, opts.timestep)
         self.scene: HandObjectScene = build_scene(hand, obj, wMo_init, opts, wMb)
         self.model = self.scene.model
         dofs = np.flatnonzero(self.scene.ctrl_index >= 0)
@@ -195,7 +157,7 @@ class MujocoBackend(
         self._wrist_q = -1
         if opts.base == "floating":
             self._wrist_q = int(self.model.joint(WRIST_JOINT).qposadr[0])
-        self._targets: _PDTerms | None = None
+        self._targets: PDTerms | None = None
         self._forces = ExternalForces(self.data, self.scene, obj.com)
         wMo = self.object_pose_in_model() if wMo_init is None else wMo_init
         self.reset(hand.neutral() if q_init is None else q_init, wMo)
@@ -243,8 +205,17 @@ class MujocoBackend(
         self._tau = tau
         self._targets = None
         if command.targets:
-            self._targets = _pd_terms(command)
-        self._set_ctrl(tau if self._targets is None else self._pd_torque())
+            self._targets = pd_terms(command)
+            if self.hand_servo == "command":
+                self._hold_hand_servo()
+        self._set_ctrl(self._tau if self._targets is None else self._pd_torque())
+
+    def _hold_hand_servo(self) -> None:
+        """Evaluate the hand joints' PD terms now into the held torque; only the arm's stay
+        servoed every step."""
+        assert self._targets is not None
+        self._tau = np.where(self.hand.arm_dofs, self._tau, self._pd_torque())
+        self._targets = terms_of(self._targets, self.hand.arm_dofs)
 
     def _set_ctrl(self, tau: FloatArray) -> None:
         dofs, ctrl, lower, upper = self._ctrl_map
@@ -253,15 +224,8 @@ class MujocoBackend(
     def _pd_torque(self) -> FloatArray:
         """The commanded torques with every target group's PD term at the current state."""
         assert self._targets is not None
-        dofs, qidx, q_ref, dq_ref, kp, kd = self._targets
         d, s = self.data, self.scene
-        tau = self._tau.copy()
-        q = d.qpos[s.qpos_index]
-        dq = d.qvel[s.qvel_index]
-        tau[dofs] += kd * (dq_ref - dq[dofs])
-        if q_ref is not None:
-            tau[dofs] += kp * (q_ref - q[qidx])
-        return tau
+        return pd_torque(self._tau, self._targets, d.qpos[s.qpos_index], d.qvel[s.qvel_index])
 
     def step(self, duration: float) -> None:
         """Advance the simulation by ``ceil(duration / timestep)`` steps (0 for duration 0).

@@ -7,7 +7,8 @@ rate, as a joint position controller does:
     tau_j = tau_ff_j + kp_j (q*_j - q_j) + kd_j (dq*_j - dq_j),   clamped to the joint's limit,
 
 evaluated at every simulation step (MuJoCo) or in the drive (hardware). Joints a group does not
-name get ``tau`` of the command.
+name get ``tau`` of the command. A backend may instead servo a hand's groups in the controller, at
+the control rate (:data:`HAND_SERVOS`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,12 @@ from wholehand.models.poses import check_pose
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
+
+HAND_SERVOS = ("step", "command")
+"""Where a backend evaluates the hand's target groups: ``"step"`` at every simulation step (the
+drives), ``"command"`` once per command on the state when it is applied, the torque then held
+(a servo in the controller at the control rate, as the robot controller runs a hand without a
+position interface)."""
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from wholehand import defaults, registry
+from wholehand.backends.command import HAND_SERVOS
 from wholehand.backends.table import HAND_MARGIN, Table
 from wholehand.errors import ConfigError
 from wholehand.loop.control_loop import ControlLoop, Cycle, Observer
@@ -179,6 +180,7 @@ def episode_scene(
         wMo_init=wMo,
         gravity=True,
         table=table,
+        hand_servo=spec.hand_servo,
         **placement,
     )
     return EpisodeScene(hand, grasp_hand, obj, table, rng, plans, wMo, backend, on_table)
@@ -190,6 +192,10 @@ def _check_spec(spec: EpisodeSpec) -> None:
         raise ConfigError(f"EpisodeSpec: rate must be > 0 [Hz], got {spec.rate!r}")
     if spec.start not in STARTS:
         raise ConfigError(f"EpisodeSpec: start must be one of {STARTS}, got {spec.start!r}")
+    if spec.hand_servo not in HAND_SERVOS:
+        raise ConfigError(
+            f"EpisodeSpec: hand_servo must be one of {HAND_SERVOS}, got {spec.hand_servo!r}"
+        )
     if spec.person_sees not in PERSON_SEES:
         raise ConfigError(
             f"EpisodeSpec: person_sees must be one of {PERSON_SEES}, got {spec.person_sees!r}"

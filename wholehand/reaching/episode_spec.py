@@ -65,6 +65,11 @@ class EpisodeSpec:
     qp_deadline: float = 0.0
     """The QP allocator's deadline [s] of wall time, as the robot's controller runs it (0: none,
     the default); a deadline makes the episode depend on the computer's speed."""
+    hand_servo: str = "step"
+    """Where the fingers' position targets (while reaching) are servoed: ``"step"``, by the
+    simulated drives at every 1 ms step (the default); ``"command"``, by the controller at the
+    control rate on the state when the command goes out, as the robot controller does for a
+    hand without a position interface (``MujocoBackend(hand_servo=)``)."""
     person_sees: str = "stage"
     """How the person judges that the hand holds the object before letting go: ``"stage"``, the
     controller regulates (the default, and the robot double's person on the controller's

@@ -38,6 +38,8 @@ class Method:
     """With the tracker: the controller's pose prediction, at most this long [s] (0: none)."""
     person_sees: str = "stage"
     """How the person judges a grasp before letting go (``EpisodeSpec.person_sees``)."""
+    hand_servo: str = "step"
+    """Where the fingers' targets are servoed (``EpisodeSpec.hand_servo``)."""
 
 
 TRACKER = (30.0, 0.033)
@@ -62,6 +64,7 @@ CONDITIONS = {
     "tracker+deadline": Method(True, tracker=True, deadline=ROBOT_DEADLINE),
     "tracker+predict": Method(True, tracker=True, predict=PREDICTION),
     "tracker+predict+touch": Method(True, tracker=True, predict=PREDICTION, person_sees="contacts"),
+    "tracker+predict+servo": Method(True, tracker=True, predict=PREDICTION, hand_servo="command"),
 }
 """The robot-conditions study's variants: the in-process episode with the robot path's
 conditions added one at a time (label -> how the episode runs)."""
@@ -107,6 +110,7 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
             tracker_predict=method.predict,
             qp_deadline=method.deadline,
             person_sees=method.person_sees,
+            hand_servo=method.hand_servo,
         )
     )
     warnings = summary["mujoco_warnings"]
@@ -268,14 +272,16 @@ class RobotConditionsStudy(ReachStudy):
     controller's 2 ms QP deadline, and with both, on the same seeds; then behind the tracker with
     the controller's pose prediction, and with that and a person who lets go once the thumb and
     two fingers touch the object (``tracker+predict+touch``: the robot double's person before
-    the controller published its stage). The deadline is on wall time: those rows depend on
-    the computer, as the robot's do."""
+    the controller published its stage), and with the fingers' targets servoed by the
+    controller at its rate (``tracker+predict+servo``: a hand without a position interface on
+    the robot). The deadline is on wall time: those rows depend on the computer, as the robot's
+    do."""
 
     name = "robot-conditions"
     description = (
         "the reach episode in process with the robot path's conditions added one at a time "
         "(tracker 30 Hz / 33 ms, 2 ms QP deadline, both, pose prediction, a person who lets go "
-        "on touch): which one costs grasps"
+        "on touch, the fingers servoed at the control rate): which one costs grasps"
     )
 
     def methods(self, cfg: ReachConfig) -> tuple[str, ...]:

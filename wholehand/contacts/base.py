@@ -184,12 +184,13 @@ class ContactEstimator(abc.ABC):
 
     def preload(self, kinematics: HandKinematics, wMo: FloatArray) -> None:
         r"""Load now what a first estimate would load in a control cycle (a compiled kernel, a
-        lazily built structure); the control loop calls it once, before its first cycle, with
-        its first reading. The default estimates once and :meth:`reset`\ s.
+        lazily built structure); the control loop calls it once, before its first cycle. The
+        default estimates once and :meth:`reset`\ s.
 
         Args:
-            kinematics: Hand kinematics updated to the first reading's q and base pose.
-            wMo: (4, 4) the first reading's object pose in the world.
+            kinematics: Hand kinematics updated to the loop's first joint reading.
+            wMo: (4, 4) an object pose in the world (the loop gives the world origin: what the
+                controller sees of the object comes through its filters, in the cycles).
         """
         self.estimate(kinematics, wMo)
         self.reset()

@@ -125,8 +125,8 @@ class Stage(abc.ABC):
     ``no_pose``, last feasible command kept)."""
 
     def preload(self, context: CycleContext) -> None:  # noqa: B027 - optional hook
-        """Called once by the loop before its first cycle, with the first reading (its object
-        pose may be None): load now what a first :meth:`step` would load in a control cycle
+        """Called once by the loop before its first cycle, with its first joint reading and the
+        object at the world origin: load now what a first :meth:`step` would load in a cycle
         (a plug-in's compiled kernels, :meth:`ContactEstimator.preload
         <wholehand.contacts.base.ContactEstimator.preload>`), leaving no state behind."""
 

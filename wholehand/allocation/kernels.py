@@ -10,15 +10,7 @@ finite, the consistency rows, the forces of the edge weights and the rank certif
 null-space basis. The screening loop's kernels are :mod:`wholehand.allocation.screening_kernels`,
 the warm start's :mod:`wholehand.allocation.warm_start`.
 
-Rounding. Each term is computed with the operations, and in the order, that the numpy form it
-replaced used, so a seeded trial gives the same rows to the last bit:
-
-- element-wise terms (frames, wrenches): plain multiplies and adds (numba fuses nothing without
-  ``fastmath``); sums that numpy took from ``einsum``: in the order its loops add them;
-- terms numpy took from a BLAS ``matmul`` (the edges ``wRc @ E`` and the torques ``J^T W``): a
-  fused multiply-add chain over the inner index from zero, ``s = fma(a0, b0, 0); s = fma(a1, b1,
-  s); ...``, which is what OpenBLAS's x86-64 kernels compute for these inner sizes of 3. A BLAS
-  that sums otherwise rounds differently; the results agree to about 1e-16 relative either way.
+Each term rounds as the numpy form it replaced (docs/performance.md, "How the kernels round").
 
 Compilation as for the contact kernels (``wholehand_plugins.mesh_sdf.kernels``): ``cache=CACHE``,
 ``error_model="numpy"``.

@@ -4,11 +4,8 @@ the rows at their bounds, the row selections, the pricing of the left-out edge w
 active sets by identity that carry one round's solution into the next.
 
 Each replaced a handful of numpy calls of a few microseconds each; near a loss, with several
-screening rounds per cycle, that Python took more time than DAQP (docs/results.md). They copy,
-compare and select, so they round nothing, except :func:`priced_edges`: it sums a left-out edge's
-price row by row, where a matrix-vector product summed otherwise before. Only a price within
-rounding of its threshold could decide differently; pricing serves edge screening only, which no
-committed study uses, and the seeded trials with edge screening gave the same bytes after it.
+screening rounds per cycle, that Python took more time than DAQP (docs/results.md). How they
+round: docs/performance.md, "How the kernels round".
 
 Compilation as for the contact kernels (``wholehand_plugins.mesh_sdf.kernels``): ``cache=CACHE``,
 ``error_model="numpy"``.

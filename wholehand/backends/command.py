@@ -56,7 +56,10 @@ class JointTargets:
             value = getattr(self, key)
             if value is None and key in ("q", "dq"):
                 continue
-            arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy()
+            if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.shape == (m,):
+                arr = value.copy()  # the common case, without broadcast_to's cost
+            else:
+                arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy()
             if not np.isfinite(arr).all() or (key in ("kp", "kd") and (arr < 0.0).any()):
                 raise ConfigError(
                     f"JointTargets {self.name!r}: {key} must be finite"

@@ -417,15 +417,19 @@ class HoldStage(Stage):
         self.regulation, self.loss = regulation, loss
         hand = regulation.hand
         self.arm = ArmServo(hand) if hand.arm_dofs.any() else None
-        self._hold = np.zeros(0)
+        self._hold: JointTargets | None = None
 
     def preload(self, context: CycleContext) -> None:
         self.regulation.preload(context)
 
     def start(self, context: CycleContext) -> None:
         self.regulation.start(context)
-        if self.arm is not None:
-            self._hold = context.obs.q[self.arm.dofs].copy()  # the arm stays where it grasped
+        arm = self.arm
+        if arm is not None:  # the arm stays where it grasped
+            q = context.obs.q[arm.dofs].copy()
+            self._hold = JointTargets(
+                arm.dofs, q, None, np.asarray(arm.kp), np.asarray(arm.kd), "arm"
+            )
 
     def step(self, context: CycleContext) -> StageOutput:
         assert context.obs.wMo is not None
@@ -446,10 +450,7 @@ class HoldStage(Stage):
         """The regulation's output with the arm held where it grasped (an assembly)."""
         if self.arm is None or out.command is None:
             return out
+        assert self._hold is not None  # set by start
         tau = out.command.tau.copy()
         tau[self.arm.dofs] = self.arm.feedforward(context.obs.q, context.obs.wMb)
-        arm = self.arm
-        servo = JointTargets(
-            arm.dofs, self._hold, None, np.asarray(arm.kp), np.asarray(arm.kd), "arm"
-        )
-        return dataclasses.replace(out, command=Command(tau, (servo,)))
+        return dataclasses.replace(out, command=Command(tau, (self._hold,)))

@@ -235,6 +235,11 @@ def test_a_target_that_takes_the_palm_out_of_its_box_is_not_sent(rig, q_home):
     assert status == "workspace"
     np.testing.assert_array_equal(out, near)
     assert dict(guard.counts) == {"hold": 1, "ok": 1, "workspace": 1}
+    # Held targets are answered from the last check; the fingers do not move the palm.
+    fingers = q_home.copy()
+    fingers[~np.isin(np.arange(rig.nq), arm)] += 0.2
+    for target, inside in ((far, False), (near, True), (near, True), (far, False)):
+        assert guard.palm_inside(target, fingers) is inside
 
 
 # --- the config of an arm -----------------------------------------------------------------------

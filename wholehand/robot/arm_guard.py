@@ -68,6 +68,12 @@ class ArmGuard:
         """(n_arm,) the target sent last [rad]; None before the first."""
         self.t_last = 0.0
         self._kin = HandKinematics(hand)
+        palm_joint = model.frames[model.getFrameId(hand.palm_link)].parentJoint
+        self._palm_chain = np.array(
+            [model.joints[j].idx_q for j in model.supports[palm_joint] if j > 0], dtype=np.intp
+        )
+        """q indices of the joints that move the palm (the arm's, and any hand joint before it)."""
+        self._checked: tuple[FloatArray, bool] | None = None  # those joints last checked, inside?
 
     def filter(self, target: FloatArray, q: FloatArray, now: float) -> tuple[FloatArray, str]:
         """The target to send for the stage's arm ``target`` (n_arm,) [rad] at ``now`` [s], given
@@ -93,8 +99,15 @@ class ArmGuard:
         assert self.palm_box is not None
         q_target = q.copy()
         q_target[self.q_index] = target
+        # Only the joints before the palm move it: a target held (while the hand regulates)
+        # is checked once.
+        chain = q_target[self._palm_chain]
+        if self._checked is not None and np.array_equal(self._checked[0], chain):
+            return self._checked[1]
         self._kin.update(q_target, self.hand.wMb)
-        return self.palm_box.contains(self._kin.frame_pose(self.hand.palm_link)[:3, 3])
+        inside = self.palm_box.contains(self._kin.frame_pose(self.hand.palm_link)[:3, 3])
+        self._checked = (chain, inside)
+        return inside
 
     def hold(self, q: FloatArray, now: float) -> FloatArray:
         """The measured arm position of ``q`` (n_q,) as the target: the arm stops there."""

@@ -536,6 +536,33 @@ def test_cli_resume_and_limit_reach_run_study(tmp_path, monkeypatch, capsys):
     assert "write COLUMN=VALUE" in capsys.readouterr().err
 
 
+def test_a_grasp_folder_expands_the_design_for_a_hand_without_stored_grasps(tmp_path):
+    """``--grasps DIR`` on a user's hand that has no grasps of its own: the study's design runs
+    over the folder's grasps (the same trials as over the shipped hand's stored ones, each
+    reading its grasp from the folder)."""
+    import shutil
+
+    from wholehand.grasps.store import grasp_file
+    from wholehand.models.hand_folders import shipped_hands_dir
+
+    hand = tmp_path / "mine"
+    hand.mkdir()
+    shutil.copy(shipped_hands_dir() / "allegro_right" / "hand.toml", hand)
+    found = tmp_path / "found"
+    found.mkdir()
+    shutil.copy(grasp_file("allegro_right", "077_rubiks_cube"), found)
+    study = get_study("perturbation")
+    assert runner.study_jobs(study, "tiny", 0, str(hand)) == []  # no grasps of its own
+    jobs = runner.study_jobs(study, "tiny", 0, str(hand), grasps=found)
+    shipped = runner.study_jobs(study, "tiny", 0, "allegro_right")
+
+    def design(js):
+        return [(j.labels, j.spec.object, j.spec.grasp, j.spec.theta_deg, j.spec.seed) for j in js]
+
+    assert jobs and design(jobs) == design(shipped)
+    assert {j.spec.grasp_file for j in jobs} == {str(found / "077_rubiks_cube.json")}
+
+
 _ORPHAN_SCRIPT = """
 import os, sys, time
 from wholehand.studies.base import TrialJob

@@ -25,6 +25,9 @@ settling, as the generator measured it.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -159,14 +162,33 @@ def objects_with_grasps(hand: str | Path, style: str = "power") -> list[str]:
     return sorted(p.stem for p in _style_dir(hand, style).glob("*.json"))
 
 
+_GRASP_FOLDER: ContextVar[Path | None] = ContextVar("grasp_folder", default=None)
+
+
+@contextmanager
+def grasps_from(folder: str | Path) -> Iterator[None]:
+    """Within the block, :func:`stored_grasp_indices` counts the grasps of
+    ``folder/<object>.json`` (e.g. written by ``wholehand grasps generate --out folder``)
+    instead of the hand's stored ones: a study expands its trials over a grasp folder's
+    grasps, whether or not the hand has grasps of its own."""
+    token = _GRASP_FOLDER.set(Path(folder))
+    try:
+        yield
+    finally:
+        _GRASP_FOLDER.reset(token)
+
+
 def stored_grasp_indices(
     hand: str | Path, obj: str, style: str = "power", wanted: tuple[int, ...] | None = None
 ) -> list[int]:
     """Indices of the stored grasps of ``(hand, obj, style)`` among ``wanted`` (None: all);
-    empty when there is no such file."""
-    if not grasp_file(hand, obj, style).is_file():
+    empty when there is no such file (inside :func:`grasps_from`, that folder's file of
+    ``obj``)."""
+    folder = _GRASP_FOLDER.get()
+    path = grasp_file(hand, obj, style) if folder is None else folder / f"{object_key(obj)}.json"
+    if not path.is_file():
         return []
-    n = len(load_grasps(hand, obj, style))
+    n = len(load_grasps(path))
     return [g for g in (range(n) if wanted is None else wanted) if g < n]
 
 

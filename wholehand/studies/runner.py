@@ -30,6 +30,7 @@ from typing import IO, Any
 
 from wholehand import registry
 from wholehand.errors import ConfigError
+from wholehand.grasps.store import grasps_from
 from wholehand.provenance import provenance
 from wholehand.studies.base import (
     DEFAULT_HAND,
@@ -204,7 +205,9 @@ def study_jobs(
     the grasps of the folder ``grasps`` (if given, :func:`~wholehand.studies.base.
     with_grasps`), those matching ``only`` (if given, :func:`~wholehand.studies.base.
     only_jobs`)."""
-    jobs = study.jobs(size, seed, hand)
+    # With a grasp folder the design expands over its grasps, not the hand's stored ones.
+    with contextlib.nullcontext() if grasps is None else grasps_from(grasps):
+        jobs = study.jobs(size, seed, hand)
     jobs = jobs if methods is None else with_methods(jobs, tuple(methods))
     jobs = jobs if grasps is None else with_grasps(jobs, grasps)
     return jobs if not only else only_jobs(jobs, only)

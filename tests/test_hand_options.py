@@ -139,3 +139,52 @@ def test_a_root_link_named_world_keeps_its_placement_in_mujoco(tmp_path):
         body = backend.scene.link_body[i]
         np.testing.assert_allclose(backend.data.xpos[body], wMl[:3, 3], atol=1e-9)
         np.testing.assert_allclose(backend.data.xmat[body].reshape(3, 3), wMl[:3, :3], atol=1e-9)
+
+
+def _control(folder, table: str):
+    path = folder / "hand.toml"
+    path.write_text(path.read_text().replace("[grasping]", f"[control]\n{table}\n\n[grasping]"))
+    return folder
+
+
+def test_a_hands_squeeze_is_every_allocators_minimum_unless_the_user_sets_one(tmp_path):
+    """``[control] squeeze`` reaches the allocators as their ``f_n_min`` (the QP then keeps
+    that much normal force in all); an allocator parameter given by the user wins."""
+    from wholehand.contacts.base import ContactSet
+    from wholehand.trials.trial import load_allocator
+
+    plain = load_hand(write_toy_hand(tmp_path / "plain"))
+    assert load_allocator("qp", plain, {}).params.f_n_min == 10.0  # the paper's
+    hand = load_hand(_control(write_toy_hand(tmp_path / "toy"), "squeeze = 25.0"))
+    assert hand.config.squeeze == 25.0
+    qp = load_allocator("qp", hand, {})
+    assert qp.params.f_n_min == 25.0
+    assert load_allocator("qp", hand, {"f_n_min": 5.0}).params.f_n_min == 5.0
+    # Two opposed contacts on the x axis, each free to push along its inward normal.
+    J = np.zeros((2, 3, qp.params.tau_max.size))
+    J[0, 0, 0], J[1, 0, 1] = 0.01, -0.01  # 1 cm levers: 0.125 N*m each
+    contacts = ContactSet(
+        p_world=np.array([[-0.02, 0.0, 0.0], [0.02, 0.0, 0.0]]),
+        n_world=np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
+        link=np.array([0, 1]),
+        distance=np.zeros(2),
+        link_actuated=np.ones(2, dtype=bool),
+        link_fingertip=np.ones(2, dtype=bool),
+    )
+    allocation = qp.allocate(contacts, J, np.zeros(3))
+    assert allocation.ok
+    normal = np.einsum("ij,ij->i", allocation.f_world, -contacts.n_world)  # pressing in
+    np.testing.assert_allclose(normal, [12.5, 12.5], atol=1e-4)
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ("squeeze = -1.0", r"\[control\] squeeze \(the minimum squeeze \[N\]\) must be >= 0"),
+        ('squeeze = "hard"', "must be a number"),
+        ("grip = 3.0", r"unknown keys \['grip'\] in \[control\]; valid keys are \['squeeze'\]"),
+    ],
+)
+def test_bad_control_options_are_named(tmp_path, table, message):
+    with pytest.raises(ConfigError, match=message):
+        load_hand(_control(write_toy_hand(tmp_path / "toy"), table))

@@ -106,3 +106,44 @@ def test_the_cli_writes_an_interrupted_search_and_stops(tmp_path, monkeypatch, c
     assert tried == ["077_rubiks_cube"]  # the next object is not tried
     assert (tmp_path / "077_rubiks_cube.json").is_file()
     assert "1 grasps from 7 candidates (interrupted" in capsys.readouterr().out
+
+
+def test_several_trials_pull_about_successive_seeds_and_need_their_share(
+    allegro, cube, monkeypatch
+):
+    """--hold-trials N: the protocol with seeds 0..N-1 (here held with seeds 0, 2 and 3 only),
+    the grasp kept once its share of holds is reached, the search for it stopped once the
+    share is out of reach."""
+    import wholehand.trials.hold_check as hold_check
+
+    seeds: list[int] = []
+
+    def fake_run(spec, hand, obj, grasp):
+        seeds.append(spec.seed)
+        return spec.seed
+
+    def fake_outcome(seed):
+        lost = seed not in (0, 2, 3)
+        return _Outcome(held=not lost, failure_phase="rotate" if lost else None)
+
+    monkeypatch.setattr(hold_check, "run_trial", fake_run)
+    monkeypatch.setattr(hold_check, "outcome_of", fake_outcome)
+    grasp = load_grasps("allegro_right", "077_rubiks_cube", "power")[0]
+    assert protocol_check(allegro, cube, 60.0, trials=5, min_rate=0.6)(grasp) is None
+    assert seeds == [0, 1, 2, 3]  # 3 of 5 held by the fourth
+    seeds.clear()
+    reason = protocol_check(allegro, cube, 60.0, trials=5, min_rate=0.8)(grasp)
+    assert reason == "held in fewer than 4 of 5 60 deg protocols (most often lost in phase rotate)"
+    assert seeds == [0, 1, 2, 3, 4]
+    seeds.clear()
+    assert protocol_check(allegro, cube, 60.0, trials=5, min_rate=1.0)(grasp) is not None
+    assert seeds == [0, 1]  # 5 of 5 out of reach after the first loss
+    with pytest.raises(ValueError, match="0 < min_rate <= 1"):
+        protocol_check(allegro, cube, 60.0, trials=3, min_rate=0.0)
+
+
+@dataclasses.dataclass
+class _Outcome:
+    held: bool = True
+    failure_phase: str | None = None
+    error: str | None = None

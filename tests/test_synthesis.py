@@ -274,3 +274,42 @@ def test_a_hand_without_grasping_tables_gets_optimised_grasps(tmp_path, capsys):
     # The file says how to make it again: a user's hand by its folder, not its name.
     generator = json.loads((tmp_path / "out" / "077_rubiks_cube.json").read_text())["generator"]
     assert f"--hand {folder} --object 077_rubiks_cube" in generator["command"]
+
+
+@pytest.mark.parametrize(
+    ("mimic", "envelop", "links"),
+    [
+        (True, "coupled", ["f1_1", "f1_2", "f2_1", "f2_2", "t_1", "palm"]),
+        (True, "none", ["f1_2", "f2_2", "t_1", "palm"]),
+        (False, "coupled", ["f1_2", "f2_2", "t_1", "palm"]),
+        (False, "all", ["f1_1", "f1_2", "f2_1", "f2_2", "t_1", "palm"]),
+    ],
+)
+def test_a_finger_that_envelops_gets_a_contact_point_on_each_phalanx(
+    tmp_path, ball, mimic, envelop, links
+):
+    """The toy hand's two-link fingers, coupled (``mimic``: one motor per finger) or not, and its
+    one-link thumb: each contact point's candidates lie on one link, on its pads (the samples
+    whose outward normal leads their motion as the finger closes)."""
+    from toy_hand import write_toy_hand
+
+    from wholehand.models.hand import load_hand
+
+    hand = load_hand(write_toy_hand(tmp_path / "toy", mimic=mimic))
+    syn = GraspSynthesizer(
+        hand, ball, hand.config.grasp_styles["power"], params=SynthesisParams(envelop=envelop)
+    )
+    on = [{hand.link_names[i] for i in hand.samples.link[c]} for c in syn.candidates]
+    assert on == [{link} for link in links]
+    assert syn.contact_fingers == [
+        {"f1": "index", "f2": "middle", "t_": "thumb", "pa": ""}[link[:2]] for link in links
+    ]
+    kin = HandKinematics(hand)
+    kin.update(syn.q_start, np.eye(4))
+    for link, c in zip(links[:-1], syn.candidates[:-1], strict=True):
+        s = hand.samples
+        p, n = kin.from_joint_frames(s.p_joint[c], s.n_joint[c], s.joint[c])
+        tau = np.zeros(hand.nv)
+        tau[np.flatnonzero(hand.actuated_dofs)] = 1.0  # every motor closes its finger
+        v = np.einsum("nak,k->na", kin.point_jacobians(s.joint[c], p), tau)
+        assert (np.einsum("ij,ij->i", n, v) > 0.0).all(), link

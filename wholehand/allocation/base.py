@@ -152,13 +152,20 @@ def hand_keywords(hand: HandModel) -> dict[str, Any]:
     whose constructor accepts them: ``tau_max`` (torque limit per coordinate [N*m], ``inf``
     where none) and ``actuated_dofs`` (bool, True for the coordinates the allocator commands),
     both (n_actuation,): per joint, or per actuator for a coupled hand (the Jacobians are then
-    ``J C``, see :meth:`~wholehand.models.kinematics.HandKinematics.actuation_jacobians`)."""
+    ``J C``, see :meth:`~wholehand.models.kinematics.HandKinematics.actuation_jacobians`); and
+    ``f_n_min``, the minimum squeeze [N], where hand.toml sets one (``[control] squeeze``)."""
+    squeeze = {} if hand.config.squeeze is None else {"f_n_min": hand.config.squeeze}
     if hand.coupled:
         return {
             "tau_max": hand.tau_max[hand.actuated_dofs].copy(),
             "actuated_dofs": np.ones(hand.n_actuation, dtype=bool),
+            **squeeze,
         }
-    return {"tau_max": hand.tau_max.copy(), "actuated_dofs": hand.actuated_dofs.copy()}
+    return {
+        "tau_max": hand.tau_max.copy(),
+        "actuated_dofs": hand.actuated_dofs.copy(),
+        **squeeze,
+    }
 
 
 class Allocator(abc.ABC):

@@ -77,6 +77,30 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=REQUIRE_REACH_HELP,
     )
     p.add_argument(
+        "--hold-trials",
+        type=count,
+        default=1,
+        metavar="N",
+        help="--require-hold: run the protocol N times, pulling about the random axes of seeds "
+        "0..N-1, and keep a grasp held in at least --hold-rate of them (default 1)",
+    )
+    p.add_argument(
+        "--hold-rate",
+        type=float,
+        default=0.8,
+        metavar="FRACTION",
+        help="--require-hold with --hold-trials: the least share of the trials a grasp must "
+        "hold (default 0.8)",
+    )
+    p.add_argument(
+        "--envelop",
+        choices=("coupled", "all", "none"),
+        default="coupled",
+        help="--method optimize: which fingers get a contact point on each phalanx, so that the "
+        "grasp rests on their whole length: coupled (default: fingers whose phalanges one motor "
+        "drives), all, or none (one contact point per finger)",
+    )
+    p.add_argument(
         "--out",
         default=None,
         help="folder for <object>.json; default: the hand's grasp folder (grasps/ beside a "
@@ -132,6 +156,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--require-reach", type=float, default=None, metavar="SECONDS", help=REQUIRE_REACH_HELP
+    )
+    p.add_argument(
+        "--hold-trials",
+        type=count,
+        default=1,
+        metavar="N",
+        help="--require-hold: run the protocol N times, pulling about the random axes of seeds "
+        "0..N-1, and keep a grasp held in at least --hold-rate of them (default 1)",
+    )
+    p.add_argument(
+        "--hold-rate",
+        type=float,
+        default=0.8,
+        metavar="FRACTION",
+        help="--require-hold with --hold-trials: the least share of the trials a grasp must "
+        "hold (default 0.8)",
     )
     p.add_argument(
         "--keep-passing",
@@ -192,23 +232,21 @@ def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bo
     from wholehand.grasps.generate import generate_grasps
     from wholehand.grasps.optimized import synthesize_grasps
     from wholehand.grasps.store import grasp_file, save_grasps
+    from wholehand.grasps.synthesis_params import SynthesisParams
     from wholehand.models.convex import ship_decompositions
     from wholehand.models.object_catalogue import load_object
 
     obj = load_object(name)
-    make = synthesize_grasps if args.method == "optimize" else generate_grasps
     check = _checks(args, hand, obj)
-    grasps, info = make(
-        hand,
-        obj,
-        args.count,
-        args.seed,
-        args.max_candidates,
-        progress=True,
-        style=args.type,
-        on_table=args.on_table,
-        check=check,
-    )
+    common = (hand, obj, args.count, args.seed, args.max_candidates)
+    options = {"progress": True, "style": args.type, "on_table": args.on_table, "check": check}
+    if args.method == "optimize":
+        params = SynthesisParams(envelop=args.envelop)
+        grasps, info = synthesize_grasps(*common, params=params, **options)
+        if args.envelop != "coupled":
+            info["command"] = f"{info['command']} --envelop {args.envelop}"
+    else:
+        grasps, info = generate_grasps(*common, **options)
     if args.require_hold is not None or args.require_reach is not None:
         info["command"] = f"{info['command']} {_check_options(args)}"
     rejected = cast(dict[str, int], info["rejected"])
@@ -242,7 +280,7 @@ def _checks(args: argparse.Namespace, hand: HandModel, obj: ObjectModel) -> Gras
     """The further checks ``--require-hold`` and ``--require-reach`` ask for, as one.
 
     Raises:
-        ConfigError: ``--require-hold`` with ``--on-table``.
+        ConfigError: ``--require-hold`` with ``--on-table``; ``--hold-rate`` outside (0, 1].
     """
     from wholehand.errors import ConfigError
     from wholehand.grasps.checks import all_of
@@ -255,8 +293,14 @@ def _checks(args: argparse.Namespace, hand: HandModel, obj: ObjectModel) -> Gras
             "grasps (leave out --on-table or --require-hold)"
         )
     checks: list[GraspCheck] = []
+    if not 0.0 < args.hold_rate <= 1.0:
+        raise ConfigError(f"--hold-rate {args.hold_rate:g}: give a share in (0, 1], e.g. 0.8")
     if args.require_hold is not None:
-        checks.append(protocol_check(hand, obj, args.require_hold))
+        checks.append(
+            protocol_check(
+                hand, obj, args.require_hold, trials=args.hold_trials, min_rate=args.hold_rate
+            )
+        )
     if args.require_reach is not None:
         checks.append(reach_check(hand, obj, args.type, args.require_reach, args.on_table))
     return all_of(checks)
@@ -391,6 +435,8 @@ def _check_options(args: argparse.Namespace) -> str:
     options = []
     if args.require_hold is not None:
         options.append(f"--require-hold {args.require_hold:g}")
+        if args.hold_trials > 1:
+            options.append(f"--hold-trials {args.hold_trials} --hold-rate {args.hold_rate:g}")
     if args.require_reach is not None:
         options.append(f"--require-reach {args.require_reach:g}")
     return " ".join(options)

@@ -83,7 +83,8 @@ def closing_torques(
         link_actuated=hand.link_actuated,
         link_fingertip=hand.link_fingertip,
     )
-    allocator = registry.load("allocators", "qp", f_n_min=CLOSE_SQUEEZE, **hand_keywords(hand))
+    keywords = {**hand_keywords(hand), "f_n_min": CLOSE_SQUEEZE}  # the validation's own squeeze
+    allocator = registry.load("allocators", "qp", **keywords)
     allocation = allocator.allocate(contacts, J, com_world)
     if allocation.fresh and allocation.tau is not None and np.abs(allocation.tau).max() > 0.0:
         tau = hand.joint_torques(allocation.tau)

@@ -29,7 +29,9 @@ that decays geometrically, as in DexGraspNet's annealing.
 The contact points: one per finger of the style (the style's ``fingers``, or every finger of
 ``[fingers]`` for a power grasp, and then one on the palm face too unless ``palm_contact`` is
 off), drawn from the pads of the finger's links past the first (the samples whose outward
-normal leads their motion when the finger closes by the style's closing-torque signs).
+normal leads their motion when the finger closes by the style's closing-torque signs). A finger
+that envelops (``envelop``: by default one whose phalanges a coupling drives) gets one on the
+pads of each of its links instead, so that the grasp rests on its whole length.
 
 The start: the hand's palm frame (:mod:`wholehand.models.palm`) faces the object from a random
 direction, at a gap of 1-3 cm from its support along that direction, turned at random about it;
@@ -186,9 +188,10 @@ class GraspSynthesizer:
     # --------------------------------------------------------------------------------------------
     def _contact_candidates(self, tau_close: FloatArray) -> list[IntArray]:
         """Per contact, the surface samples it may sit on: the pads of a finger's links past
-        its first (the samples whose outward normal leads their motion when the finger
-        closes, at the start posture), or every sample of those links where none does; the
-        palm face (normal within 45 deg of the palm normal) for a power grasp."""
+        its first (its one link, if it has one; the samples whose outward normal leads their
+        motion when the finger closes, at the start posture), or every sample of those links
+        where none does; of each of its links for a finger that envelops; the palm face
+        (normal within 45 deg of the palm normal) for a power grasp."""
         hand, cfg, s = self.hand, self.hand.config, self.samples
         kin = self.kin
         kin.update(self.q_start, np.eye(4))
@@ -197,19 +200,30 @@ class GraspSynthesizer:
         speed = np.linalg.norm(v, axis=1)
         pad = np.einsum("ij,ij->i", n, v) > 0.5 * speed
         fingers = list(self.style.fingers) or list(cfg.fingers)
-        self.contact_fingers = [*fingers]
+        self.contact_fingers = []
         """The finger of each contact ("" for the palm's)."""
         out: list[IntArray] = []
         for finger in fingers:
-            links = [hand.link_index(name) for name in cfg.fingers[finger][1:]]
-            on_links = np.isin(s.link, links)
+            if self._envelops(finger):
+                phalanges = [
+                    np.flatnonzero((s.link == hand.link_index(name)) & pad)
+                    for name in cfg.fingers[finger]
+                ]
+                phalanges = [p for p in phalanges if p.size >= MIN_PAD_SAMPLES]
+                if len(phalanges) > 1:
+                    out += phalanges
+                    self.contact_fingers += [finger] * len(phalanges)
+                    continue
+            names = cfg.fingers[finger][1:] or cfg.fingers[finger]  # a one-link finger: itself
+            on_links = np.isin(s.link, [hand.link_index(name) for name in names])
             if not on_links.any():
                 raise ConfigError(
-                    f"{cfg.path}: finger {finger!r} has no surface samples past its first link "
-                    f"{cfg.fingers[finger][0]!r}; the synthesiser needs them for its contacts"
+                    f"{cfg.path}: finger {finger!r} has no surface samples on {list(names)}; the "
+                    "synthesiser needs them for its contacts"
                 )
             pads = np.flatnonzero(on_links & pad)
             out.append(pads if pads.size >= MIN_PAD_SAMPLES else np.flatnonzero(on_links))
+            self.contact_fingers.append(finger)
         if self.params.palm_contact and not self.style.fingers:  # a power grasp
             palm = hand.link_index(cfg.palm_link)
             on_face = np.flatnonzero((s.link == palm) & (n @ self.palm.bRp[:, 0] > 0.7))
@@ -217,6 +231,19 @@ class GraspSynthesizer:
                 out.append(on_face)
                 self.contact_fingers.append("")
         return out
+
+    def _envelops(self, finger: str) -> bool:
+        """Whether ``finger`` gets a contact point per phalanx (:attr:`SynthesisParams.envelop`):
+        for ``coupled``, when a joint that follows another moves one of its links."""
+        mode = self.params.envelop
+        if mode != "coupled":
+            return mode == "all"
+        model, hand = self.hand.model, self.hand
+        for name in hand.config.fingers[finger]:
+            joint = int(hand.link_joint[hand.link_index(name)])
+            if any(model.names[j] in hand.mimics for j in model.supports[joint] if j > 0):
+                return True
+        return False
 
     def _finger_samples(self) -> tuple[IntArray, IntArray]:
         """The samples of the fingers-apart term (every :data:`SELF_STRIDE`-th of each

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from wholehand.backends.table import HAND_MARGIN
 
@@ -51,3 +52,9 @@ class SynthesisParams:
     validation and the reacher keep (:data:`~wholehand.backends.table.HAND_MARGIN`)."""
     palm_contact: bool = True
     """A power grasp has a contact point on the palm face too."""
+    envelop: Literal["coupled", "all", "none"] = "coupled"
+    """Which fingers get a contact point on each of their phalanges (every link of the finger
+    whose pads the closing moves) instead of one on the finger: ``coupled``, those whose
+    phalanges one motor drives through a coupling (an underactuated finger holds an object
+    with its whole length or not at all); ``all``; ``none``, one per finger (DexGraspNet's
+    energy)."""

@@ -21,6 +21,8 @@ Schema (all lengths in m, angles in rad, torques in N*m)::
     locked = { wrist = 0.0 }                    # held at this value [rad or m]: not in the model
     coupled = { j2 = { leader = "j1", multiplier = 0.8, offset = 0.0 } }   # q_j2 = 0.8 q_j1 + 0
     torque_limit = { default = 0.2, j1 = 0.5 }
+    [control]
+    squeeze = 20.0                              # the allocator's minimum squeeze f_n_min [N]
     [simulation]
     damping = 0.05                              # N*m*s/rad
     armature = 0.001                            # kg*m^2
@@ -150,6 +152,9 @@ class HandConfig:
     """An assembly's hand alone (its hand.toml): grasps and grasp targets are the hand's."""
     arm_home: tuple[float, ...] = ()
     """An assembly's arm start posture [rad], in the order of :attr:`arm_joints`."""
+    squeeze: float | None = None
+    """``[control] squeeze``: the least sum of normal forces [N] the allocators keep on this
+    hand's grasps (their ``f_n_min``); None: the paper's (:data:`~wholehand.defaults.F_N_MIN`)."""
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -198,6 +203,7 @@ HAND_KEYS = frozenset(
         "palm_normal",
         "fingers",
         "joints",
+        "control",
         "simulation",
         "mount",
         "grasping",
@@ -206,6 +212,7 @@ HAND_KEYS = frozenset(
 """The top-level keys of a hand's hand.toml."""
 SUB_TABLE_KEYS: dict[str, set[str]] = {
     "joints": {"actuated", "locked", "torque_limit", "coupled"},
+    "control": {"squeeze"},
     "simulation": {"damping", "armature"},
     "mount": {"xyz", "rpy"},
     "grasping": {"preshape", "close_torque"},
@@ -331,6 +338,10 @@ def parse_hand_config(path: str | Path) -> HandConfig:
     if not isinstance(outer, bool):
         raise ConfigError(f"{path}: outer_surface_only must be true or false, got {outer!r}")
     sim = raw.get("simulation", {})
+    control = raw.get("control", {})
+    squeeze = None
+    if "squeeze" in control:
+        squeeze = number(control["squeeze"], "[control] squeeze (the minimum squeeze [N])", path)
     mount = raw.get("mount", {})
     xyz, rpy = (three_numbers(mount.get(k, [0.0, 0.0, 0.0]), k, path) for k in ("xyz", "rpy"))
     palm_normal = None
@@ -369,6 +380,7 @@ def parse_hand_config(path: str | Path) -> HandConfig:
         mount_xyz=xyz,
         mount_rpy=rpy,
         palm_normal=palm_normal,
+        squeeze=squeeze,
     )
 
 

@@ -30,32 +30,43 @@ def endpoint():
 DDS_LOOPBACK = ("--transport", "dds", "--dds-peer", "127.0.0.1", "--dds-interface", "127.0.0.1")
 
 
-@pytest.mark.parametrize("transport", ["zenoh", "dds"])
-def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(
-    endpoint, tmp_path, monkeypatch, transport
-):
-    if transport == "dds":
-        monkeypatch.setenv("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))  # this test's alone
-        sim_link, control_link = DDS_LOOPBACK, DDS_LOOPBACK
-    else:
-        sim_link, control_link = ("--listen", endpoint, "--connect"), ("--connect", endpoint)
-    sim = wholehand(
-        "hw-sim", "--quick", "--latency", "0.033", *sim_link, "--json", str(tmp_path / "sim.json")
-    )
-    control = wholehand(
-        "control", *control_link, "--listen", "--duration", "4.0",
-        "--json", str(tmp_path / "control.json"), "--record", str(tmp_path / "run.mcap"),
-    )  # fmt: skip
+@pytest.fixture(scope="module", params=["zenoh", "dds"])
+def load_test_run(request, tmp_path_factory):
+    """The double (quick protocol, 33 ms tracker latency) and a controller over each transport,
+    run once for the tests below: (robot summary, controller summary, the run's folder)."""
+    transport, folder = request.param, tmp_path_factory.mktemp(f"load-test-{request.param}")
+    with pytest.MonkeyPatch.context() as env:
+        if transport == "dds":
+            env.setenv("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))  # this test's alone
+            sim_link, control_link = DDS_LOOPBACK, DDS_LOOPBACK
+        else:
+            endpoint = loopback_endpoint()
+            sim_link, control_link = ("--listen", endpoint, "--connect"), ("--connect", endpoint)
+        sim = wholehand(
+            "hw-sim", "--quick", "--latency", "0.033", *sim_link, "--json", str(folder / "sim.json")
+        )
+        control = wholehand(
+            "control", *control_link, "--listen", "--duration", "4.0",
+            "--json", str(folder / "control.json"), "--record", str(folder / "run.mcap"),
+        )  # fmt: skip
     out, err = sim.communicate(timeout=180)
     assert sim.returncode == 0, err[-3000:]
     _, control_err = control.communicate(timeout=60)
     assert control.returncode == 0, control_err[-3000:]
-    robot = json.loads((tmp_path / "sim.json").read_text())
-    ctl = json.loads((tmp_path / "control.json").read_text())
-    # Real-time runs are not seeded: on failure, say what both sides saw.
-    seen = {k: v for k, v in robot.items() if k != "arrivals"}, ctl["loop"], ctl["backend"]
+    robot = json.loads((folder / "sim.json").read_text())
+    ctl = json.loads((folder / "control.json").read_text())
+    return robot, ctl, folder
+
+
+def _seen(robot, ctl):
+    """What both sides saw, for a failure's message (real-time runs are not seeded)."""
+    return {k: v for k, v in robot.items() if k != "arrivals"}, ctl["loop"], ctl["backend"]
+
+
+def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(load_test_run):
+    robot, ctl, folder = load_test_run
+    seen = _seen(robot, ctl)
     assert robot["held"] and robot["malformed_commands"] == 0, seen
-    assert robot["statuses"].get("command_timeout", 0) == 0, seen
     assert robot["torque_messages"] > 200 and robot["pose_messages"] > 50, seen
     assert robot["max_torque_rate_Nm_s"] <= 20.0 * 1.05, seen  # the guard's default rate
     assert ctl["backend"]["rejected"] == {}, seen
@@ -68,10 +79,19 @@ def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(
     # between the first and the last torque message's UNIX time (a monotonic clock's seconds
     # since boot would not).
     published = np.array([p for _, _, p in ctl["trace"]]) * 1e-9
-    recorded = _log_times(tmp_path / "run.mcap", "/joint_states")
+    recorded = _log_times(folder / "run.mcap", "/joint_states")
     assert recorded.size > 200, seen
     assert published.min() - 0.5 < recorded[0] and recorded[-1] < published.max() + 0.5
     assert abs(np.median(recorded) - np.median(published)) < 0.5
+
+
+@pytest.mark.realtime
+def test_a_computer_that_keeps_up_sends_every_command_before_the_drives_time_out(load_test_run):
+    """On an otherwise idle computer no torque command comes later than the drives' timeout;
+    on a loaded one some do (the drives then hold, then ramp, as designed), so this verdict
+    is about the computer, and runs apart (``pytest --realtime``)."""
+    robot, ctl, _ = load_test_run
+    assert robot["statuses"].get("command_timeout", 0) == 0, _seen(robot, ctl)
 
 
 def _log_times(path, topic: str) -> np.ndarray:
@@ -85,26 +105,30 @@ def _log_times(path, topic: str) -> np.ndarray:
 
 
 def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, tmp_path):
+    """The first controller is killed mid-grasp, a second one takes over. Paced by events, not
+    by the double's clock: the double settles until the test stops it once the second
+    controller has been up for a second, so a loaded computer makes the test slower, not red."""
     sim = wholehand(
-        "hw-sim",
-        "--quick",
-        "--settle",
-        "3.0",
-        "--listen",
-        endpoint,
-        "--connect",
-        "--json",
-        str(tmp_path / "sim.json"),
-    )
-    first = _controller(endpoint, 30.0)
-    wait_for_line(first, "streams up")
-    time.sleep(1.0)
-    first.send_signal(signal.SIGKILL)
-    first.wait()
-    second = _controller(endpoint, 6.0)
-    out, err = sim.communicate(timeout=180)
-    second.communicate(timeout=60)
-    assert sim.returncode == 0, err[-3000:]
+        "hw-sim", "--quick", "--settle", "300", "--listen", endpoint, "--connect",
+        "--json", str(tmp_path / "sim.json"),
+    )  # fmt: skip
+    first = _controller(endpoint, 300.0)
+    second = None
+    try:
+        wait_for_line(first, "streams up")
+        time.sleep(1.0)
+        first.send_signal(signal.SIGKILL)
+        first.wait()
+        second = _controller(endpoint, 300.0)
+        wait_for_line(second, "streams up")
+        time.sleep(1.0)  # it regulates: its commands reach the drives
+        sim.send_signal(signal.SIGINT)
+        _, err = sim.communicate(timeout=60)
+    finally:
+        for proc in (sim, first, second):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+    assert sim.returncode == 130, err[-3000:]  # stopped by the test, as planned
     robot = json.loads((tmp_path / "sim.json").read_text())
     assert robot["held"]
     assert robot["statuses"]["command_timeout"] > 0  # the drives noticed the controller gone

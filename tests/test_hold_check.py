@@ -62,6 +62,15 @@ def test_require_hold_is_refused_on_a_table(capsys):
     assert "--require-hold runs the perturbation protocol in the air" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("rate", ["0", "1.5", "nan"])
+def test_a_hold_rate_outside_zero_to_one_is_refused(capsys, rate):
+    from wholehand.cli.main import main
+
+    argv = ["grasps", "generate", "--require-hold", "60", "--hold-trials", "5", "--hold-rate"]
+    assert main([*argv, rate, "--object", "077_rubiks_cube", "--out", "/tmp/x"]) == 2
+    assert f"--hold-rate {rate}: give a share in (0, 1]" in capsys.readouterr().err
+
+
 def test_ctrl_c_ends_the_search_with_the_grasps_found_so_far(allegro, monkeypatch):
     box = ObjectModel.box((0.07, 0.14, 0.168), mass=0.1, name="table_box")
     calls: list[int] = []

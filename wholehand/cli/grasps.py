@@ -76,22 +76,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="SECONDS",
         help=REQUIRE_REACH_HELP,
     )
-    p.add_argument(
-        "--hold-trials",
-        type=count,
-        default=1,
-        metavar="N",
-        help="--require-hold: run the protocol N times, pulling about the random axes of seeds "
-        "0..N-1, and keep a grasp held in at least --hold-rate of them (default 1)",
-    )
-    p.add_argument(
-        "--hold-rate",
-        type=float,
-        default=0.8,
-        metavar="FRACTION",
-        help="--require-hold with --hold-trials: the least share of the trials a grasp must "
-        "hold (default 0.8)",
-    )
+    _hold_options(p)
     p.add_argument(
         "--envelop",
         choices=("coupled", "all", "none"),
@@ -157,6 +142,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--require-reach", type=float, default=None, metavar="SECONDS", help=REQUIRE_REACH_HELP
     )
+    _hold_options(p)
+    p.add_argument(
+        "--keep-passing",
+        action="store_true",
+        help="write the passing grasps back to the file (their ids kept), dropping the others",
+    )
+    p.set_defaults(func=_cmd_check)
+    p = gsub.add_parser("list", help="list the shipped grasp files")
+    p.set_defaults(func=_cmd_list)
+
+
+def _hold_options(p: argparse.ArgumentParser) -> None:
+    """``--hold-trials`` and ``--hold-rate``, the options of ``--require-hold``."""
     p.add_argument(
         "--hold-trials",
         type=count,
@@ -173,14 +171,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="--require-hold with --hold-trials: the least share of the trials a grasp must "
         "hold (default 0.8)",
     )
-    p.add_argument(
-        "--keep-passing",
-        action="store_true",
-        help="write the passing grasps back to the file (their ids kept), dropping the others",
-    )
-    p.set_defaults(func=_cmd_check)
-    p = gsub.add_parser("list", help="list the shipped grasp files")
-    p.set_defaults(func=_cmd_list)
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import selectors
+import signal
 import subprocess
 import sys
 import time
@@ -20,6 +21,20 @@ def wholehand(*args: str) -> subprocess.Popen[str]:
         text=True,
         env=os.environ.copy(),
     )
+
+
+def interrupt(proc: subprocess.Popen[str], timeout: float = 60.0) -> str:
+    """SIGINT to ``proc``, as Ctrl-C; its stderr once it has exited (within ``timeout`` [s])."""
+    proc.send_signal(signal.SIGINT)
+    return proc.communicate(timeout=timeout)[1]
+
+
+def kill_running(*procs: subprocess.Popen[str] | None) -> None:
+    """Kill those of ``procs`` still running (None skipped), so that a failed test leaves no
+    process behind."""
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
 
 
 def wait_for_line(proc: subprocess.Popen[str], text: str, timeout: float = 120.0) -> None:

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from processes import wait_for_line, wholehand
+from processes import interrupt, kill_running, wait_for_line, wholehand
 
 from wholehand.ros2.rmw_zenoh import loopback_endpoint
 
@@ -122,12 +122,9 @@ def test_a_controller_killed_mid_grasp_restarts_without_a_torque_jump(endpoint, 
         second = _controller(endpoint, 300.0)
         wait_for_line(second, "streams up")
         time.sleep(1.0)  # it regulates: its commands reach the drives
-        sim.send_signal(signal.SIGINT)
-        _, err = sim.communicate(timeout=60)
+        err = interrupt(sim)
     finally:
-        for proc in (sim, first, second):
-            if proc is not None and proc.poll() is None:
-                proc.kill()
+        kill_running(sim, first, second)
     assert sim.returncode == 130, err[-3000:]  # stopped by the test, as planned
     robot = json.loads((tmp_path / "sim.json").read_text())
     assert robot["held"]
@@ -236,11 +233,9 @@ def test_ctrl_c_of_the_double_writes_its_summary_without_a_traceback(endpoint, t
     )  # fmt: skip
     try:
         wait_for_line(sim, "waiting for a controller's first command")
-        sim.send_signal(signal.SIGINT)
-        _, err = sim.communicate(timeout=60)
+        err = interrupt(sim)
     finally:
-        if sim.poll() is None:
-            sim.kill()
+        kill_running(sim)
     assert sim.returncode == 130, err
     assert "Traceback" not in err and "stopped by a signal after 0 cycles" in err
     summary = json.loads((tmp_path / "s.json").read_text())

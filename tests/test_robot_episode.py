@@ -11,7 +11,7 @@ import signal
 import time
 
 import pytest
-from processes import wait_for_line, wholehand
+from processes import interrupt, kill_running, wait_for_line, wholehand
 
 from wholehand.ros2.rmw_zenoh import loopback_endpoint
 
@@ -138,12 +138,9 @@ def test_sigterm_mid_reach_ends_on_the_last_commands_and_sigkill_leaves_it_to_th
         second.send_signal(signal.SIGKILL)
         second.wait()
         time.sleep(2.0)  # 400 cycles of the double's 200 Hz without commands
-        sim.send_signal(signal.SIGINT)
-        _, sim_err = sim.communicate(timeout=120)
+        sim_err = interrupt(sim, timeout=120)
     finally:
-        for proc in (sim, control, second):
-            if proc is not None and proc.poll() is None:
-                proc.kill()
+        kill_running(sim, control, second)
     assert sim.returncode == 130, sim_err[-3000:]  # stopped by the test, as planned
     robot = json.loads((tmp_path / "sim.json").read_text())
     assert robot["statuses"]["command_timeout"] > 100, robot["statuses"]

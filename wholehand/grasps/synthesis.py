@@ -234,16 +234,13 @@ class GraspSynthesizer:
 
     def _envelops(self, finger: str) -> bool:
         """Whether ``finger`` gets a contact point per phalanx (:attr:`SynthesisParams.envelop`):
-        for ``coupled``, when a joint that follows another moves one of its links."""
-        mode = self.params.envelop
+        for ``coupled``, when one of its links turns on a joint that follows another (a
+        coupling in the palm before the finger does not count)."""
+        mode, hand = self.params.envelop, self.hand
         if mode != "coupled":
             return mode == "all"
-        model, hand = self.hand.model, self.hand
-        for name in hand.config.fingers[finger]:
-            joint = int(hand.link_joint[hand.link_index(name)])
-            if any(model.names[j] in hand.mimics for j in model.supports[joint] if j > 0):
-                return True
-        return False
+        joints = (int(hand.link_joint[hand.link_index(n)]) for n in hand.config.fingers[finger])
+        return any(hand.model.names[j] in hand.mimics for j in joints)
 
     def _finger_samples(self) -> tuple[IntArray, IntArray]:
         """The samples of the fingers-apart term (every :data:`SELF_STRIDE`-th of each

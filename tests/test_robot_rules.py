@@ -328,3 +328,17 @@ def test_table_one_columns_are_counted_from_the_stage_transitions():
     assert row["losses"] == 2 and row["regrasps"] == 1 and row["returns_home"] == 1
     assert row["time_to_regrasp_s"] == [pytest.approx(2.5)]
     assert _outcome([], 0.0, False, 0)["acquired"] is False
+
+
+def test_table_one_totals_keep_the_largest_torque_rate_the_drives_measured():
+    """Over ROS 2 each episode's row has the double's largest measured torque rate; the totals
+    keep the largest of them (the in-process rows have none: None)."""
+    from wholehand.bench.pipeline import _outcome, _totals
+
+    def row(rate: float | None = None) -> dict:
+        base = {**_outcome([], 0.0, False, 0), "cycle_ms": {"p50": 0.8, "p99": 2.0}}
+        base["overruns"] = 0
+        return base if rate is None else {**base, "max_torque_rate_Nm_s": rate}
+
+    assert _totals([row(12.5), row(19.75), row(3.0)])["max_torque_rate_Nm_s"] == 19.75
+    assert _totals([row(), row()])["max_torque_rate_Nm_s"] is None

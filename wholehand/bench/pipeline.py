@@ -6,7 +6,8 @@ and the person in a second process while ``wholehand control``'s controller runs
 (in real time, the tracker at its rate with its latency); and in process, ``wholehand reach``'s
 episode on the same seed (the same scene and person draws, no tracker latency). Per episode and
 mode: acquisition, time to grasp, perturbations, losses, regrasps and the time they took,
-returns home, completion, the controller's cycle times and overruns; per mode, the counts with
+returns home, completion, the controller's cycle times and overruns (over ROS 2 also the largest
+torque rate the double's drives measured and its steps to zero); per mode, the counts with
 the standard errors of the rates and of their paired differences.
 """
 
@@ -107,6 +108,8 @@ def over_ros(
         "cycle_ms": percentiles(cycle_ms),
         "overruns": loop["overruns"],
         "late_cycles_double": robot["late_cycles"],
+        "max_torque_rate_Nm_s": robot["max_torque_rate_Nm_s"],
+        "stops_to_zero": robot["stops_to_zero"],
         "rejected": result["backend"]["rejected"],
         "guard": result["backend"]["guard"],
         "arm_guard": result["backend"]["arm_guard"],
@@ -150,6 +153,7 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
     grasp = [r["time_to_grasp_s"] for r in rows if r["time_to_grasp_s"] is not None]
     cycles_p50 = [r["cycle_ms"]["p50"] for r in rows if r["cycle_ms"]["p50"] is not None]
     cycles_p99 = [r["cycle_ms"]["p99"] for r in rows if r["cycle_ms"]["p99"] is not None]
+    rates = [r["max_torque_rate_Nm_s"] for r in rows if "max_torque_rate_Nm_s" in r]
     return {
         "episodes": len(rows),
         "acquired": sum(r["acquired"] for r in rows),
@@ -165,6 +169,7 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "cycle_ms_p50_median": float(np.median(cycles_p50)) if cycles_p50 else None,
         "cycle_ms_p99_max": float(max(cycles_p99)) if cycles_p99 else None,
         "overruns": sum(r["overruns"] for r in rows),
+        "max_torque_rate_Nm_s": max(rates) if rates else None,
     }
 
 

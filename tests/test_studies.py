@@ -552,7 +552,10 @@ def test_a_grasp_folder_expands_the_design_for_a_hand_without_stored_grasps(tmp_
     found.mkdir()
     shutil.copy(grasp_file("allegro_right", "077_rubiks_cube"), found)
     study = get_study("perturbation")
-    assert runner.study_jobs(study, "tiny", 0, str(hand)) == []  # no grasps of its own
+    with pytest.raises(ConfigError, match=r"no trial for hand '.*mine': it has no stored grasps"):
+        runner.study_jobs(study, "tiny", 0, str(hand))  # no grasps of its own
+    with pytest.raises(ConfigError, match=r"no grasps in .*mine of the study's objects"):
+        runner.study_jobs(study, "tiny", 0, str(hand), grasps=hand)  # a folder without any
     jobs = runner.study_jobs(study, "tiny", 0, str(hand), grasps=found)
     shipped = runner.study_jobs(study, "tiny", 0, "allegro_right")
 

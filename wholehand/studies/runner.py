@@ -204,10 +204,22 @@ def study_jobs(
     """The jobs of ``study`` on ``hand``, with ``methods`` in place of its own (if given), on
     the grasps of the folder ``grasps`` (if given, :func:`~wholehand.studies.base.
     with_grasps`), those matching ``only`` (if given, :func:`~wholehand.studies.base.
-    only_jobs`)."""
+    only_jobs`).
+
+    Raises:
+        ConfigError: the design has no trial on this hand (its trials run the hand's stored
+            grasps of the study's objects, and there are none).
+    """
     # With a grasp folder the design expands over its grasps, not the hand's stored ones.
     with contextlib.nullcontext() if grasps is None else grasps_from(grasps):
         jobs = study.jobs(size, seed, hand)
+    if not jobs:
+        where = "stored grasps" if grasps is None else f"grasps in {grasps}"
+        raise ConfigError(
+            f"study {study.name} ({size}) has no trial for hand {hand!r}: it has no {where} of "
+            f"the study's objects; generate them with `wholehand grasps generate --hand {hand}`"
+            + ("" if grasps is None else f" --out {grasps}")
+        )
     jobs = jobs if methods is None else with_methods(jobs, tuple(methods))
     jobs = jobs if grasps is None else with_grasps(jobs, grasps)
     return jobs if not only else only_jobs(jobs, only)
@@ -317,12 +329,6 @@ def run_study(
             "pass None to run every unfinished trial"
         )
     jobs = study_jobs(study, size, seed, hand, methods, grasps, only)
-    if not jobs:
-        raise ConfigError(
-            f"study {study.name} ({size}) has no trial for hand {hand!r}: it has no stored "
-            "grasps of the study's objects; generate them with `wholehand grasps generate "
-            f"--hand {hand}`"
-        )
     folder = _output_folder(study, out, hand, grasps)
     with study_folder_lock(folder):
         done: dict[int, dict[str, Any]] = {}

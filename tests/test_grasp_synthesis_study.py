@@ -23,7 +23,7 @@ def test_the_full_design_covers_every_ycb_object_in_both_settings_with_both_gene
     assert {j.kind for j in jobs} == {"grasp_generation"}
     assert {(j.labels["generator"], j.labels["budget"]) for j in jobs} == {
         ("preshape", 400),
-        ("optimize", 32),
+        ("optimize", 128),
     }
     seeds: dict[tuple[str, str], set[int]] = {}
     for job in jobs:

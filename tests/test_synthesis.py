@@ -25,17 +25,19 @@ def ball() -> ObjectModel:
 
 
 def _near_surface_states(hand, obj) -> list[SynthesisState]:
-    """States whose contacts lie within 2 cm of the surface, inside the SDF's grid (outside it
-    the SDF is a bound, not a distance): ends of short optimisations."""
+    """Three states whose contacts lie within 2 cm of the surface, inside the SDF's grid
+    (outside it the SDF is a bound, not a distance): ends of short optimisations."""
     params = SynthesisParams(iterations=150, w_self=0.0)  # inputs only: the seeds' own ends
     syn = GraspSynthesizer(hand, obj, hand.config.grasp_styles["power"], params=params)
     states = []
-    for r in syn.optimise(3, seed=0):
+    for r in syn.optimise(8, seed=0):
         state = SynthesisState(r.oMb, r.q[syn.act], r.contacts)
         syn.evaluate(state, gradient=False)
-        assert state.energy is not None and state.energy.distance < 0.02 * len(r.contacts)
-        states.append(state)
-    return states
+        assert state.energy is not None
+        if state.energy.distance < 0.02 * len(r.contacts):
+            states.append(state)
+    assert len(states) >= 3
+    return states[:3]
 
 
 def _numeric_gradient(syn: GraspSynthesizer, state: SynthesisState, h: tuple) -> dict:
@@ -74,6 +76,9 @@ class ExactSphere:
 
     def query(self, p: np.ndarray) -> np.ndarray:
         return np.linalg.norm(p, axis=1) - self.radius
+
+    def nearest_below(self, p: np.ndarray, threshold: float) -> np.ndarray:
+        return np.flatnonzero(self.query(p) < threshold)
 
     def query_with_gradient(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         norm = np.linalg.norm(p, axis=1)

@@ -20,8 +20,9 @@ hand sample ``x``:
 unitless like the force term. The last sum runs over pairs of surface samples of two different
 fingers' links past their first (every :data:`SELF_STRIDE`-th sample), closer than ``gap``: a
 finger pressed into another starts MuJoCo's validation with interpenetrating links.
+(:mod:`wholehand.grasps.synthesis_energy` computes it for a batch of starts at once.)
 
-Joint limits are kept by clipping. Each start takes RMSprop-scaled
+Joint limits are kept by clipping. The starts run together as one batch; each takes RMSprop-scaled
 gradient steps (Pinocchio point and angular Jacobians, the SDF's gradient) and re-draws each
 contact point with a small probability; a step is kept by the Metropolis rule at a temperature
 that decays geometrically, as in DexGraspNet's annealing.
@@ -47,6 +48,7 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from wholehand.errors import ConfigError
+from wholehand.grasps.synthesis_energy import Energies, Energy, SynthesisEnergy
 from wholehand.grasps.synthesis_params import SynthesisParams
 from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import HandModel
@@ -55,33 +57,14 @@ from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.palm import PalmFrame, palm_frame
 
+__all__ = ["Energy", "GraspSynthesizer", "SynthesisResult", "SynthesisState"]
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
 
 
-SELF_STRIDE = 3
-"""Every this-many-th sample of the fingers' links enters the fingers-apart term."""
 MIN_PAD_SAMPLES = 5
 """A finger with fewer pad samples than this takes its contacts anywhere on its links."""
-
-
-@dataclass(frozen=True)
-class Energy:
-    """The energy of one state and its parts."""
-
-    total: float
-    distance: float
-    """Sum of the contacts' |signed distance| [m]."""
-    force_closure: float
-    alignment: float
-    penetration: float
-    """Sum of the hand samples' depths inside the object [m]."""
-    table: float
-    """Sum of the hand samples' depths below the table margin [m]."""
-    max_depth: float
-    """Deepest hand sample inside the object [m]."""
-    self_penetration: float = 0.0
-    """Sum over pairs of two fingers' samples of how much closer than the gap they are [m]."""
 
 
 @dataclass
@@ -117,29 +100,7 @@ class SynthesisResult:
     """Index of the start it came from."""
 
 
-@dataclass(frozen=True)
-class _Terms:
-    """The energy of a state and what its gradient reuses: the hand's sample points ``X``
-    (P, 3) in the object frame, at the contacts their points ``xc``, pad normals ``mc``, SDF
-    values ``dc`` and gradients ``gc`` (C, 3), the force-closure sums ``F`` and ``T`` and the
-    lever arms ``r``; the penetrating samples, those below the table's margin, and the
-    self-penetrating pairs (first, second, distance)."""
-
-    energy: Energy
-    X: FloatArray
-    xc: FloatArray
-    mc: FloatArray
-    dc: FloatArray
-    gc: FloatArray
-    F: FloatArray
-    T: FloatArray
-    r: FloatArray
-    inside: IntArray
-    below: IntArray
-    self_pairs: tuple[IntArray, IntArray, FloatArray]
-
-
-class GraspSynthesizer:
+class GraspSynthesizer(SynthesisEnergy):
     """Optimises grasps of one object for one hand and grasp style (module docstring).
 
     Args:
@@ -161,29 +122,15 @@ class GraspSynthesizer:
         table_up: npt.ArrayLike | None = None,
         params: SynthesisParams | None = None,
     ) -> None:
-        self.hand, self.obj, self.style = hand, obj, style
-        self.params = params or SynthesisParams()
-        self.kin = HandKinematics(hand)
-        self.samples = hand.samples
-        self.sdf = obj.sdf
-        verts = np.asarray(obj.mesh.vertices, dtype=float)
-        self.com = np.asarray(obj.com, dtype=float)
-        self.radius = 0.5 * float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
-        self.verts = verts
-        self.table_up: FloatArray | None = None
-        self.table_height = 0.0
-        if table_up is not None:
-            up = np.asarray(table_up, dtype=float)
-            self.table_up = up / np.linalg.norm(up)
-            self.table_height = float((verts @ self.table_up).min())
         q_pre, tau_close, _ = style_arrays(hand, style)
-        self.q_start = q_pre if style.preshape else hand.neutral()
+        q_start = q_pre if style.preshape else hand.neutral()
+        super().__init__(hand, obj, q_start, table_up, params or SynthesisParams())
+        self.style = style
+        self.kin = HandKinematics(hand)
         self.palm: PalmFrame = palm_frame(hand, self.q_start, tau_close)
-        self.act = hand.actuated_dofs.copy() if hand.coupled else np.ones(hand.nq, dtype=bool)
         self.a_lower = hand.q_lower[self.act]
         self.a_upper = hand.q_upper[self.act]
         self.candidates = self._contact_candidates(tau_close)
-        self.self_samples, self.self_finger = self._finger_samples()
 
     # --------------------------------------------------------------------------------------------
     def _contact_candidates(self, tau_close: FloatArray) -> list[IntArray]:
@@ -242,45 +189,10 @@ class GraspSynthesizer:
         joints = (int(hand.link_joint[hand.link_index(n)]) for n in hand.config.fingers[finger])
         return any(hand.model.names[j] in hand.mimics for j in joints)
 
-    def _finger_samples(self) -> tuple[IntArray, IntArray]:
-        """The samples of the fingers-apart term (every :data:`SELF_STRIDE`-th of each
-        finger's links past its first) and the index of the finger of each."""
-        hand, cfg, s = self.hand, self.hand.config, self.samples
-        rows, finger = [], []
-        for k, links in enumerate(cfg.fingers.values()):
-            on = np.flatnonzero(np.isin(s.link, [hand.link_index(n) for n in links[1:]]))
-            on = on[::SELF_STRIDE]
-            rows.append(on)
-            finger.append(np.full(on.size, k))
-        if not rows:
-            return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
-        return np.concatenate(rows).astype(np.intp), np.concatenate(finger).astype(np.intp)
-
-    def _self_pairs(self, X: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
-        """Pairs (i, j) of :attr:`self_samples` rows on different fingers closer than the gap
-        at the sample positions ``X`` (P, 3), and their distances [m]."""
-        from scipy.spatial import cKDTree
-
-        rows = self.self_samples
-        if rows.size < 2 or self.params.w_self == 0.0:
-            empty = np.zeros(0, dtype=np.intp)
-            return empty, empty, np.zeros(0)
-        pairs = cKDTree(X[rows]).query_pairs(self.params.self_gap, output_type="ndarray")
-        i, j = pairs[:, 0], pairs[:, 1]
-        other = self.self_finger[i] != self.self_finger[j]
-        i, j = rows[i[other]], rows[j[other]]
-        return i, j, np.linalg.norm(X[i] - X[j], axis=1)
-
     def touching(self, result: SynthesisResult, gap: float) -> set[str]:
         """Fingers whose contact of ``result`` lies within ``gap`` [m] of the surface ("" for
         the palm's)."""
         return {f for f, d in zip(self.contact_fingers, result.gaps, strict=True) if abs(d) <= gap}
-
-    def q_of(self, a: FloatArray) -> FloatArray:
-        """(n_q,) joint angles from the optimised ones [rad]."""
-        q = self.q_start.copy()
-        q[self.act] = a
-        return self.hand.couple(q) if self.hand.coupled else q
 
     def start(self, rng: np.random.Generator) -> SynthesisState:
         """A seeded start (module docstring)."""
@@ -312,153 +224,67 @@ class GraspSynthesizer:
     def evaluate(self, state: SynthesisState, gradient: bool = True) -> Energy:
         """The energy of ``state`` (stored in it), with its gradient in ``state.grad``
         (``t`` (3,) [1/m], ``w`` (3,) about the base origin [1/rad], ``a`` (n_a,) [1/rad])."""
-        terms = self._terms(state)
-        state.energy = terms.energy
-        if gradient:
-            state.grad = self._gradient(state, terms)
-        return terms.energy
-
-    def _terms(self, state: SynthesisState) -> _Terms:
-        """The energy's terms at ``state``, with the points they were evaluated at."""
-        p, kin, s = self.params, self.kin, self.samples
-        kin.update(self.q_of(state.a), state.oMb)
-        X = kin.transform_points(s.p_joint, s.joint)  # (P, 3) object frame
-        d = self.sdf.query(X)
-        c = state.contacts
-        xc = X[c]
-        mc = kin.from_joint_frames(s.p_joint[c], s.n_joint[c], s.joint[c])[1]
-        dc, gc = self.sdf.query_with_gradient(xc)
-        F = gc.sum(axis=0)
-        r = xc - self.com
-        T = np.cross(r, gc).sum(axis=0) / self.radius
-        e_dis = float(np.abs(dc).sum())
-        e_fc = float(F @ F + T @ T)
-        e_align = float((1.0 + np.einsum("ij,ij->i", mc, gc)).sum())
-        depth = np.maximum(-d, 0.0)
-        e_pen = float(depth.sum())
-        below = np.zeros(0, dtype=np.intp)
-        e_table = 0.0
-        if self.table_up is not None:
-            h = X @ self.table_up - self.table_height
-            short = np.maximum(p.table_margin - h, 0.0)
-            below = np.flatnonzero(short > 0.0)
-            e_table = float(short.sum())
-        si, sj, dist = self._self_pairs(X)
-        e_self = float(np.maximum(p.self_gap - dist, 0.0).sum())
-        total = (
-            p.w_dis * e_dis
-            + p.w_fc * e_fc
-            + p.w_align * e_align
-            + p.w_pen * e_pen
-            + p.w_table * e_table
-            + p.w_self * e_self
+        energies, grad = self.energies(
+            state.oMb[None], state.a[None], state.contacts[None], gradient
         )
-        max_depth = float(depth.max()) if depth.size else 0.0
-        energy = Energy(total, e_dis, e_fc, e_align, e_pen, e_table, max_depth, e_self)
-        inside = np.flatnonzero(depth > 0.0)
-        return _Terms(energy, X, xc, mc, dc, gc, F, T, r, inside, below, (si, sj, dist))
+        state.energy = energies.at(0)
+        state.grad = {key: value[0] for key, value in grad.items()}
+        return state.energy
 
-    def _gradient(self, state: SynthesisState, e: _Terms) -> dict[str, FloatArray]:
-        """The energy's gradient at ``state`` from its terms: dE/dx per point, then through
-        the point Jacobians to the variables."""
-        p, kin, s, c, L = self.params, self.kin, self.samples, state.contacts, self.radius
-        H = self._normal_jacobians(e.xc)  # (C, 3, 3): d g_i / d c_i
-        g_fc = 2.0 * (np.einsum("nab,a->nb", H, e.F) + np.cross(e.gc, e.T) / L)
-        g_fc += 2.0 / L * np.einsum("nab,na->nb", H, np.cross(e.T, e.r))
-        g_align = np.einsum("nab,na->nb", H, e.mc)
-        gx = [p.w_dis * np.sign(e.dc)[:, None] * e.gc + p.w_fc * g_fc + p.w_align * g_align]
-        points, joints = [e.xc], [s.joint[c]]
-        X, inside, below = e.X, e.inside, e.below
-        if inside.size:
-            gin = self.sdf.query_with_gradient(X[inside])[1]
-            gx.append(-p.w_pen * gin)
-            points.append(X[inside])
-            joints.append(s.joint[inside])
-        if below.size:
-            assert self.table_up is not None
-            gx.append(np.broadcast_to(-p.w_table * self.table_up, (below.size, 3)))
-            points.append(X[below])
-            joints.append(s.joint[below])
-        si, sj, dist = e.self_pairs
-        if si.size:  # d(gap - |x - y|)/dx = -(x - y)/|x - y|, and the opposite for y
-            u = (X[si] - X[sj]) / np.maximum(dist, 1e-12)[:, None]
-            gx += [-p.w_self * u, p.w_self * u]
-            points += [X[si], X[sj]]
-            joints += [s.joint[si], s.joint[sj]]
-        G = np.concatenate(gx)
-        P = np.ascontiguousarray(np.concatenate(points))
-        J = np.concatenate(joints)
-        jac = kin.actuation_jacobians(J, P) if self.hand.coupled else kin.point_jacobians(J, P)
-        t = state.oMb[:3, 3]
-        grad_t = G.sum(axis=0)
-        grad_w = np.cross(P - t, G).sum(axis=0)
-        grad_a = np.einsum("nak,na->k", jac, G)
-        # The pads' normals: dm = omega x m.
-        gm = p.w_align * e.gc
-        mxg = np.cross(e.mc, gm)
-        grad_w += mxg.sum(axis=0)
-        Jw = kin.angular_jacobians(s.joint[c])
-        if self.hand.coupled:
-            Jw = Jw @ self.hand.coupling
-        grad_a += np.einsum("nak,na->k", Jw, mxg)
-        if not self.hand.coupled:
-            grad_a = grad_a[self.act]
-        return {"t": grad_t, "w": grad_w, "a": grad_a}
-
-    def _normal_jacobians(self, x: FloatArray) -> FloatArray:
-        """(N, 3, 3) derivatives of the object normal (the SDF's unit gradient) at points ``x``
-        (N, 3) by position [1/m], by central differences over half a grid spacing."""
-        h = 0.5 * self.sdf.spacing
-        offsets = np.concatenate((np.eye(3), -np.eye(3))) * h  # (6, 3)
-        probes = (x[:, None, :] + offsets[None]).reshape(-1, 3)
-        g = self.sdf.query_with_gradient(probes)[1].reshape(-1, 6, 3)
-        return np.transpose((g[:, :3] - g[:, 3:]) / (2.0 * h), (0, 2, 1))  # [n, a, b] = dg_a/dx_b
-
-    # --------------------------------------------------------------------------------------------
     def optimise(self, starts: int, seed: int = 0, progress: bool = False) -> list[SynthesisResult]:
-        """Run ``starts`` seeded starts; their end states, lowest energy first."""
+        """Run ``starts`` seeded starts together; their end states, lowest energy first."""
         from tqdm import tqdm
 
         p = self.params
         rng = np.random.default_rng(seed)
-        states = [self.start(rng) for _ in range(starts)]
-        for st in states:
-            self.evaluate(st)
-        ms = [{k: np.zeros_like(v) for k, v in st.grad.items()} for st in states]
+        first = [self.start(rng) for _ in range(starts)]
+        oMb = np.stack([st.oMb for st in first])
+        a = np.stack([st.a for st in first])
+        contacts = np.stack([st.contacts for st in first])
+        energies, grad = self.energies(oMb, a, contacts)
+        ms = {key: np.zeros_like(g) for key, g in grad.items()}
         bar = tqdm(range(p.iterations), desc=f"synthesis {self.obj.name}", disable=not progress)
         for it in bar:
             scale = p.cooling ** (it // p.cooling_every)
             temperature = p.temperature * scale
-            for k, st in enumerate(states):
-                proposal = self._step(st, ms[k], scale, rng)
-                assert st.energy is not None
-                e_old = st.energy.total
-                e_new = self.evaluate(proposal).total
-                if e_new <= e_old or rng.random() < np.exp((e_old - e_new) / temperature):
-                    states[k] = proposal
+            proposal = self._step(oMb, a, contacts, grad, ms, scale, rng)
+            new, new_grad = self.energies(*proposal)
+            with np.errstate(over="ignore"):
+                chance = np.exp((energies.total - new.total) / temperature)
+            keep = (new.total <= energies.total) | (rng.random(starts) < chance)
+            oMb = np.where(keep[:, None, None], proposal[0], oMb)
+            a = np.where(keep[:, None], proposal[1], a)
+            contacts = np.where(keep[:, None], proposal[2], contacts)
+            energies = new.where(keep, energies)
+            grad = {key: np.where(keep[:, None], new_grad[key], g) for key, g in grad.items()}
         bar.close()
-        out = []
-        for k, st in enumerate(states):
-            energy = self.evaluate(st, gradient=False)
-            xc = self.kin.transform_points(
-                self.samples.p_joint[st.contacts], self.samples.joint[st.contacts]
+        return self._results(oMb, a, contacts)
+
+    def _results(self, oMb: FloatArray, a: FloatArray, contacts: IntArray) -> list[SynthesisResult]:
+        """The batch's end states as results, lowest energy first."""
+        terms = self._terms(oMb, a, contacts)
+        energies: Energies = terms.energies
+        q = self.q_of(a)
+        out = [
+            SynthesisResult(
+                oMb[k].copy(), q[k], contacts[k].copy(), terms.gc[k], terms.dc[k], energies.at(k), k
             )
-            gaps, normals = self.sdf.query_with_gradient(xc)
-            q = self.q_of(st.a)
-            out.append(
-                SynthesisResult(st.oMb.copy(), q, st.contacts.copy(), normals, gaps, energy, k)
-            )
+            for k in range(len(oMb))
+        ]
         out.sort(key=lambda r: r.energy.total)
         return out
 
     def _step(
         self,
-        st: SynthesisState,
+        oMb: FloatArray,
+        a: FloatArray,
+        contacts: IntArray,
+        grad: dict[str, FloatArray],
         ms: dict[str, FloatArray],
         scale: float,
         rng: np.random.Generator,
-    ) -> SynthesisState:
-        """A proposal: an RMSprop-scaled gradient step from ``st`` and re-drawn contacts."""
+    ) -> tuple[FloatArray, FloatArray, IntArray]:
+        """A proposal per start: an RMSprop-scaled gradient step and re-drawn contacts."""
         p = self.params
         steps = {
             "t": p.step_translation * scale,
@@ -466,18 +292,18 @@ class GraspSynthesizer:
             "a": p.step_joint * scale,
         }
         move = {}
-        for key, g in st.grad.items():
+        for key, g in grad.items():
             ms[key] *= 0.9
             ms[key] += 0.1 * g * g
             move[key] = -steps[key] * g / (np.sqrt(ms[key]) + 1e-12)
-        oMb = st.oMb.copy()
-        oMb[:3, 3] += move["t"]
-        turn = Rotation.from_rotvec(move["w"]).as_matrix()
-        oMb[:3, :3] = turn @ oMb[:3, :3]
+        new = oMb.copy()
+        new[:, :3, 3] += move["t"]
         # The rotation turns about the base origin, so the translation is unchanged by it.
-        a = np.clip(st.a + move["a"], self.a_lower, self.a_upper)
-        contacts = st.contacts.copy()
-        for i, cands in enumerate(self.candidates):
-            if rng.random() < p.switch_probability:
-                contacts[i] = rng.choice(cands)
-        return SynthesisState(oMb, a, contacts)
+        new[:, :3, :3] = Rotation.from_rotvec(move["w"]).as_matrix() @ oMb[:, :3, :3]
+        a = np.clip(a + move["a"], self.a_lower, self.a_upper)
+        contacts = contacts.copy()
+        for b, i in zip(
+            *np.nonzero(rng.random(contacts.shape) < p.switch_probability), strict=True
+        ):
+            contacts[b, i] = rng.choice(self.candidates[i])
+        return new, a, contacts

@@ -8,7 +8,7 @@ its stable faces, the hand from above) and generator (``preshape``:
 budget, and records the grasps it found, the candidates it tried, why it rejected the others
 and its wall time. The budgets differ because the candidates' costs do: a pre-shape candidate
 is one closing in MuJoCo or less (rejected before it: tens of ms), an optimised one a share of a
-batch optimisation as well (about 1 s). The time per grasp is the measure of cost.
+batch optimisation as well (0.1-0.2 s). The time per grasp is the measure of cost.
 """
 
 from __future__ import annotations
@@ -45,8 +45,8 @@ class GraspSynthesisConfig:
 
 
 CONFIGS: dict[str, GraspSynthesisConfig] = {
-    "full": GraspSynthesisConfig(None, {"preshape": 400, "optimize": 32}),
-    "quick": GraspSynthesisConfig(PAPER_OBJECTS, {"preshape": 100, "optimize": 16}),
+    "full": GraspSynthesisConfig(None, {"preshape": 400, "optimize": 128}),
+    "quick": GraspSynthesisConfig(PAPER_OBJECTS, {"preshape": 100, "optimize": 32}),
     "tiny": GraspSynthesisConfig(("077_rubiks_cube",), {"preshape": 4, "optimize": 2}),
 }
 

@@ -1,0 +1,457 @@
+"""The energy of grasp synthesis and its gradient, over a batch of starts at once.
+
+The terms are those of :mod:`wholehand.grasps.synthesis` (its docstring states them). Every
+array carries the batch first: ``B`` starts, ``P`` hand surface samples, ``C`` contact points.
+The gradient goes from each point's ``dE/dx`` to the variables through the starts' Jacobian
+columns (:meth:`~wholehand.models.batch_kinematics.BatchKinematics.generalized_forces`): one
+sum per joint, not one Jacobian per point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import NamedTuple
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from wholehand.grasps.synthesis_params import SynthesisParams
+from wholehand.jit import CACHE
+from wholehand.models.batch_kinematics import BatchKinematics, cross
+from wholehand.models.hand import HandModel
+from wholehand.models.objects import ObjectModel
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
+
+SELF_STRIDE = 3
+"""Every this-many-th sample of the fingers' links enters the fingers-apart term."""
+CHUNK = 8
+"""Most samples of the fingers-apart term in one bounding sphere (:func:`_chunked`)."""
+
+
+@dataclass(frozen=True)
+class Energy:
+    """The energy of one state and its parts."""
+
+    total: float
+    distance: float
+    """Sum of the contacts' |signed distance| [m]."""
+    force_closure: float
+    alignment: float
+    penetration: float
+    """Sum of the hand samples' depths inside the object [m]."""
+    table: float
+    """Sum of the hand samples' depths below the table margin [m]."""
+    max_depth: float
+    """Deepest hand sample inside the object [m]."""
+    self_penetration: float = 0.0
+    """Sum over pairs of two fingers' samples of how much closer than the gap they are [m]."""
+
+
+@dataclass(frozen=True)
+class Energies:
+    """The energies of a batch: each field (B,), as :class:`Energy`'s."""
+
+    total: FloatArray
+    distance: FloatArray
+    force_closure: FloatArray
+    alignment: FloatArray
+    penetration: FloatArray
+    table: FloatArray
+    max_depth: FloatArray
+    self_penetration: FloatArray
+
+    def at(self, b: int) -> Energy:
+        """Start ``b``'s energy."""
+        return Energy(*(float(getattr(self, f.name)[b]) for f in fields(self)))
+
+    def where(self, keep: BoolArray, other: Energies) -> Energies:
+        """Per start, this batch's energy where ``keep``, else ``other``'s."""
+        return Energies(
+            *(np.where(keep, getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+        )
+
+
+@dataclass(frozen=True)
+class _Terms:
+    """A batch's energies and what their gradient reuses: the hand's sample points ``X``
+    (B, P, 3) in the object frame; at the contacts (B, C, ...) their points ``xc``, pad normals
+    ``mc``, SDF values ``dc`` and gradients ``gc``, the force-closure sums ``F``, ``T`` (B, 3)
+    and the lever arms ``r``; the penetrating samples and those below the table's margin as
+    flat indices into (B * P); the self-penetrating pairs (start, first, second, distance)."""
+
+    energies: Energies
+    X: FloatArray
+    xc: FloatArray
+    mc: FloatArray
+    dc: FloatArray
+    gc: FloatArray
+    F: FloatArray
+    T: FloatArray
+    r: FloatArray
+    inside: IntArray
+    below: IntArray
+    self_pairs: tuple[IntArray, IntArray, IntArray, FloatArray]
+
+
+class SynthesisEnergy:
+    """The synthesis energy of one hand about one object (on a table if ``table_up``), for
+    batches of states: base poses ``oMb`` (B, 4, 4) in the object frame, optimised joint angles
+    ``a`` (B, n_a) [rad] (the actuators' of a coupled hand), contact sample indices (B, C).
+
+    Args:
+        hand: The hand.
+        obj: The object (its SDF is used).
+        q_start: (n_q,) the joint angles that joints outside ``a`` keep [rad].
+        table_up: (3,) the table's up direction in the object frame, or None: no table.
+        params: Weights.
+    """
+
+    def __init__(
+        self,
+        hand: HandModel,
+        obj: ObjectModel,
+        q_start: FloatArray,
+        table_up: npt.ArrayLike | None,
+        params: SynthesisParams,
+    ) -> None:
+        self.hand, self.obj, self.params = hand, obj, params
+        self.samples = hand.samples
+        self.sdf = obj.sdf
+        self.q_start = q_start
+        verts = np.asarray(obj.mesh.vertices, dtype=float)
+        self.verts = verts
+        self.com = np.asarray(obj.com, dtype=float)
+        self.radius = 0.5 * float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
+        self.table_up: FloatArray | None = None
+        self.table_height = 0.0
+        if table_up is not None:
+            up = np.asarray(table_up, dtype=float)
+            self.table_up = up / np.linalg.norm(up)
+            self.table_height = float((verts @ self.table_up).min())
+        self.act = hand.actuated_dofs.copy() if hand.coupled else np.ones(hand.nq, dtype=bool)
+        model = hand.model
+        idx_q = {name: model.joints[model.getJointId(name)].idx_q for name in model.names[1:]}
+        self._followers = np.array([idx_q[f] for f in hand.mimics], dtype=np.intp)
+        self._leaders = np.array([idx_q[m.leader] for m in hand.mimics.values()], dtype=np.intp)
+        self._multipliers = np.array([m.multiplier for m in hand.mimics.values()])
+        self._offsets = np.array([m.offset for m in hand.mimics.values()])
+        self.batch_kin = BatchKinematics(hand)
+        self.self_samples, self.self_finger = self._finger_samples()
+
+    def _finger_samples(self) -> tuple[IntArray, IntArray]:
+        """The samples of the fingers-apart term (every :data:`SELF_STRIDE`-th of each
+        finger's links past its first), ordered by link and along each link in chunks of at
+        most :data:`CHUNK` (:attr:`_chunks`, :attr:`_links`: their bounding spheres), and the
+        index of the finger of each."""
+        hand, cfg, s = self.hand, self.hand.config, self.samples
+        rows, finger = [], []
+        for k, links in enumerate(cfg.fingers.values()):
+            on = np.flatnonzero(np.isin(s.link, [hand.link_index(n) for n in links[1:]]))
+            on = on[::SELF_STRIDE]
+            rows.append(on)
+            finger.append(np.full(on.size, k))
+        if not rows:
+            rows, finger = [np.zeros(0, dtype=np.intp)], [np.zeros(0, dtype=np.intp)]
+        order = np.concatenate(rows).astype(np.intp)
+        fingers = np.concatenate(finger).astype(np.intp)
+        order, fingers, self._chunks, self._links = _chunked(
+            s.p_joint, s.joint, s.link, order, fingers
+        )
+        return order, fingers
+
+    def q_of(self, a: FloatArray) -> FloatArray:
+        """Joint angles (B, n_q) (or (n_q,) from (n_a,)) from the optimised ones [rad]: the
+        start's elsewhere, each coupling's follower from its leader."""
+        single = a.ndim == 1
+        a = np.atleast_2d(a)
+        q = np.repeat(self.q_start[None], a.shape[0], axis=0)
+        q[:, self.act] = a
+        if self._followers.size:
+            q[:, self._followers] = self._multipliers * q[:, self._leaders] + self._offsets
+        return q[0] if single else q
+
+    # --------------------------------------------------------------------------------------------
+    def energies(
+        self, oMb: FloatArray, a: FloatArray, contacts: IntArray, gradient: bool = True
+    ) -> tuple[Energies, dict[str, FloatArray]]:
+        """The energies of a batch and, with ``gradient``, their gradients: ``t`` (B, 3)
+        [1/m], ``w`` (B, 3) about each base origin [1/rad], ``a`` (B, n_a) [1/rad]."""
+        terms = self._terms(oMb, a, contacts)
+        if not gradient:
+            return terms.energies, {}
+        return terms.energies, self._gradient(contacts, terms)
+
+    def _terms(self, oMb: FloatArray, a: FloatArray, contacts: IntArray) -> _Terms:
+        p, kin, s, sdf = self.params, self.batch_kin, self.samples, self.sdf
+        kin.update(self.q_of(a), oMb)
+        X = kin.transform(s.p_joint, s.joint)  # (B, P, 3) object frame
+        n, m = X.shape[:2]
+        flat = X.reshape(-1, 3)
+        # The depths: the exact lookup only where the nearest node allows a negative distance.
+        maybe = sdf.nearest_below(flat, sdf.spacing)
+        d = sdf.query(flat[maybe])
+        inside = maybe[d < 0.0]
+        depth = -d[d < 0.0]
+        start_of = inside // m
+        e_pen = np.bincount(start_of, weights=depth, minlength=n).astype(np.float64)
+        max_depth = np.zeros(n)
+        np.maximum.at(max_depth, start_of, depth)
+        rows = np.arange(n)[:, None]
+        xc = X[rows, contacts]  # (B, C, 3)
+        mc = kin.rotate(s.n_joint[contacts], s.joint[contacts])
+        dc, gc = sdf.query_with_gradient(xc.reshape(-1, 3))
+        dc, gc = dc.reshape(contacts.shape), gc.reshape(xc.shape)
+        F = gc.sum(axis=1)
+        r = xc - self.com
+        T = cross(r, gc).sum(axis=1) / self.radius
+        e_dis = np.abs(dc).sum(axis=1)
+        e_fc = np.einsum("bi,bi->b", F, F) + np.einsum("bi,bi->b", T, T)
+        e_align = (1.0 + np.einsum("bci,bci->bc", mc, gc)).sum(axis=1)
+        below = np.zeros(0, dtype=np.intp)
+        e_table = np.zeros(n)
+        if self.table_up is not None:
+            short = np.maximum(p.table_margin - (X @ self.table_up - self.table_height), 0.0)
+            below = np.flatnonzero(short.reshape(-1) > 0.0)
+            e_table = short.sum(axis=1)
+        pairs = self._self_pairs(X)
+        overlap = np.maximum(p.self_gap - pairs[3], 0.0)
+        e_self = np.bincount(pairs[0], weights=overlap, minlength=n).astype(np.float64)
+        total = (
+            p.w_dis * e_dis
+            + p.w_fc * e_fc
+            + p.w_align * e_align
+            + p.w_pen * e_pen
+            + p.w_table * e_table
+            + p.w_self * e_self
+        )
+        energies = Energies(total, e_dis, e_fc, e_align, e_pen, e_table, max_depth, e_self)
+        return _Terms(energies, X, xc, mc, dc, gc, F, T, r, inside, below, pairs)
+
+    def _self_pairs(self, X: FloatArray) -> tuple[IntArray, IntArray, IntArray, FloatArray]:
+        """Pairs of :attr:`self_samples` on different fingers at most the gap apart at the
+        sample positions ``X`` (B, P, 3): their start, the two samples and their distance [m].
+        Only chunks of links whose bounding spheres come that close are searched, sample by
+        sample."""
+        rows = self.self_samples
+        if rows.size < 2 or self.params.w_self == 0.0:
+            empty = np.zeros(0, dtype=np.intp)
+            return empty, empty, empty, np.zeros(0)
+        chunks, links = self._chunks, self._links
+        kin = self.batch_kin
+        chunk_centres = kin.transform(chunks.centre, chunks.joint)
+        link_centres = kin.transform(links.centre, links.joint)
+        finger = self.self_finger[chunks.bounds[links.bounds[:-1]]]
+        capacity = 4096
+        while True:
+            found, start, i, j, dist = _close_pairs(
+                X,
+                rows,
+                (links.bounds, link_centres, links.radius, finger),
+                (chunks.bounds, chunk_centres, chunks.radius),
+                self.params.self_gap,
+                capacity,
+            )
+            if found <= capacity:
+                return start[:found], i[:found], j[:found], dist[:found]
+            capacity = found
+
+    def _gradient(self, contacts: IntArray, e: _Terms) -> dict[str, FloatArray]:
+        """The energies' gradients from their terms: dE/dx per point, then through the starts'
+        Jacobian columns to the variables."""
+        p, s, L, kin = self.params, self.samples, self.radius, self.batch_kin
+        n, m = e.X.shape[:2]
+        H = self._normal_jacobians(e.xc.reshape(-1, 3)).reshape(*e.xc.shape, 3)  # d g / d c
+        g_fc = np.einsum("znab,za->znb", H, e.F) + cross(e.gc, e.T[:, None]) / L
+        g_fc += np.einsum("znab,zna->znb", H, cross(e.T[:, None], e.r)) / L
+        g_align = np.einsum("znab,zna->znb", H, e.mc)
+        g_c = p.w_dis * np.sign(e.dc)[..., None] * e.gc + 2.0 * p.w_fc * g_fc
+        g_c += p.w_align * g_align
+        flat = e.X.reshape(-1, 3)
+        batch = [np.repeat(np.arange(n), contacts.shape[1])]
+        joint = [s.joint[contacts].reshape(-1)]
+        points, forces = [e.xc.reshape(-1, 3)], [g_c.reshape(-1, 3)]
+        if e.inside.size:
+            forces.append(-p.w_pen * self.sdf.query_with_gradient(flat[e.inside])[1])
+            batch.append(e.inside // m)
+            joint.append(s.joint[e.inside % m])
+            points.append(flat[e.inside])
+        if e.below.size:
+            assert self.table_up is not None
+            forces.append(np.broadcast_to(-p.w_table * self.table_up, (e.below.size, 3)))
+            batch.append(e.below // m)
+            joint.append(s.joint[e.below % m])
+            points.append(flat[e.below])
+        start, si, sj, dist = e.self_pairs
+        if start.size:  # d(gap - |x - y|)/dx = -(x - y)/|x - y|, and the opposite for y
+            u = (e.X[start, si] - e.X[start, sj]) / np.maximum(dist, 1e-12)[:, None]
+            forces += [-p.w_self * u, p.w_self * u]
+            batch += [start, start]
+            joint += [s.joint[si], s.joint[sj]]
+            points += [e.X[start, si], e.X[start, sj]]
+        # The pads' normals turn with their links: dm = omega x m, a moment m x dE/dm.
+        moments = np.zeros((sum(len(f) for f in forces), 3))
+        moments[: contacts.size] = cross(e.mc, p.w_align * e.gc).reshape(-1, 3)
+        force, moment, tau = kin.generalized_forces(
+            np.concatenate(batch),
+            np.concatenate(joint),
+            np.concatenate(points),
+            np.concatenate(forces),
+            moments,
+        )
+        grad_a = tau @ self.hand.coupling if self.hand.coupled else tau[:, self.act]
+        return {"t": force, "w": moment, "a": grad_a}
+
+    def _normal_jacobians(self, x: FloatArray) -> FloatArray:
+        """(N, 3, 3) derivatives of the object normal (the SDF's unit gradient) at points ``x``
+        (N, 3) by position [1/m], by central differences over half a grid spacing."""
+        h = 0.5 * self.sdf.spacing
+        offsets = np.concatenate((np.eye(3), -np.eye(3))) * h  # (6, 3)
+        probes = (x[:, None, :] + offsets[None]).reshape(-1, 3)
+        g = self.sdf.query_with_gradient(probes)[1].reshape(-1, 6, 3)
+        return np.transpose((g[:, :3] - g[:, 3:]) / (2.0 * h), (0, 2, 1))  # [n, a, b] = dg_a/dx_b
+
+
+class Spheres(NamedTuple):
+    """Bounding spheres of groups of consecutive items (hand samples, or smaller groups): group
+    ``g`` holds items ``bounds[g]:bounds[g + 1]``; its sphere's centre (G, 3) [m] is given in
+    the frame of joint ``joint[g]``, and its radius (G,) [m] bounds the distance from it of
+    every sample the group holds."""
+
+    bounds: IntArray
+    centre: FloatArray
+    joint: IntArray
+    radius: FloatArray
+
+
+def _sphere(points: FloatArray) -> tuple[FloatArray, float]:
+    """A sphere around ``points`` (N, 3): the centre of their box, the farthest one's distance
+    (a little more, so that rounding never leaves a point out)."""
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    return centre, float(np.linalg.norm(points - centre, axis=1).max()) * (1.0 + 1e-9) + 1e-12
+
+
+def _chunked(
+    p_joint: FloatArray, joint: IntArray, link: IntArray, rows: IntArray, finger: IntArray
+) -> tuple[IntArray, IntArray, Spheres, Spheres]:
+    """The samples ``rows`` (with their ``finger``) ordered by link and, within a link, along
+    its longest extent, cut into chunks of at most :data:`CHUNK`; the chunks' spheres (over
+    the rows) and the links' (over the chunks)."""
+    out_rows, out_finger = [], []
+    chunk_bounds, link_bounds = [0], [0]
+    chunk_spheres, link_spheres = [], []
+    for k in np.unique(link[rows]):
+        on = np.flatnonzero(link[rows] == k)
+        points = p_joint[rows[on]]
+        axis = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)[2][0]
+        on = on[np.argsort(points @ axis, kind="stable")]
+        for part in range(0, on.size, CHUNK):
+            piece = on[part : part + CHUNK]
+            out_rows.append(rows[piece])
+            out_finger.append(finger[piece])
+            chunk_bounds.append(chunk_bounds[-1] + piece.size)
+            chunk_spheres.append(_sphere(p_joint[rows[piece]]))
+        link_bounds.append(len(chunk_spheres))
+        link_spheres.append(_sphere(points))
+    joint_of = [int(joint[rows[link[rows] == k][0]]) for k in np.unique(link[rows])]
+    chunk_joint = np.repeat(joint_of, np.diff(link_bounds)).astype(np.intp)
+
+    def spheres(bounds: list[int], made: list[tuple[FloatArray, float]], on: IntArray) -> Spheres:
+        return Spheres(
+            np.asarray(bounds, dtype=np.intp),
+            np.array([c for c, _ in made]).reshape(-1, 3),
+            on,
+            np.array([r for _, r in made]),
+        )
+
+    order = np.concatenate(out_rows).astype(np.intp) if out_rows else rows
+    fingers = np.concatenate(out_finger).astype(np.intp) if out_finger else finger
+    chunks = spheres(chunk_bounds, chunk_spheres, chunk_joint)
+    links = spheres(link_bounds, link_spheres, np.asarray(joint_of, dtype=np.intp))
+    return order, fingers, chunks, links
+
+
+@numba.njit(cache=CACHE, nogil=True, inline="always")
+def _apart(centres: FloatArray, radius: FloatArray, b: int, g: int, h: int, gap: float) -> bool:
+    """Whether spheres ``g`` and ``h`` of start ``b`` stay more than ``gap`` apart."""
+    dx = centres[b, g, 0] - centres[b, h, 0]
+    dy = centres[b, g, 1] - centres[b, h, 1]
+    dz = centres[b, g, 2] - centres[b, h, 2]
+    reach = radius[g] + radius[h] + gap
+    return bool(dx * dx + dy * dy + dz * dz > reach * reach)
+
+
+@numba.njit(cache=CACHE, nogil=True, inline="always")
+def _sample_pairs(
+    X: FloatArray,
+    b: int,
+    rows: IntArray,
+    bounds: IntArray,
+    k: int,
+    m: int,
+    gap: float,
+    start: IntArray,
+    first: IntArray,
+    second: IntArray,
+    dist: FloatArray,
+    found: int,
+) -> int:  # pragma: no cover - jit
+    """The pairs of samples of chunks ``k`` and ``m`` of start ``b`` at most ``gap`` apart,
+    written into ``start``, ``first``, ``second``, ``dist`` from ``found`` on while they have
+    room; the count of pairs found so far."""
+    for ii in range(bounds[k], bounds[k + 1]):
+        i = rows[ii]
+        for jj in range(bounds[m], bounds[m + 1]):
+            j = rows[jj]
+            ex = X[b, i, 0] - X[b, j, 0]
+            ey = X[b, i, 1] - X[b, j, 1]
+            ez = X[b, i, 2] - X[b, j, 2]
+            d2 = ex * ex + ey * ey + ez * ez
+            if d2 <= gap * gap:
+                if found < start.shape[0]:
+                    start[found] = b
+                    first[found] = i
+                    second[found] = j
+                    dist[found] = np.sqrt(d2)
+                found += 1
+    return found
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def _close_pairs(
+    X: FloatArray,
+    rows: IntArray,
+    links: tuple[IntArray, FloatArray, FloatArray, IntArray],
+    chunks: tuple[IntArray, FloatArray, FloatArray],
+    gap: float,
+    capacity: int,
+) -> tuple[int, IntArray, IntArray, IntArray, FloatArray]:  # pragma: no cover - jit
+    """Pairs of samples ``rows`` on two links of different fingers at most ``gap`` apart in
+    ``X`` (B, P, 3), searched only between links (bounds into the chunks, centres (B, L, 3),
+    radii, finger) and then chunks (bounds into ``rows``, centres (B, K, 3), radii) whose
+    spheres come that close: how many there are, and the first ``capacity`` of them as
+    (start, sample, sample, distance)."""
+    link_bounds, link_centres, link_radius, finger = links
+    chunk_bounds, chunk_centres, chunk_radius = chunks
+    start = np.empty(capacity, dtype=np.intp)
+    first = np.empty(capacity, dtype=np.intp)
+    second = np.empty(capacity, dtype=np.intp)
+    dist = np.empty(capacity)
+    found = 0
+    n_links = link_radius.shape[0]
+    for b in range(X.shape[0]):
+        for g in range(n_links):
+            for h in range(g + 1, n_links):
+                if finger[g] == finger[h] or _apart(link_centres, link_radius, b, g, h, gap):
+                    continue
+                for k in range(link_bounds[g], link_bounds[g + 1]):
+                    for m in range(link_bounds[h], link_bounds[h + 1]):
+                        if _apart(chunk_centres, chunk_radius, b, k, m, gap):
+                            continue
+                        found = _sample_pairs(
+                            X, b, rows, chunk_bounds, k, m, gap, start, first, second, dist, found
+                        )
+    return found, start, first, second, dist

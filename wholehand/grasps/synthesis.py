@@ -18,14 +18,14 @@ hand sample ``x``:
 
 ``L`` is the object's radius (half its bounding-box diagonal), so that the torque term is
 unitless like the force term. The last sum runs over pairs of surface samples of two different
-fingers' links past their first (every :data:`SELF_STRIDE`-th sample), closer than ``gap``: a
-finger pressed into another starts MuJoCo's validation with interpenetrating links.
-(:mod:`wholehand.grasps.synthesis_energy` computes it for a batch of starts at once.)
+fingers' links past their first (every third sample), closer than ``gap``: a finger pressed
+into another starts MuJoCo's validation with interpenetrating links.
+:mod:`wholehand.grasps.synthesis_energy` computes the energy for a batch of starts at once.
 
-Joint limits are kept by clipping. The starts run together as one batch; each takes RMSprop-scaled
-gradient steps (Pinocchio point and angular Jacobians, the SDF's gradient) and re-draws each
-contact point with a small probability; a step is kept by the Metropolis rule at a temperature
-that decays geometrically, as in DexGraspNet's annealing.
+Joint limits are kept by clipping. The starts run together as one batch; each takes
+RMSprop-scaled gradient steps (through Pinocchio's joint Jacobians and the SDF's gradient) and
+re-draws each contact point with a small probability; a step is kept by the Metropolis rule at
+a temperature that decays geometrically, as in DexGraspNet's annealing.
 
 The contact points: one per finger of the style (the style's ``fingers``, or every finger of
 ``[fingers]`` for a power grasp, and then one on the palm face too unless ``palm_contact`` is

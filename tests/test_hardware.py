@@ -904,3 +904,37 @@ def test_the_doubles_person_sees_the_controllers_stage_and_the_contacts_before_i
     assert holds(cycle)
     holds.on_status(b"garbage", meta, 0.0)
     assert holds(cycle) and (holds.messages, holds.malformed) == (2, 1)
+
+
+def test_the_double_withholds_joint_states_during_a_gap():
+    """The robot double's publisher sends a joint state every cycle except in its gaps
+    (``--joint-gap``), and counts what it withheld; bad gaps are named."""
+    from types import SimpleNamespace
+
+    from wholehand.doubles.double import DoubleSpec, RobotPublisher
+    from wholehand.doubles.episode_double import EpisodeDoubleSpec
+
+    class Sink:
+        def __init__(self) -> None:
+            self.sent: list[bytes] = []
+
+        def put(self, payload: bytes, *_: object) -> None:
+            self.sent.append(payload)
+
+    joints, poses = Sink(), Sink()
+    publisher = RobotPublisher(joints, poses, ["a"], "world", "image", ((0.1025, 0.05),))  # type: ignore[arg-type]
+    for k in range(40):  # 0.2 s at 200 Hz
+        truth = SimpleNamespace(stamp_q=k * 0.005, q=np.zeros(1), dq=np.zeros(1))
+        cycle = SimpleNamespace(
+            t=k * 0.005,
+            truth=truth,
+            context=SimpleNamespace(obs=SimpleNamespace(wMo=None)),
+            command=SimpleNamespace(tau=np.zeros(1)),
+        )
+        publisher.on_cycle(cycle)  # type: ignore[arg-type]
+    assert publisher.joint_states_withheld == 10 and len(joints.sent) == 30
+    for bad in (((1.0, 0.0),), ((-0.1, 0.1),), ((float("nan"), 0.1),)):
+        with pytest.raises(ConfigError, match="joint-state gap needs START >= 0"):
+            DoubleSpec(joint_gaps=bad)
+        with pytest.raises(ConfigError, match="joint-state gap needs START >= 0"):
+            EpisodeDoubleSpec(joint_gaps=bad)

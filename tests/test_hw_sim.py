@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from processes import interrupt, kill_running, wait_for_line, wholehand
 
+from wholehand.ros2.config_file import hand_hardware_config, load_hardware_config
 from wholehand.ros2.rmw_zenoh import loopback_endpoint
 
 
@@ -32,8 +33,9 @@ DDS_LOOPBACK = ("--transport", "dds", "--dds-peer", "127.0.0.1", "--dds-interfac
 
 @pytest.fixture(scope="module", params=["zenoh", "dds"])
 def load_test_run(request, tmp_path_factory):
-    """The double (quick protocol, 33 ms tracker latency) and a controller over each transport,
-    run once for the tests below: (robot summary, controller summary, the run's folder)."""
+    """The double (quick protocol, 33 ms tracker latency, no joint states for 0.1 s from 1 s on)
+    and a controller over each transport, run once for the tests below: (robot summary,
+    controller summary, the run's folder)."""
     transport, folder = request.param, tmp_path_factory.mktemp(f"load-test-{request.param}")
     with pytest.MonkeyPatch.context() as env:
         if transport == "dds":
@@ -43,8 +45,9 @@ def load_test_run(request, tmp_path_factory):
             endpoint = loopback_endpoint()
             sim_link, control_link = ("--listen", endpoint, "--connect"), ("--connect", endpoint)
         sim = wholehand(
-            "hw-sim", "--quick", "--latency", "0.033", *sim_link, "--json", str(folder / "sim.json")
-        )
+            "hw-sim", "--quick", "--latency", "0.033", "--joint-gap", "1.0", "0.1",
+            *sim_link, "--json", str(folder / "sim.json"),
+        )  # fmt: skip
         control = wholehand(
             "control", *control_link, "--listen", "--duration", "4.0",
             "--json", str(folder / "control.json"), "--record", str(folder / "run.mcap"),
@@ -72,6 +75,11 @@ def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(loa
     assert ctl["backend"]["rejected"] == {}, seen
     assert ctl["loop"]["faults"] == {} and ctl["loop"]["n_errors"] == 0, seen
     assert ctl["backend"]["received"]["object_pose"] > 50, seen
+    # The driver stalled for 0.1 s (50 joint states at the shipped config's 500 Hz) while the
+    # grasp was held: the guard held the last torque rather than dropping the object.
+    rate = load_hardware_config(hand_hardware_config("allegro_right")).joint_state_rate
+    assert abs(robot["joint_states_withheld"] - 0.1 * rate) <= 1, seen
+    assert ctl["backend"]["guard"].get("joints_late", 0) > 0, seen
     # The trace pairs every torque message with the joint state it answered.
     stamps = {s for s, _ in robot["arrivals"]}
     assert len(stamps & {s for _, _, s in ctl["trace"]}) > 200, seen

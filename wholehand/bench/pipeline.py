@@ -73,15 +73,19 @@ def over_ros(
     latency: float,
     duration: float,
     transport: str = "zenoh",
+    joint_gaps: Sequence[tuple[float, float]] = (),
 ) -> dict[str, Any]:
     """One episode through the double (a second process) and the controller (this one), over
-    ``transport`` (:func:`~wholehand.bench.loopback.loopback`)."""
+    ``transport`` (:func:`~wholehand.bench.loopback.loopback`); the double publishes no joint
+    state during each of ``joint_gaps`` (``(start, duration)`` [s] of the episode)."""
     hw_config, link = loopback(load_hardware_config(config), transport)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "sim.json"
         argv = [sys.executable, "-m", "wholehand.cli.main", "hw-sim", "--config", str(config),
                 "--hand", hand, "--object", obj, "--seed", str(seed), "--latency", str(latency),
                 "--duration", str(duration), *link, "--json", str(out)]  # fmt: skip
+        for start, length in joint_gaps:
+            argv += ["--joint-gap", str(start), str(length)]
         sim = subprocess.Popen(
             argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
             env=os.environ.copy(),
@@ -108,6 +112,7 @@ def over_ros(
         "cycle_ms": percentiles(cycle_ms),
         "overruns": loop["overruns"],
         "late_cycles_double": robot["late_cycles"],
+        "joint_states_withheld": robot["joint_states_withheld"],
         "max_torque_rate_Nm_s": robot["max_torque_rate_Nm_s"],
         "stops_to_zero": robot["stops_to_zero"],
         "rejected": result["backend"]["rejected"],
@@ -183,10 +188,12 @@ def run_pipeline_benchmark(
     config: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
     transport: str = "zenoh",
+    joint_gaps: Sequence[tuple[float, float]] = (),
 ) -> dict[str, Any]:
-    """Run ``episodes`` seeded episodes per object over ROS (``transport``: zenoh or dds) and in
-    process (seeds as ``wholehand study reach`` derives them); JSON-ready rows and totals per
-    mode, with the paired differences of acquisition and completion."""
+    """Run ``episodes`` seeded episodes per object over ROS (``transport``: zenoh or dds; no
+    joint states from the double during ``joint_gaps``, ``(start, duration)`` [s] of each
+    episode) and in process (seeds as ``wholehand study reach`` derives them); JSON-ready rows
+    and totals per mode, with the paired differences of acquisition and completion."""
     if episodes < 1:
         raise ConfigError(f"bench pipeline: episodes must be >= 1, got {episodes}")
     config_path = hand_hardware_config(hand) if config is None else Path(config)
@@ -195,7 +202,9 @@ def run_pipeline_benchmark(
     for oi, obj in enumerate(objects):
         for episode in range(episodes):
             episode_seed = derive_seed(seed, oi, episode)
-            a = over_ros(hand, obj, episode_seed, config_path, latency, duration, transport)
+            a = over_ros(
+                hand, obj, episode_seed, config_path, latency, duration, transport, joint_gaps
+            )
             b = in_process(hand, obj, episode_seed)
             ros.append(a)
             local.append(b)
@@ -213,6 +222,7 @@ def run_pipeline_benchmark(
         "objects": list(objects),
         "episodes_per_object": episodes,
         "transport": transport,
+        "joint_gaps_s": [list(gap) for gap in joint_gaps],
         "tracker": {
             "rate_hz": load_hardware_config(config_path).object_pose_rate,
             "latency_s": latency,

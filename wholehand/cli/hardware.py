@@ -101,6 +101,7 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
         noise_mm=args.noise_mm,
         noise_deg=args.noise_deg,
         dropouts=tuple((float(a), float(b)) for a, b in args.dropout or ()),
+        joint_gaps=tuple((float(a), float(b)) for a, b in args.joint_gap or ()),
         pose_stamp=args.pose_stamp,
         command_timeout=args.command_timeout,
         gravity=args.gravity,
@@ -139,6 +140,7 @@ def _episode_double(args: argparse.Namespace) -> int:
         noise_mm=args.noise_mm,
         noise_deg=args.noise_deg,
         dropouts=tuple((float(a), float(b)) for a, b in args.dropout or ()),
+        joint_gaps=tuple((float(a), float(b)) for a, b in args.joint_gap or ()),
         command_timeout=args.command_timeout,
         away=None if args.away is None else (float(args.away[0]), float(args.away[1])),
     )
@@ -264,6 +266,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="append",
         metavar=("START", "DURATION"),
         help="no poses for DURATION s from START s of the protocol (repeatable)",
+    )
+    p.add_argument(
+        "--joint-gap",
+        nargs=2,
+        action="append",
+        type=seconds,
+        metavar=("START", "DURATION"),
+        help="no joint states for DURATION s from START s (the robot's driver stalls; repeatable)",
     )
     p.add_argument(
         "--pose-stamp",

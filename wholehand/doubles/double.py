@@ -79,6 +79,9 @@ class DoubleSpec:
     noise_deg: float = 0.0
     dropouts: tuple[tuple[float, float], ...] = ()
     """``(start, duration)`` [s] of protocol time without poses."""
+    joint_gaps: tuple[tuple[float, float], ...] = ()
+    """``(start, duration)`` [s] of protocol time without joint states (the robot's driver
+    stalls; the simulation goes on)."""
     pose_stamp: str = "image"
     command_timeout: float = 0.1
     """The drives hold the last torque this long [s], then apply zero."""
@@ -93,6 +96,18 @@ class DoubleSpec:
             raise ConfigError(f"hw-sim: latency must be >= 0 [s], got {self.latency!r}")
         if not (np.isfinite(self.command_timeout) and self.command_timeout > 0.0):
             raise ConfigError("hw-sim: command_timeout must be > 0 [s]")
+        check_gaps(self.joint_gaps)
+
+
+def check_gaps(gaps: tuple[tuple[float, float], ...]) -> None:
+    """Raise ConfigError unless every ``(start, duration)`` has a start >= 0 and a duration > 0
+    [s]."""
+    for start, duration in gaps:
+        if not (np.isfinite(start) and start >= 0.0 and np.isfinite(duration) and duration > 0.0):
+            raise ConfigError(
+                f"hw-sim: a joint-state gap needs START >= 0 and DURATION > 0 [s], got "
+                f"{start} {duration}"
+            )
 
 
 class RemoteTorque(Stage):
@@ -185,7 +200,9 @@ class RobotPublisher(Observer):
 
     The joint state's effort is the torque the motors applied in the last simulation step
     (the backend's ``applied_torques()``, where it has one): under a position command that is
-    the servo's torque, not the zero torque command, as a drive reports it."""
+    the servo's torque, not the zero torque command, as a drive reports it. No joint state goes
+    out during the ``joint_gaps`` (``(start, duration)`` [s] of simulation time); they are
+    counted in :attr:`joint_states_withheld`."""
 
     def __init__(
         self,
@@ -194,12 +211,15 @@ class RobotPublisher(Observer):
         names: list[str],
         frame_id: str,
         pose_stamp: str,
+        joint_gaps: tuple[tuple[float, float], ...] = (),
     ) -> None:
         self.joints, self.poses, self.names = joints, poses, names
         self.frame_id, self.pose_stamp = frame_id, pose_stamp
+        self.joint_gaps = joint_gaps
         self.wall0 = 0.0
         self._published = np.nan
         self.pose_messages = 0
+        self.joint_states_withheld = 0
         self._applied: Callable[[], FloatArray] | None = None
 
     def on_start(self, loop: ControlLoop) -> None:
@@ -208,10 +228,12 @@ class RobotPublisher(Observer):
 
     def on_cycle(self, cycle: Cycle) -> str | None:
         truth, seen = cycle.truth, cycle.context.obs
-        effort = cycle.command.tau if self._applied is None else self._applied()
-        self.joints.put(
-            encode_joint_state(self.wall0 + truth.stamp_q, self.names, truth.q, truth.dq, effort)
-        )
+        if any(start <= cycle.t < start + length for start, length in self.joint_gaps):
+            self.joint_states_withheld += 1
+        else:
+            effort = cycle.command.tau if self._applied is None else self._applied()
+            stamp = self.wall0 + truth.stamp_q
+            self.joints.put(encode_joint_state(stamp, self.names, truth.q, truth.dq, effort))
         if seen.wMo is not None and seen.stamp_object != self._published:
             self._published = seen.stamp_object
             t = seen.stamp_object if self.pose_stamp == "image" else cycle.t
@@ -298,7 +320,9 @@ def run_double(
         commands = transport.subscriber(
             "torque_command", FLOAT64_ARRAY, drives.on_message, drives.on_rejected
         )
-        publisher = RobotPublisher(joints, poses, names, config.frame_id, spec.pose_stamp)
+        publisher = RobotPublisher(
+            joints, poses, names, config.frame_id, spec.pose_stamp, spec.joint_gaps
+        )
         driver = ProtocolDriver(protocol, obj)
         loss = GraspLossMonitor(hand, obj, stop_on_loss=False)
         recorder = Recorder(loss, driver, {"hw_sim": spec.__dict__})
@@ -350,6 +374,7 @@ def run_double(
         "torque_messages": drives.received,
         "malformed_commands": drives.malformed,
         "pose_messages": publisher.pose_messages,
+        "joint_states_withheld": publisher.joint_states_withheld,
         "max_torque_rate_Nm_s": drives.max_rate,
         "stops_to_zero": drives.stops,
         "restart_steps_Nm": drives.restart_steps,

@@ -34,6 +34,7 @@ from wholehand.doubles.double import (
     RealTimePacer,
     RemoteTorque,
     RobotPublisher,
+    check_gaps,
     wait_for_command,
 )
 from wholehand.errors import ConfigError
@@ -83,6 +84,8 @@ class EpisodeDoubleSpec:
     noise_deg: float = 0.0
     dropouts: tuple[tuple[float, float], ...] = ()
     """``(start, duration)`` [s] without poses."""
+    joint_gaps: tuple[tuple[float, float], ...] = ()
+    """``(start, duration)`` [s] without joint states (the robot's driver stalls)."""
     command_timeout: float = 0.1
     """The hand's drives hold the last torque this long [s], then apply zero."""
     away: tuple[float, float] | None = None
@@ -94,6 +97,7 @@ class EpisodeDoubleSpec:
             raise ConfigError(f"hw-sim: latency must be >= 0 [s], got {self.latency!r}")
         if not (np.isfinite(self.command_timeout) and self.command_timeout > 0.0):
             raise ConfigError("hw-sim: command_timeout must be > 0 [s]")
+        check_gaps(self.joint_gaps)
         if self.away is not None and not (self.away[0] >= 0.0 and self.away[1] > 0.0):
             raise ConfigError(
                 f"hw-sim: away needs a start >= 0 and a duration > 0 [s], got {self.away}"
@@ -338,7 +342,7 @@ def run_episode_double(
             subs.append(transport.subscriber(topic, FLOAT64_ARRAY, drives.on_hand_position))
         if config.topic("status"):
             subs.append(transport.subscriber("status", STRING, holds.on_status))
-        publisher = RobotPublisher(joints, poses, names, config.frame_id, "image")
+        publisher = RobotPublisher(joints, poses, names, config.frame_id, "image", spec.joint_gaps)
         pacer = RealTimePacer()
         stopped = threading.Event()  # Ctrl-C or SIGTERM: the run ends and its summary is written
         loop = ControlLoop(
@@ -384,6 +388,7 @@ def run_episode_double(
         "hand_position_messages": drives.hand_position_messages,
         "status_messages": holds.messages,
         "pose_messages": publisher.pose_messages,
+        "joint_states_withheld": publisher.joint_states_withheld,
         "max_torque_rate_Nm_s": drives.torque.max_rate,
         "stops_to_zero": drives.torque.stops,
         "sim_warnings": backend.warnings(),

@@ -39,9 +39,9 @@ FloatArray = npt.NDArray[np.float64]
 
 BATCH = 32
 """Starts optimised together (one batch of :meth:`GraspSynthesizer.optimise`) before their
-results are validated: a start costs about 0.1 ms an iteration in a batch of 32, a fifth of
-what one alone does, and little less in larger batches, while air grasps rarely need more than
-32 candidates for ten grasps."""
+results are validated: a start costs about 0.1 ms an iteration in a batch of 32, an eighth of
+what one alone costs, and little less in larger batches, while air grasps rarely need more
+than 32 candidates for ten grasps."""
 MAX_DEPTH = 0.002
 """Deepest hand sample inside the object a result may have to be validated [m]."""
 MAX_CONTACT_GAP = 0.01

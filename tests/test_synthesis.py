@@ -318,3 +318,37 @@ def test_a_finger_that_envelops_gets_a_contact_point_on_each_phalanx(
         tau[np.flatnonzero(hand.actuated_dofs)] = 1.0  # every motor closes its finger
         v = np.einsum("nak,k->na", kin.point_jacobians(s.joint[c], p), tau)
         assert (np.einsum("ij,ij->i", n, v) > 0.0).all(), link
+
+
+def test_generate_tries_each_listed_style_for_what_the_ones_before_left(
+    tmp_path, allegro, monkeypatch, capsys
+):
+    """``--type power,pinch,precision``: the optimiser runs per style in turn, each asked for
+    what the styles before it left of --count, each style's grasps in its own file; a style
+    after --count is reached is not run. (A fake optimiser: power finds 1 of 3, pinch the 2
+    left.)"""
+    import wholehand.grasps.optimized as optimized
+
+    calls: list[tuple[str, int]] = []
+    found = {"power": 1, "pinch": 5, "precision": 5}
+
+    def fake(hand, obj, count, seed, max_candidates, style, **_):
+        calls.append((style, count))
+        q = dict.fromkeys(hand.joint_names, 0.0)
+        grasps = [Grasp(i, np.eye(4), q, style, 3, {}) for i in range(min(count, found[style]))]
+        info = {"command": f"fake --type {style}", "candidates_tried": 4, "rejected": {}}
+        return grasps, info
+
+    monkeypatch.setattr(optimized, "synthesize_grasps", fake)
+    args = ["grasps", "generate", "--method", "optimize", "--object", "077_rubiks_cube"]
+    args += ["--count", "3", "--type", "power,pinch,precision", "--out", str(tmp_path)]
+    assert main(args) == 0
+    assert calls == [("power", 3), ("pinch", 2)]
+    out = capsys.readouterr().out
+    assert "1 power grasps" in out and "2 pinch grasps" in out
+    assert len(load_grasps(tmp_path / "077_rubiks_cube.json")) == 1
+    assert len(load_grasps(tmp_path / "pinch" / "077_rubiks_cube.json")) == 2
+    assert not (tmp_path / "precision").exists()
+    # An unknown style is named before any work.
+    assert main([*args[:-4], "--type", "power,grip", "--out", str(tmp_path / "x")]) == 2
+    assert "grip" in capsys.readouterr().err and not (tmp_path / "x").exists()

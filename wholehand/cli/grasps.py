@@ -44,7 +44,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--type",
         default="power",
         help="grasp style of the hand's hand.toml: power ([grasping]) or e.g. precision "
-        "([grasping.precision])",
+        "([grasping.precision]); several, comma-separated (e.g. power,pinch): each in turn "
+        "for what the ones before it left of --count, into its own file (with --out: "
+        "DIR/<style>/ for each but power)",
     )
     p.add_argument(
         "--object",
@@ -174,16 +176,20 @@ def _hold_options(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
+    from wholehand.grasps.generate import named_style
     from wholehand.grasps.store import grasps_dir, hand_grasps_dir
     from wholehand.models.hand import load_hand
     from wholehand.models.object_catalogue import PAPER_OBJECTS, available_objects
 
     hand = load_hand(args.hand)
-    if args.method is None:
-        args.method = default_method(hand, args.type)
-        if args.method == "optimize":
+    styles = [style.strip() for style in args.type.split(",") if style.strip()]
+    methods = {}
+    for style in styles:
+        named_style(hand, style)  # an unknown style is named before any work
+        methods[style] = args.method or default_method(hand, style)
+        if args.method is None and methods[style] == "optimize":
             print(
-                f"{hand.config.path} [grasping] has no close_torque for the {args.type} style: "
+                f"{hand.config.path} [grasping] has no close_torque for the {style} style: "
                 "grasps by optimisation (--method optimize)"
             )
     shipped = hand_grasps_dir(args.hand).is_relative_to(grasps_dir())
@@ -193,16 +199,35 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         names = ycb
     without: list[str] = []
     for name in names:
-        outcome = _generate_for(args, hand, name, ship=shipped and name in ycb)
+        outcome = _generate_styles(args, hand, name, methods, ship=shipped and name in ycb)
         if outcome == "interrupted":
             return 130  # the objects after this one are not tried
         if outcome == "none":
             without.append(name)
     if len(names) > 1:
-        print(f"{len(names) - len(without)} of {len(names)} objects yield {args.type} grasps")
+        kinds = " or ".join(styles)
+        print(f"{len(names) - len(without)} of {len(names)} objects yield {kinds} grasps")
         if without:
             print(f"none for: {', '.join(without)}")
     return 0
+
+
+def _generate_styles(
+    args: argparse.Namespace, hand: HandModel, name: str, methods: dict[str, str], ship: bool
+) -> str:
+    """One object's grasps in each style of ``methods`` (style -> method) in turn, each asked
+    for what the styles before it left of ``--count``; ``"written"`` when some style wrote
+    grasps, else ``"none"``, or ``"interrupted"`` (the later styles are not tried)."""
+    found, written = 0, False
+    for style, method in methods.items():
+        if found >= args.count:
+            break
+        outcome, n = _generate_for(args, hand, name, style, method, args.count - found, ship)
+        if outcome == "interrupted":
+            return outcome
+        found += n
+        written = written or outcome == "written"
+    return "written" if written else "none"
 
 
 def default_method(hand: HandModel, style: str) -> str:
@@ -214,9 +239,18 @@ def default_method(hand: HandModel, style: str) -> str:
     return "preshape" if named_style(hand, style).close_torque else "optimize"
 
 
-def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bool) -> str:
-    """Generate and write one object's grasps as ``args`` say, print what came of it; returns
-    ``"written"``, ``"none"`` or ``"interrupted"``. ``ship``: also ship the object's convex
+def _generate_for(
+    args: argparse.Namespace,
+    hand: HandModel,
+    name: str,
+    style: str,
+    method: str,
+    wanted: int,
+    ship: bool,
+) -> tuple[str, int]:
+    """Generate and write up to ``wanted`` grasps of one object in ``style`` by ``method`` as
+    ``args`` say otherwise, print what came of it; returns ``"written"``, ``"none"`` or
+    ``"interrupted"``, and the grasps written. ``ship``: also ship the object's convex
     decomposition (a shipped hand's grasp of a YCB object, so that MuJoCo reproduces it
     without running CoACD again)."""
     from wholehand.grasps.generate import generate_grasps
@@ -227,10 +261,10 @@ def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bo
     from wholehand.models.object_catalogue import load_object
 
     obj = load_object(name)
-    check = _checks(args, hand, obj)
-    common = (hand, obj, args.count, args.seed, args.max_candidates)
-    options = {"progress": True, "style": args.type, "on_table": args.on_table, "check": check}
-    if args.method == "optimize":
+    check = _checks(args, hand, obj, style)
+    common = (hand, obj, wanted, args.seed, args.max_candidates)
+    options = {"progress": True, "style": style, "on_table": args.on_table, "check": check}
+    if method == "optimize":
         params = SynthesisParams(envelop=args.envelop)
         grasps, info = synthesize_grasps(*common, params=params, **options)
         if args.envelop != "coupled":
@@ -245,29 +279,36 @@ def _generate_for(args: argparse.Namespace, hand: HandModel, name: str, ship: bo
     if not grasps:
         if interrupted:
             print(f"{obj.name}: interrupted after {info['candidates_tried']} candidates, no grasp")
-            return "interrupted"
+            return "interrupted", 0
         print(
-            f"{obj.name}: no {args.type} grasp from {info['candidates_tried']} candidates; "
+            f"{obj.name}: no {style} grasp from {info['candidates_tried']} candidates; "
             "nothing written (raise --max-candidates or adjust the style in hand.toml). "
             f"Rejected because:\n{_reasons(rejected, depths)}"
         )
-        return "none"
-    default = grasp_file(args.hand, obj.name, args.type, args.on_table)
-    path = Path(args.out) / default.name if args.out else default
+        return "none", 0
+    default = grasp_file(args.hand, obj.name, style, args.on_table)
+    several = "," in args.type
+    kind = f"{style} " if several else ""
+    path = default
+    if args.out:  # several styles: each but power in its own subfolder, as in a hand's folder
+        path = Path(args.out) / (style if several and style != "power" else "") / default.name
     path = save_grasps(path, hand.name, obj.name, grasps, info)
     if args.verbose and rejected:
         print(f"{obj.name}: candidates rejected because:\n{_reasons(rejected, depths)}")
     if not args.out and ship:
         ship_decompositions([obj.name])
     print(
-        f"{obj.name}: {len(grasps)} grasps from {info['candidates_tried']} candidates"
-        f"{_how_it_ended(args, len(grasps), info)} -> {path}"
+        f"{obj.name}: {len(grasps)} {kind}grasps from {info['candidates_tried']} candidates"
+        f"{_how_it_ended(args, wanted, len(grasps), info)} -> {path}"
     )
-    return "interrupted" if interrupted else "written"
+    return "interrupted" if interrupted else "written", len(grasps)
 
 
-def _checks(args: argparse.Namespace, hand: HandModel, obj: ObjectModel) -> GraspCheck | None:
-    """The further checks ``--require-hold`` and ``--require-reach`` ask for, as one.
+def _checks(
+    args: argparse.Namespace, hand: HandModel, obj: ObjectModel, style: str
+) -> GraspCheck | None:
+    """The further checks ``--require-hold`` and ``--require-reach`` ask for, as one, for
+    grasps of ``style``.
 
     Raises:
         ConfigError: ``--require-hold`` with ``--on-table``; ``--hold-rate`` outside (0, 1].
@@ -292,18 +333,22 @@ def _checks(args: argparse.Namespace, hand: HandModel, obj: ObjectModel) -> Gras
             )
         )
     if args.require_reach is not None:
-        checks.append(reach_check(hand, obj, args.type, args.require_reach, args.on_table))
+        checks.append(reach_check(hand, obj, style, args.require_reach, args.on_table))
     return all_of(checks)
 
 
-def _how_it_ended(args: argparse.Namespace, found: int, info: dict[str, object]) -> str:
-    """The summary line's note: interrupted, or short of ``--count``, and the faces covered."""
+def _how_it_ended(
+    args: argparse.Namespace, wanted: int, found: int, info: dict[str, object]
+) -> str:
+    """The summary line's note: interrupted, or short of the ``wanted`` grasps, and the faces
+    covered."""
     note = ""
     if info.get("interrupted"):
         note = " (interrupted: the grasps found so far are written)"
-    elif found < args.count:
+    elif found < wanted:
+        asked = f"--count {args.count}" if wanted == args.count else f"the {wanted} still wanted"
         note = (
-            f" (fewer than --count {args.count}: the limit of --max-candidates "
+            f" (fewer than {asked}: the limit of --max-candidates "
             f"{args.max_candidates} was reached)"
         )
     faces = cast(list[int], info.get("grasps_per_face", []))
@@ -399,7 +444,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     hand, obj = load_hand(args.hand), load_object(args.object)
     path = grasp_file(args.hand, obj.name, args.type, args.on_table)
     grasps = load_grasps(path)
-    check = _checks(args, hand, obj)
+    check = _checks(args, hand, obj, args.type)
     assert check is not None
     verdicts: dict[int, str | None] = {}
     for grasp in grasps:  # each as it is checked: a reach takes seconds

@@ -236,6 +236,8 @@ class GraspSynthesizer(SynthesisEnergy):
         from tqdm import tqdm
 
         p = self.params
+        if starts < 1:
+            return []
         rng = np.random.default_rng(seed)
         first = [self.start(rng) for _ in range(starts)]
         oMb = np.stack([st.oMb for st in first])

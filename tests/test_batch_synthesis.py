@@ -131,3 +131,20 @@ def test_a_batchs_energies_and_gradients_are_each_starts_alone(allegro, ball, ta
         assert astuple(energies.at(b)) == pytest.approx(astuple(energy), rel=1e-12, abs=1e-15)
         for key in ("t", "w", "a"):
             np.testing.assert_allclose(grad[key][b], alone.grad[key], rtol=1e-10, atol=1e-12)
+
+
+def test_a_copied_batch_kinematics_reads_its_own_pinocchio_data(allegro):
+    """A deep copy (as a study's worker gets) views its own Pinocchio data: updating it gives
+    the original's placements, and updating the original afterwards leaves the copy as it was."""
+    import copy
+
+    rng = np.random.default_rng(5)
+    q = rng.uniform(allegro.q_lower, allegro.q_upper, size=(2, allegro.nq))
+    oMb = _poses(rng, 2)
+    batch = BatchKinematics(allegro)
+    twin = copy.deepcopy(batch)
+    batch.update(q, oMb)
+    twin.update(q, oMb)
+    np.testing.assert_array_equal(twin.R, batch.R)
+    batch.update(q[::-1], oMb[::-1])
+    assert not np.array_equal(twin.R, batch.R)

@@ -33,3 +33,22 @@ natural = _number(int, lambda v: v >= 0, "a whole number >= 0")
 """A whole number of at least zero (a seed, an index)."""
 rate = _number(float, lambda v: v > 0.0, "a rate > 0 [Hz]")
 """A finite rate above zero [Hz]."""
+
+
+def add_joint_gaps(p: argparse.ArgumentParser, of: str) -> None:
+    """``--joint-gap START DURATION`` (repeatable, times >= 0): the robot double sends no joint
+    states for DURATION s from START s ``of`` what (e.g. "of each episode")."""
+    p.add_argument(
+        "--joint-gap",
+        nargs=2,
+        action="append",
+        type=seconds,
+        metavar=("START", "DURATION"),
+        help=f"the double sends no joint states for DURATION s from START s {of} (a stalled "
+        "driver; repeatable)",
+    )
+
+
+def joint_gaps(args: argparse.Namespace) -> tuple[tuple[float, float], ...]:
+    """The ``--joint-gap`` options as ``(start, duration)`` pairs [s]."""
+    return tuple((float(a), float(b)) for a, b in args.joint_gap or ())

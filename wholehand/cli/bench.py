@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from wholehand.cli.arguments import rate, seconds
+from wholehand.cli.arguments import add_joint_gaps, joint_gaps, rate
 
 
 def _cmd_contacts(args: argparse.Namespace) -> int:
@@ -188,7 +188,7 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
         config=args.config,
         progress=lambda line: print(line, file=sys.stderr, flush=True),
         transport=args.transport,
-        joint_gaps=[(float(a), float(b)) for a, b in args.joint_gap or ()],
+        joint_gaps=joint_gaps(args),
     )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -388,14 +388,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=["zenoh", "dds"],
         help="zenoh on a loopback TCP port, or DDS unicast on loopback",
     )
-    p.add_argument(
-        "--joint-gap",
-        nargs=2,
-        action="append",
-        type=seconds,
-        metavar=("START", "DURATION"),
-        help="the double sends no joint states for DURATION s from START s of each episode "
-        "(a stalled driver; repeatable)",
-    )
+    add_joint_gaps(p, "of each episode")
     p.add_argument("--out", help="also write the JSON (with every episode's row) here")
     p.set_defaults(func=_cmd_pipeline)

@@ -9,7 +9,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from wholehand.cli.arguments import natural, positive_seconds, seconds
+from wholehand.cli.arguments import (
+    add_joint_gaps,
+    joint_gaps,
+    natural,
+    positive_seconds,
+    seconds,
+)
 
 
 def _config(args: argparse.Namespace) -> Any:
@@ -101,7 +107,7 @@ def _cmd_hw_sim(args: argparse.Namespace) -> int:
         noise_mm=args.noise_mm,
         noise_deg=args.noise_deg,
         dropouts=tuple((float(a), float(b)) for a, b in args.dropout or ()),
-        joint_gaps=tuple((float(a), float(b)) for a, b in args.joint_gap or ()),
+        joint_gaps=joint_gaps(args),
         pose_stamp=args.pose_stamp,
         command_timeout=args.command_timeout,
         gravity=args.gravity,
@@ -140,7 +146,7 @@ def _episode_double(args: argparse.Namespace) -> int:
         noise_mm=args.noise_mm,
         noise_deg=args.noise_deg,
         dropouts=tuple((float(a), float(b)) for a, b in args.dropout or ()),
-        joint_gaps=tuple((float(a), float(b)) for a, b in args.joint_gap or ()),
+        joint_gaps=joint_gaps(args),
         command_timeout=args.command_timeout,
         away=None if args.away is None else (float(args.away[0]), float(args.away[1])),
     )
@@ -267,14 +273,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar=("START", "DURATION"),
         help="no poses for DURATION s from START s of the protocol (repeatable)",
     )
-    p.add_argument(
-        "--joint-gap",
-        nargs=2,
-        action="append",
-        type=seconds,
-        metavar=("START", "DURATION"),
-        help="no joint states for DURATION s from START s (the robot's driver stalls; repeatable)",
-    )
+    add_joint_gaps(p, "of the protocol or the episode")
     p.add_argument(
         "--pose-stamp",
         default="image",

@@ -17,7 +17,7 @@ import pinocchio as pin
 
 from wholehand.jit import CACHE
 from wholehand.models.hand import HandModel
-from wholehand.models.kinematics import placement_views
+from wholehand.models.kinematics import PlacementViewsOwner, placement_views
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -36,7 +36,7 @@ def cross(a: FloatArray, b: FloatArray) -> FloatArray:
     return out
 
 
-class BatchKinematics:
+class BatchKinematics(PlacementViewsOwner):
     """Joint placements and Jacobian columns of ``B`` configurations of one hand.
 
     Call :meth:`update` with the batch; the queries read that pass.
@@ -67,15 +67,6 @@ class BatchKinematics:
         self.v = np.zeros((0, model.nv, 3))
         self.w = np.zeros((0, model.nv, 3))
         self.oMb = np.zeros((0, 4, 4))
-
-    def __getstate__(self) -> dict[str, object]:
-        state = self.__dict__.copy()
-        state["_placements"] = None  # views into this object's Pinocchio data, not a copy's
-        return state
-
-    def __setstate__(self, state: dict[str, object]) -> None:
-        self.__dict__.update(state)
-        self._placements = placement_views(self.data)
 
     @property
     def size(self) -> int:

@@ -26,7 +26,24 @@ IntArray = npt.NDArray[np.intp]
 _IDENTITY = np.eye(4)
 
 
-class HandKinematics:
+class PlacementViewsOwner:
+    """Owns a Pinocchio ``data`` and read-only views of its joint placements
+    (:func:`placement_views`): a pickled copy makes views of its own data, not the original's."""
+
+    data: pin.Data
+    _placements: tuple[FloatArray, FloatArray] | None
+
+    def __getstate__(self) -> dict[str, object]:
+        state = self.__dict__.copy()
+        state["_placements"] = None  # views into this object's Pinocchio data, not a copy's
+        return state
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
+        self._placements = placement_views(self.data)
+
+
+class HandKinematics(PlacementViewsOwner):
     """Kinematic state of a hand at one configuration (wraps Pinocchio model and data).
 
     Call :meth:`update` once per cycle; every query afterwards reuses that pass.
@@ -57,15 +74,6 @@ class HandKinematics:
         origin = self.transform_points(np.zeros((1, 3)), first)
         self.point_jacobians(first, origin)
         self.from_joint_frames(*self.to_joint_frames(origin, np.zeros((1, 3)), first), first)
-
-    def __getstate__(self) -> dict[str, object]:
-        state = self.__dict__.copy()
-        state["_placements"] = None  # views into this object's Pinocchio data, not a copy's
-        return state
-
-    def __setstate__(self, state: dict[str, object]) -> None:
-        self.__dict__.update(state)
-        self._placements = placement_views(self.data)
 
     def update(self, q: npt.ArrayLike, wMb: FloatArray | None = None) -> None:
         """Run forward kinematics at joint positions ``q`` (n_q,) with base pose ``wMb`` (4, 4)."""

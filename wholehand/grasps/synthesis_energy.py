@@ -133,12 +133,6 @@ class SynthesisEnergy:
             self.table_up = up / np.linalg.norm(up)
             self.table_height = float((verts @ self.table_up).min())
         self.act = hand.actuated_dofs.copy() if hand.coupled else np.ones(hand.nq, dtype=bool)
-        model = hand.model
-        idx_q = {name: model.joints[model.getJointId(name)].idx_q for name in model.names[1:]}
-        self._followers = np.array([idx_q[f] for f in hand.mimics], dtype=np.intp)
-        self._leaders = np.array([idx_q[m.leader] for m in hand.mimics.values()], dtype=np.intp)
-        self._multipliers = np.array([m.multiplier for m in hand.mimics.values()])
-        self._offsets = np.array([m.offset for m in hand.mimics.values()])
         self.batch_kin = BatchKinematics(hand)
         self.self_samples, self.self_finger = self._finger_samples()
 
@@ -170,8 +164,7 @@ class SynthesisEnergy:
         a = np.atleast_2d(a)
         q = np.repeat(self.q_start[None], a.shape[0], axis=0)
         q[:, self.act] = a
-        if self._followers.size:
-            q[:, self._followers] = self._multipliers * q[:, self._leaders] + self._offsets
+        q = self.hand.couple(q)
         return q[0] if single else q
 
     # --------------------------------------------------------------------------------------------

@@ -405,13 +405,14 @@ class HandModel:
         return int(self.coupling.shape[1]) if self.coupled else self.nv
 
     def couple(self, q: npt.ArrayLike) -> FloatArray:
-        """(n_q,) ``q`` with every follower joint set from its leader (``multiplier * q_leader
-        + offset``); other joints unchanged."""
+        """``q`` (n_q,), or a batch (B, n_q), with every follower joint set from its leader
+        (``multiplier * q_leader + offset``); other joints unchanged."""
         q = np.array(q, dtype=float)
         model = self.model
         for follower, m in self.mimics.items():
             i = model.joints[model.getJointId(follower)].idx_q
-            q[i] = m.multiplier * q[model.joints[model.getJointId(m.leader)].idx_q] + m.offset
+            leader = model.joints[model.getJointId(m.leader)].idx_q
+            q[..., i] = m.multiplier * q[..., leader] + m.offset
         return q
 
     def joint_torques(self, tau_actuation: FloatArray) -> FloatArray:

@@ -17,6 +17,7 @@ from wholehand.grasps.synthesis_params import SynthesisParams
 from wholehand.models.batch_kinematics import BatchKinematics
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
+from wholehand.models.sdf import SignedDistanceGrid
 
 
 @pytest.fixture(scope="module")
@@ -86,6 +87,55 @@ def test_nearest_below_is_the_nearest_node_cull(ball):
         np.testing.assert_array_equal(ball.sdf.nearest_below(points, threshold), expected)
 
 
+@pytest.mark.parametrize("shape", ["ball", "box"])
+def test_near_spheres_drops_only_balls_with_no_point_below_the_threshold(ball, shape):
+    """Balls about random centres in, near and beyond the grid box, with points filling each
+    (its boundary too): a ball said to be out of reach has no point whose nearest-node value
+    is below the threshold, and most far balls are said to be out of reach."""
+    obj = ball if shape == "ball" else ObjectModel.box((0.06, 0.03, 0.09), mass=0.1)
+    sdf = obj.sdf
+    rng = np.random.default_rng(6)
+    lo, hi = sdf.bounds
+    centres = rng.uniform(lo - 0.03, hi + 0.03, size=(3000, 3))
+    radius = rng.uniform(0.0, 0.02, size=3000)
+    directions = rng.normal(size=(3000, 64, 3))
+    directions /= np.linalg.norm(directions, axis=2, keepdims=True)
+    reach = radius[:, None] * np.concatenate((np.ones((3000, 8)), rng.random((3000, 56))), axis=1)
+    points = centres[:, None] + directions * reach[..., None]
+    for threshold in (0.0, sdf.spacing, 0.01):
+        near = sdf.near_spheres(centres, radius, threshold)
+        below = (sdf.query_nearest(points.reshape(-1, 3)) < threshold).reshape(3000, 64)
+        assert not (below.any(axis=1) & ~near).any()
+        assert (~near).sum() > 0.5 * (~below.any(axis=1)).sum()
+    assert sdf.near_spheres(centres, radius, -0.001).all()  # no bound below zero
+
+
+@pytest.mark.parametrize("table", [None, [0.0, 0.0, 1.0]])
+def test_the_culled_energies_are_those_of_every_sample(allegro, ball, table, monkeypatch):
+    """Hands pushed into the ball and onto the table: the energies and gradients with the
+    cluster cull equal those computed over every hand sample."""
+    syn = GraspSynthesizer(allegro, ball, allegro.config.grasp_styles["power"], table_up=table)
+    rng = np.random.default_rng(8)
+    starts = [syn.start(rng) for _ in range(12)]
+    oMb = np.stack([st.oMb for st in starts])
+    oMb[:, :3, 3] -= 0.004 * np.arange(12)[:, None] * oMb[:, :3, 0]
+    a = np.stack([rng.uniform(syn.a_lower, syn.a_upper) for _ in starts])
+    contacts = np.stack([st.contacts for st in starts])
+    culled, culled_grad = syn.energies(oMb, a, contacts)
+    assert (culled.penetration > 0).sum() >= 6
+    if table is not None:
+        assert (culled.table > 0).sum() >= 6
+    monkeypatch.setattr(
+        SignedDistanceGrid, "near_spheres", lambda self, c, r, t: np.ones(len(c), dtype=bool)
+    )
+    every, every_grad = syn.energies(oMb, a, contacts)
+    np.testing.assert_array_equal(culled.max_depth, every.max_depth)
+    for name in ("total", "penetration", "table"):
+        np.testing.assert_allclose(getattr(culled, name), getattr(every, name), rtol=1e-13)
+    for key in ("t", "w", "a"):
+        np.testing.assert_allclose(culled_grad[key], every_grad[key], rtol=1e-12, atol=1e-13)
+
+
 def test_the_fingers_close_pairs_are_every_pair_within_the_gap(allegro, ball):
     """Hands pressed into fists at random: the pairs of two fingers' samples within the gap
     are those a k-d tree over each start's samples finds."""
@@ -95,15 +145,15 @@ def test_the_fingers_close_pairs_are_every_pair_within_the_gap(allegro, ball):
     n = 8
     a = rng.uniform(syn.a_lower, syn.a_upper, size=(n, syn.a_lower.size))
     syn.batch_kin.update(syn.q_of(a), _poses(rng, n))
-    X = syn.batch_kin.transform(syn.samples.p_joint, syn.samples.joint)
+    rows, finger = syn.self_samples, syn.self_finger
+    X = syn.batch_kin.transform(syn.samples.p_joint[rows], syn.samples.joint[rows])
     start, i, j, dist = syn._self_pairs(X)
     found = {(int(b), *sorted((int(x), int(y)))) for b, x, y in zip(start, i, j, strict=True)}
-    rows, finger = syn.self_samples, syn.self_finger
     expected = set()
     for b in range(n):
-        for x, y in cKDTree(X[b, rows]).query_pairs(params.self_gap):
+        for x, y in cKDTree(X[b]).query_pairs(params.self_gap):
             if finger[x] != finger[y]:
-                expected.add((b, *sorted((int(rows[x]), int(rows[y])))))
+                expected.add((b, *sorted((int(x), int(y)))))
     assert expected and found == expected
     np.testing.assert_allclose(dist, np.linalg.norm(X[start, i] - X[start, j], axis=1))
 

@@ -80,6 +80,9 @@ class ExactSphere:
     def nearest_below(self, p: np.ndarray, threshold: float) -> np.ndarray:
         return np.flatnonzero(self.query(p) < threshold)
 
+    def near_spheres(self, c: np.ndarray, r: np.ndarray, threshold: float) -> np.ndarray:
+        return self.query(c) - r < threshold
+
     def query_with_gradient(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         norm = np.linalg.norm(p, axis=1)
         return norm - self.radius, p / norm[:, None]
@@ -352,3 +355,13 @@ def test_generate_tries_each_listed_style_for_what_the_ones_before_left(
     # An unknown style is named before any work.
     assert main([*args[:-4], "--type", "power,grip", "--out", str(tmp_path / "x")]) == 2
     assert "grip" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_a_batch_holds_twice_the_starts_the_success_rate_so_far_says_are_needed():
+    from wholehand.grasps.optimized import BATCH, MIN_BATCH, batch_size
+
+    assert batch_size(10, found=0, tried=0, room=128) == 20  # a fresh object: all pass
+    assert batch_size(4, found=6, tried=11, room=100) == 14  # 7 of 12: 2 * 4 / (7/12)
+    assert batch_size(9, found=1, tried=15, room=113) == BATCH  # 1 in 8 pass: full batches
+    assert batch_size(1, found=9, tried=10, room=100) == MIN_BATCH
+    assert batch_size(10, found=0, tried=0, room=5) == 5  # what is left of the budget

@@ -30,6 +30,9 @@ SELF_STRIDE = 3
 """Every this-many-th sample of the fingers' links enters the fingers-apart term."""
 CHUNK = 8
 """Most samples of the fingers-apart term in one bounding sphere (:func:`_chunked`)."""
+CLUSTER = 8
+"""Most hand samples in one bounding sphere of the penetration and table terms' cull
+(:func:`_clusters`)."""
 
 
 @dataclass(frozen=True)
@@ -77,14 +80,14 @@ class Energies:
 
 @dataclass(frozen=True)
 class _Terms:
-    """A batch's energies and what their gradient reuses: the hand's sample points ``X``
-    (B, P, 3) in the object frame; at the contacts (B, C, ...) their points ``xc``, pad normals
-    ``mc``, SDF values ``dc`` and gradients ``gc``, the force-closure sums ``F``, ``T`` (B, 3)
-    and the lever arms ``r``; the penetrating samples and those below the table's margin as
-    flat indices into (B * P); the self-penetrating pairs (start, first, second, distance)."""
+    """A batch's energies and what their gradient reuses: at the contacts (B, C, ...) their
+    points ``xc`` in the object frame, pad normals ``mc``, SDF values ``dc`` and gradients
+    ``gc``, the force-closure sums ``F``, ``T`` (B, 3) and the lever arms ``r``; the
+    penetrating samples and those below the table's margin, each as flat indices into the
+    (B, P) samples and their (K, 3) points; the fingers-apart samples' points ``Xs``
+    (B, S, 3) and their close pairs (start, first, second, distance)."""
 
     energies: Energies
-    X: FloatArray
     xc: FloatArray
     mc: FloatArray
     dc: FloatArray
@@ -92,8 +95,9 @@ class _Terms:
     F: FloatArray
     T: FloatArray
     r: FloatArray
-    inside: IntArray
-    below: IntArray
+    inside: tuple[IntArray, FloatArray]
+    below: tuple[IntArray, FloatArray]
+    Xs: FloatArray
     self_pairs: tuple[IntArray, IntArray, IntArray, FloatArray]
 
 
@@ -135,6 +139,11 @@ class SynthesisEnergy:
         self.act = hand.actuated_dofs.copy() if hand.coupled else np.ones(hand.nq, dtype=bool)
         self.batch_kin = BatchKinematics(hand)
         self.self_samples, self.self_finger = self._finger_samples()
+        self._self_p = self.samples.p_joint[self.self_samples]
+        self._self_joint = self.samples.joint[self.self_samples]
+        self._cluster_order, self._clusters = _clusters(
+            self.samples.p_joint, self.samples.joint, self.samples.link
+        )
 
     def _finger_samples(self) -> tuple[IntArray, IntArray]:
         """The samples of the fingers-apart term (every :data:`SELF_STRIDE`-th of each
@@ -181,20 +190,18 @@ class SynthesisEnergy:
     def _terms(self, oMb: FloatArray, a: FloatArray, contacts: IntArray) -> _Terms:
         p, kin, s, sdf = self.params, self.batch_kin, self.samples, self.sdf
         kin.update(self.q_of(a), oMb)
-        X = kin.transform(s.p_joint, s.joint)  # (B, P, 3) object frame
-        n, m = X.shape[:2]
-        flat = X.reshape(-1, 3)
+        n, m = oMb.shape[0], s.joint.size
+        X, flat = self._near_samples()
         # The depths: the exact lookup only where the nearest node allows a negative distance.
-        maybe = sdf.nearest_below(flat, sdf.spacing)
-        d = sdf.query(flat[maybe])
-        inside = maybe[d < 0.0]
+        maybe = sdf.nearest_below(X, sdf.spacing)
+        d = sdf.query(X[maybe])
+        inside, inside_x = flat[maybe][d < 0.0], X[maybe][d < 0.0]
         depth = -d[d < 0.0]
         start_of = inside // m
         e_pen = np.bincount(start_of, weights=depth, minlength=n).astype(np.float64)
         max_depth = np.zeros(n)
         np.maximum.at(max_depth, start_of, depth)
-        rows = np.arange(n)[:, None]
-        xc = X[rows, contacts]  # (B, C, 3)
+        xc = kin.transform_each(s.p_joint, s.joint, contacts)  # (B, C, 3)
         mc = kin.rotate(s.n_joint[contacts], s.joint[contacts])
         dc, gc = sdf.query_with_gradient(xc.reshape(-1, 3))
         dc, gc = dc.reshape(contacts.shape), gc.reshape(xc.shape)
@@ -204,13 +211,15 @@ class SynthesisEnergy:
         e_dis = np.abs(dc).sum(axis=1)
         e_fc = np.einsum("bi,bi->b", F, F) + np.einsum("bi,bi->b", T, T)
         e_align = (1.0 + np.einsum("bci,bci->bc", mc, gc)).sum(axis=1)
-        below = np.zeros(0, dtype=np.intp)
+        below, below_x = np.zeros(0, dtype=np.intp), np.zeros((0, 3))
         e_table = np.zeros(n)
         if self.table_up is not None:
-            short = np.maximum(p.table_margin - (X @ self.table_up - self.table_height), 0.0)
-            below = np.flatnonzero(short.reshape(-1) > 0.0)
-            e_table = short.sum(axis=1)
-        pairs = self._self_pairs(X)
+            short = p.table_margin - (X @ self.table_up - self.table_height)
+            low = short > 0.0
+            below, below_x = flat[low], X[low]
+            e_table = np.bincount(below // m, weights=short[low], minlength=n).astype(np.float64)
+        Xs = kin.transform(self._self_p, self._self_joint)
+        pairs = self._self_pairs(Xs)
         overlap = np.maximum(p.self_gap - pairs[3], 0.0)
         e_self = np.bincount(pairs[0], weights=overlap, minlength=n).astype(np.float64)
         total = (
@@ -222,14 +231,36 @@ class SynthesisEnergy:
             + p.w_self * e_self
         )
         energies = Energies(total, e_dis, e_fc, e_align, e_pen, e_table, max_depth, e_self)
-        return _Terms(energies, X, xc, mc, dc, gc, F, T, r, inside, below, pairs)
+        return _Terms(
+            energies, xc, mc, dc, gc, F, T, r, (inside, inside_x), (below, below_x), Xs, pairs
+        )
 
-    def _self_pairs(self, X: FloatArray) -> tuple[IntArray, IntArray, IntArray, FloatArray]:
-        """Pairs of :attr:`self_samples` on different fingers at most the gap apart at the
-        sample positions ``X`` (B, P, 3): their start, the two samples and their distance [m].
-        Only chunks of links whose bounding spheres come that close are searched, sample by
-        sample."""
-        rows = self.self_samples
+    def _near_samples(self) -> tuple[FloatArray, IntArray]:
+        """The hand samples that may lie inside the object or below the table's margin in the
+        batch :attr:`batch_kin` holds: their (K, 3) points in the object frame and their flat
+        indices ``b * P + i`` into the (B, P) samples. Only the samples of clusters whose
+        bounding spheres may reach that far (:meth:`SignedDistanceGrid.near_spheres`, the
+        table's plane) are placed: no sample of the others is."""
+        kin, clusters, sdf = self.batch_kin, self._clusters, self.sdf
+        centres = kin.transform(clusters.centre, clusters.joint).reshape(-1, 3)
+        radius = np.tile(clusters.radius, self.batch_kin.size)
+        near = sdf.near_spheres(centres, radius, sdf.spacing)
+        if self.table_up is not None:
+            height = centres @ self.table_up - self.table_height - radius
+            near |= height < self.params.table_margin
+        return kin.transform_groups(
+            self.samples.p_joint,
+            self.samples.joint,
+            (clusters.bounds, self._cluster_order),
+            near.reshape(kin.size, -1),
+        )
+
+    def _self_pairs(self, Xs: FloatArray) -> tuple[IntArray, IntArray, IntArray, FloatArray]:
+        """Pairs of :attr:`self_samples` on different fingers at most the gap apart at their
+        positions ``Xs`` (B, S, 3): their start, the two samples (as indices into
+        :attr:`self_samples`) and their distance [m]. Only chunks of links whose bounding
+        spheres come that close are searched, sample by sample."""
+        rows = np.arange(self.self_samples.size)
         if rows.size < 2 or self.params.w_self == 0.0:
             empty = np.zeros(0, dtype=np.intp)
             return empty, empty, empty, np.zeros(0)
@@ -241,7 +272,7 @@ class SynthesisEnergy:
         capacity = 4096
         while True:
             found, start, i, j, dist = _close_pairs(
-                X,
+                Xs,
                 rows,
                 (links.bounds, link_centres, links.radius, finger),
                 (chunks.bounds, chunk_centres, chunks.radius),
@@ -256,35 +287,39 @@ class SynthesisEnergy:
         """The energies' gradients from their terms: dE/dx per point, then through the starts'
         Jacobian columns to the variables."""
         p, s, L, kin = self.params, self.samples, self.radius, self.batch_kin
-        n, m = e.X.shape[:2]
+        m = s.joint.size
+        n = contacts.shape[0]
         H = self._normal_jacobians(e.xc.reshape(-1, 3)).reshape(*e.xc.shape, 3)  # d g / d c
         g_fc = np.einsum("znab,za->znb", H, e.F) + cross(e.gc, e.T[:, None]) / L
         g_fc += np.einsum("znab,zna->znb", H, cross(e.T[:, None], e.r)) / L
         g_align = np.einsum("znab,zna->znb", H, e.mc)
         g_c = p.w_dis * np.sign(e.dc)[..., None] * e.gc + 2.0 * p.w_fc * g_fc
         g_c += p.w_align * g_align
-        flat = e.X.reshape(-1, 3)
         batch = [np.repeat(np.arange(n), contacts.shape[1])]
         joint = [s.joint[contacts].reshape(-1)]
         points, forces = [e.xc.reshape(-1, 3)], [g_c.reshape(-1, 3)]
-        if e.inside.size:
-            forces.append(-p.w_pen * self.sdf.query_with_gradient(flat[e.inside])[1])
-            batch.append(e.inside // m)
-            joint.append(s.joint[e.inside % m])
-            points.append(flat[e.inside])
-        if e.below.size:
+        inside, inside_x = e.inside
+        if inside.size:
+            forces.append(-p.w_pen * self.sdf.query_with_gradient(inside_x)[1])
+            batch.append(inside // m)
+            joint.append(s.joint[inside % m])
+            points.append(inside_x)
+        below, below_x = e.below
+        if below.size:
             assert self.table_up is not None
-            forces.append(np.broadcast_to(-p.w_table * self.table_up, (e.below.size, 3)))
-            batch.append(e.below // m)
-            joint.append(s.joint[e.below % m])
-            points.append(flat[e.below])
+            forces.append(np.broadcast_to(-p.w_table * self.table_up, (below.size, 3)))
+            batch.append(below // m)
+            joint.append(s.joint[below % m])
+            points.append(below_x)
         start, si, sj, dist = e.self_pairs
         if start.size:  # d(gap - |x - y|)/dx = -(x - y)/|x - y|, and the opposite for y
-            u = (e.X[start, si] - e.X[start, sj]) / np.maximum(dist, 1e-12)[:, None]
+            xi, xj = e.Xs[start, si], e.Xs[start, sj]
+            u = (xi - xj) / np.maximum(dist, 1e-12)[:, None]
             forces += [-p.w_self * u, p.w_self * u]
             batch += [start, start]
-            joint += [s.joint[si], s.joint[sj]]
-            points += [e.X[start, si], e.X[start, sj]]
+            rows = self.self_samples
+            joint += [s.joint[rows[si]], s.joint[rows[sj]]]
+            points += [xi, xj]
         # The pads' normals turn with their links: dm = omega x m, a moment m x dE/dm.
         moments = np.zeros((sum(len(f) for f in forces), 3))
         moments[: contacts.size] = cross(e.mc, p.w_align * e.gc).reshape(-1, 3)
@@ -325,6 +360,41 @@ def _sphere(points: FloatArray) -> tuple[FloatArray, float]:
     (a little more, so that rounding never leaves a point out)."""
     centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
     return centre, float(np.linalg.norm(points - centre, axis=1).max()) * (1.0 + 1e-9) + 1e-12
+
+
+def _clusters(
+    p_joint: FloatArray, joint: IntArray, link: IntArray, most: int = CLUSTER
+) -> tuple[IntArray, Spheres]:
+    """Every sample in compact groups of at most ``most`` of one link: each link's samples
+    halved across their widest extent until each part is small enough (a k-d split, so that
+    the groups' spheres are about as small as their samples' spacing allows). Returns the
+    samples in group order and the groups' spheres (bounds into that order)."""
+    order: list[IntArray] = []
+    made: list[tuple[FloatArray, float]] = []
+    on_joint: list[int] = []
+
+    def split(rows: IntArray) -> None:
+        points = p_joint[rows]
+        if rows.size <= most:
+            order.append(rows)
+            made.append(_sphere(points))
+            on_joint.append(int(joint[rows[0]]))
+            return
+        axis = int(np.argmax(points.max(axis=0) - points.min(axis=0)))
+        ranked = rows[np.argsort(points[:, axis], kind="stable")]
+        split(ranked[: rows.size // 2])
+        split(ranked[rows.size // 2 :])
+
+    for k in np.unique(link):
+        split(np.flatnonzero(link == k).astype(np.intp))
+    bounds = np.concatenate(([0], np.cumsum([rows.size for rows in order]))).astype(np.intp)
+    spheres = Spheres(
+        bounds,
+        np.array([c for c, _ in made]).reshape(-1, 3),
+        np.asarray(on_joint, dtype=np.intp),
+        np.array([r for _, r in made]),
+    )
+    return np.concatenate(order).astype(np.intp), spheres
 
 
 def _chunked(

@@ -21,6 +21,7 @@ from wholehand.models.kinematics import PlacementViewsOwner, placement_views
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 
 
 def cross(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -105,6 +106,46 @@ class BatchKinematics(PlacementViewsOwner):
             ),
         )
 
+    def transform_each(self, p_joint: FloatArray, joint: IntArray, pick: IntArray) -> FloatArray:
+        """(B, N, 3) points in frame o: for configuration ``b``, the points ``pick[b]`` (B, N)
+        of ``p_joint`` (P, 3) [m] (each in the frame of joint ``joint[i]``), as
+        :meth:`transform` places them."""
+        return cast(
+            FloatArray,
+            _transform_picked(
+                self.R,
+                self.t,
+                np.ascontiguousarray(p_joint, dtype=np.float64),
+                joint,
+                np.ascontiguousarray(pick, dtype=np.intp),
+            ),
+        )
+
+    def transform_groups(
+        self,
+        p_joint: FloatArray,
+        joint: IntArray,
+        groups: tuple[IntArray, IntArray],
+        chosen: BoolArray,
+    ) -> tuple[FloatArray, IntArray]:
+        """The points of chosen groups of ``p_joint`` (P, 3) [m] in frame o, as
+        :meth:`transform` places them: ``groups`` is (bounds, members), group ``g`` holding
+        points ``members[bounds[g]:bounds[g + 1]]``, and ``chosen`` (B, G) says which groups
+        of each configuration. Returns the (K, 3) points and their flat indices ``b * P + i``
+        into :meth:`transform`'s (B, P) output, configuration by configuration, each in
+        group order."""
+        bounds, members = groups
+        points, flat = _transform_groups(
+            self.R,
+            self.t,
+            np.ascontiguousarray(p_joint, dtype=np.float64),
+            joint,
+            bounds,
+            members,
+            np.ascontiguousarray(chosen, dtype=np.bool_),
+        )
+        return cast(FloatArray, points), cast(IntArray, flat)
+
     def rotate(self, n_joint: FloatArray, joint: IntArray) -> FloatArray:
         """(B, N, 3) directions: ``n_joint`` (B, N, 3) given in the frames of joints ``joint``
         (B, N), in frame o."""
@@ -152,6 +193,16 @@ class BatchKinematics(PlacementViewsOwner):
         return force, about_base, tau
 
 
+@numba.njit(cache=CACHE, nogil=True, inline="always")
+def _place(
+    R: FloatArray, t: FloatArray, p_joint: FloatArray, b: int, j: int, i: int, out: FloatArray
+) -> None:  # pragma: no cover - jit
+    """``out[:] = R[b, j] p_joint[i] + t[b, j]``, as :func:`_transform_batch` computes it."""
+    x, y, z = p_joint[i, 0], p_joint[i, 1], p_joint[i, 2]
+    for a in range(3):
+        out[a] = R[b, j, a, 0] * x + R[b, j, a, 1] * y + R[b, j, a, 2] * z + t[b, j, a]
+
+
 @numba.njit(cache=CACHE, nogil=True)
 def _transform_batch(
     R: FloatArray, t: FloatArray, p_joint: FloatArray, joint: IntArray
@@ -161,10 +212,51 @@ def _transform_batch(
     out = np.empty((n, m, 3))
     for b in range(n):
         for i in range(m):
-            j = joint[i]
-            x, y, z = p_joint[i, 0], p_joint[i, 1], p_joint[i, 2]
-            for a in range(3):
-                out[b, i, a] = (
-                    R[b, j, a, 0] * x + R[b, j, a, 1] * y + R[b, j, a, 2] * z + t[b, j, a]
-                )
+            _place(R, t, p_joint, b, joint[i], i, out[b, i])
     return out
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def _transform_picked(
+    R: FloatArray, t: FloatArray, p_joint: FloatArray, joint: IntArray, pick: IntArray
+) -> FloatArray:  # pragma: no cover - jit
+    """(B, N, 3) points ``R[b, joint[i]] p_joint[i] + t[b, joint[i]]`` for ``i = pick[b, k]``."""
+    n, m = pick.shape
+    out = np.empty((n, m, 3))
+    for b in range(n):
+        for k in range(m):
+            i = pick[b, k]
+            _place(R, t, p_joint, b, joint[i], i, out[b, k])
+    return out
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def _transform_groups(
+    R: FloatArray,
+    t: FloatArray,
+    p_joint: FloatArray,
+    joint: IntArray,
+    bounds: IntArray,
+    members: IntArray,
+    chosen: BoolArray,
+) -> tuple[FloatArray, IntArray]:  # pragma: no cover - jit
+    """:meth:`BatchKinematics.transform_groups`."""
+    n, m = chosen.shape[0], p_joint.shape[0]
+    total = 0
+    for b in range(n):
+        for g in range(chosen.shape[1]):
+            if chosen[b, g]:
+                total += bounds[g + 1] - bounds[g]
+    points = np.empty((total, 3))
+    flat = np.empty(total, dtype=np.intp)
+    row = 0
+    for b in range(n):
+        for g in range(chosen.shape[1]):
+            if not chosen[b, g]:
+                continue
+            for k in range(bounds[g], bounds[g + 1]):
+                i = members[k]
+                _place(R, t, p_joint, b, joint[i], i, points[row])
+                flat[row] = b * m + i
+                row += 1
+    return points, flat

@@ -75,6 +75,7 @@ class SignedDistanceGrid:
     _upper_cell: FloatArray = field(init=False, repr=False)
     _strides: FloatArray = field(init=False, repr=False)
     _corner_offsets: IntArray = field(init=False, repr=False)
+    _boundary_min: float = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         origin = np.array(self.origin, dtype=np.float64).reshape(-1)
@@ -108,6 +109,9 @@ class SignedDistanceGrid:
         set_(self, "_upper_cell", upper - 1.0)
         set_(self, "_strides", np.array([ny * nz, nz, 1], dtype=np.float64))
         set_(self, "_corner_offsets", np.array(offsets, dtype=np.intp)[:, None])
+        box_faces = (values[0], values[-1], values[:, 0], values[:, -1], values[..., 0])
+        lowest = min(float(face.min()) for face in (*box_faces, values[..., -1]))
+        set_(self, "_boundary_min", lowest)
 
     # --- geometry of the grid ------------------------------------------------------------------
     @property
@@ -253,6 +257,30 @@ class SignedDistanceGrid:
         return cast(
             IntArray,
             _nearest_below(p, self.origin, self.spacing, self.values, float(threshold)),
+        )
+
+    def near_spheres(
+        self, centres: npt.ArrayLike, radius: npt.ArrayLike, threshold: float
+    ) -> npt.NDArray[np.bool_]:
+        """(N,) whether the ball of ``radius`` (N,) [m] about each of the (N, 3) object-frame
+        ``centres`` [m] may hold a point whose :meth:`query_nearest` value is below
+        ``threshold`` [m] (>= 0): False only where none can, so that :meth:`nearest_below` need
+        not look at the points of such a ball.
+
+        The bound holds for a grid built by :meth:`from_mesh` (values exact near the surface,
+        farther out too large in magnitude by less than ``sqrt(3)/2`` cells, signs exact, the
+        mesh inside the box): the true distance at a centre is at least both its distance
+        outside the box and its nearest node's value less ``sqrt(3)`` cells and that distance,
+        and a point below the threshold lies within ``threshold + radius + sqrt(3)/2`` cells of
+        the surface. Where the threshold is negative or reaches the values on the box's faces
+        (a point outside the box could then be below it), every ball may."""
+        c = np.ascontiguousarray(centres, dtype=np.float64).reshape(-1, 3)
+        r = np.ascontiguousarray(np.broadcast_to(radius, c.shape[:1]), dtype=np.float64)
+        if not 0.0 <= threshold < self._boundary_min:
+            return np.ones(c.shape[0], dtype=np.bool_)
+        return cast(
+            npt.NDArray[np.bool_],
+            _near_spheres(c, r, self.origin, self.spacing, self.values, float(threshold)),
         )
 
     # --- persistence ---------------------------------------------------------------------------
@@ -411,3 +439,33 @@ def _nearest_below(
             out[found] = i
             found += 1
     return out[:found]
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def _near_spheres(
+    centres: FloatArray,
+    radius: FloatArray,
+    origin: FloatArray,
+    spacing: float,
+    values: npt.NDArray[np.float32],
+    threshold: float,
+) -> npt.NDArray[np.bool_]:  # pragma: no cover - jit
+    """:meth:`SignedDistanceGrid.near_spheres` for a threshold in [0, the box faces' values)."""
+    out = np.ones(centres.shape[0], dtype=np.bool_)
+    nx, ny, nz = values.shape
+    scale = 1.0 / spacing
+    half_diagonal = 0.5 * np.sqrt(3.0) * spacing
+    for i in range(centres.shape[0]):
+        ux = (centres[i, 0] - origin[0]) * scale
+        uy = (centres[i, 1] - origin[1]) * scale
+        uz = (centres[i, 2] - origin[2]) * scale
+        if not (np.isfinite(ux) and np.isfinite(uy) and np.isfinite(uz)):
+            continue  # NaN: say "may", the points' own lookup rejects them
+        cx = min(max(ux, 0.0), nx - 1.0)
+        cy = min(max(uy, 0.0), ny - 1.0)
+        cz = min(max(uz, 0.0), nz - 1.0)
+        v = values[int(np.rint(cx)), int(np.rint(cy)), int(np.rint(cz))]
+        outside = np.sqrt((ux - cx) ** 2 + (uy - cy) ** 2 + (uz - cz) ** 2) * spacing
+        lower = max(v - outside - 2.0 * half_diagonal, outside)  # the true distance is above
+        out[i] = lower - radius[i] - half_diagonal - 1e-6 < threshold
+    return out

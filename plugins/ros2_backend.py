@@ -424,6 +424,7 @@ class Ros2Backend(Backend):
                 "superseded": streams.superseded,
                 "last_rejection": streams.last_rejection,
                 "guard": dict(self.guard.counts),
+                "joint_gaps": self.guard.gaps.summary(),
                 "torque_messages": self._torque.sequence_number,
                 "command_joints": self.command_names,
                 "arm_guard": {} if self.arm_guard is None else dict(self.arm_guard.counts),

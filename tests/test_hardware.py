@@ -315,6 +315,36 @@ def test_stale_joints_hold_the_torque_then_ramp_it_by_age_then_zero():
     assert status == "joints_late"
     tau, _ = guard.filter(np.array([0.2, 0.2]), 0.59, joint_age=0.0, pose_age=0.0)
     np.testing.assert_allclose(tau, held + 0.02)
+    # Two gaps that fresh states ended: one past the hold (to joints_lost), one within it.
+    assert guard.gaps.summary() == {
+        "recovered": 2,
+        "recovered_past_hold": 1,
+        "longest_recovered_s": 0.41,
+        "open_at_end": "",
+        "open_age_s": 0.0,
+    }
+
+
+def test_the_gaps_leave_out_the_start_and_keep_the_gap_open_at_the_end_apart():
+    """Commands before the first joint state are the start, not a gap; a gap no fresh state
+    ended is the run's end (the robot stopped publishing first), reported apart from the
+    gaps that ended mid-run."""
+    guard = TorqueGuard([0.2, 0.2], LIMITS)
+    for now in (0.0, 0.01, 0.02):
+        guard.filter(np.array([0.1, 0.1]), now, joint_age=np.inf, pose_age=0.0)
+    guard.filter(np.array([0.1, 0.1]), 0.03, joint_age=0.0, pose_age=0.0)
+    guard.filter(np.array([0.1, 0.1]), 0.10, joint_age=0.07, pose_age=0.0)  # late, held
+    guard.filter(np.array([0.1, 0.1]), 0.11, joint_age=0.0, pose_age=0.0)
+    for now in (0.2, 0.3, 0.4):  # the end: no fresh state comes again
+        guard.filter(np.array([0.1, 0.1]), now, joint_age=now - 0.11, pose_age=0.0)
+    assert [guard.counts[k] for k in ("joints_lost", "joints_late", "joints_stale")] == [3, 2, 2]
+    assert guard.gaps.summary() == {
+        "recovered": 1,
+        "recovered_past_hold": 0,
+        "longest_recovered_s": 0.07,
+        "open_at_end": "joints_stale",
+        "open_age_s": 0.29,
+    }
 
 
 def test_no_joint_state_yet_gives_zero_torque():

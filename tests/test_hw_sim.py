@@ -80,6 +80,9 @@ def test_controller_holds_the_load_test_through_the_double_with_33ms_latency(loa
     rate = load_hardware_config(hand_hardware_config("allegro_right")).joint_state_rate
     assert abs(robot["joint_states_withheld"] - 0.1 * rate) <= 1, seen
     assert ctl["backend"]["guard"].get("joints_late", 0) > 0, seen
+    # ... and counted it as a gap that a fresh state ended, apart from the end's open one.
+    gaps = ctl["backend"]["joint_gaps"]
+    assert gaps["recovered"] >= 1 and gaps["longest_recovered_s"] >= 0.09, seen
     # The trace pairs every torque message with the joint state it answered.
     stamps = {s for s, _ in robot["arrivals"]}
     assert len(stamps & {s for _, _, s in ctl["trace"]}) > 200, seen

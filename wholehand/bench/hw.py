@@ -166,6 +166,7 @@ def run_hw_benchmark(
                 "arrived": result["backend"]["arrived"],
                 "superseded": result["backend"]["superseded"],
                 "guard": result["backend"]["guard"],
+                "joint_gaps": result["backend"]["joint_gaps"],
                 "sync": result["backend"]["sync"],
                 "sync_wait_s": result["backend"]["sync_wait_s"],
                 "late_cycles": robot["late_cycles"],

@@ -117,6 +117,7 @@ def over_ros(
         "stops_to_zero": robot["stops_to_zero"],
         "rejected": result["backend"]["rejected"],
         "guard": result["backend"]["guard"],
+        "joint_gaps": result["backend"]["joint_gaps"],
         "arm_guard": result["backend"]["arm_guard"],
         "events": robot["events"],
     }
@@ -159,6 +160,7 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
     cycles_p50 = [r["cycle_ms"]["p50"] for r in rows if r["cycle_ms"]["p50"] is not None]
     cycles_p99 = [r["cycle_ms"]["p99"] for r in rows if r["cycle_ms"]["p99"] is not None]
     rates = [r["max_torque_rate_Nm_s"] for r in rows if "max_torque_rate_Nm_s" in r]
+    gaps = [r["joint_gaps"] for r in rows if "joint_gaps" in r]
     return {
         "episodes": len(rows),
         "acquired": sum(r["acquired"] for r in rows),
@@ -175,6 +177,14 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "cycle_ms_p99_max": float(max(cycles_p99)) if cycles_p99 else None,
         "overruns": sum(r["overruns"] for r in rows),
         "max_torque_rate_Nm_s": max(rates) if rates else None,
+        # Joint-state gaps that ended mid-episode (those open at the end: the double stopped).
+        "joint_gaps_mid_episode": sum(g["recovered"] for g in gaps) if gaps else None,
+        "joint_gaps_mid_episode_past_hold": (
+            sum(g["recovered_past_hold"] for g in gaps) if gaps else None
+        ),
+        "joint_gap_longest_mid_episode_s": (
+            max(g["longest_recovered_s"] for g in gaps) if gaps else None
+        ),
     }
 
 

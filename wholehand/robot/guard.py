@@ -27,6 +27,12 @@ in this order (the names are the statuses it counts):
 deadline), :meth:`TorqueGuard.watchdog` gives the ramp from the last torque to zero, which the
 backend's watchdog thread sends in the loop's place.
 
+The guard also keeps the gaps in the joint states (:class:`JointGaps`): each run of commands
+past ``joint_timeout`` after a first fresh state, how old the state got and whether a fresh one
+ended it. A gap a fresh state ended came mid-run (a stalled driver, a busy computer); the one
+still open when the controller stops is the run's end (the robot, or the double, stopped
+publishing first). A verdict on stale joint states counts the first kind.
+
 ``stop`` and ``exit``: :meth:`TorqueGuard.ramp_down` gives the same ramp over a given time, for a
 stop request (``pose_ramp``) and for the last commands of every exit (``exit_ramp``).
 
@@ -44,6 +50,57 @@ from wholehand.errors import ConfigError
 from wholehand.ros2.config import SafetyLimits
 
 FloatArray = npt.NDArray[np.float64]
+
+
+class JointGaps:
+    """The gaps in the joint states a :class:`TorqueGuard` has seen: each run of commands
+    with the newest state older than ``joint_timeout``, after the first fresh state."""
+
+    def __init__(self) -> None:
+        self.recovered = 0
+        """Gaps a fresh joint state ended."""
+        self.recovered_past_hold = 0
+        """Of those, gaps that outlasted ``joint_hold``: the torque ramped (``joints_stale``)
+        or was zero (``joints_lost``) before the state came back."""
+        self.longest_recovered = 0.0
+        """The oldest the joint state got in a gap that ended [s]."""
+        self.open_age = 0.0
+        """How old the joint state is in the gap still open [s] (0: none is)."""
+        self.open_status = ""
+        """The furthest rule the open gap reached (``joints_late``, ``joints_stale``,
+        ``joints_lost``; empty: no gap is open)."""
+        self._seen_fresh = False
+
+    def late(self, age: float, status: str) -> None:
+        """A command with the joint state ``age`` [s] old, decided by ``status``."""
+        if not self._seen_fresh:
+            return  # before the first state: starting, not a gap
+        self.open_age = max(self.open_age, age)
+        if RANK[status] > RANK[self.open_status]:
+            self.open_status = status
+
+    def fresh(self) -> None:
+        """A command on a fresh joint state: any open gap ended."""
+        self._seen_fresh = True
+        if self.open_status:
+            self.recovered += 1
+            self.recovered_past_hold += self.open_status != "joints_late"
+            self.longest_recovered = max(self.longest_recovered, self.open_age)
+            self.open_age, self.open_status = 0.0, ""
+
+    def summary(self) -> dict[str, float | int | str]:
+        """The counts, JSON-ready."""
+        return {
+            "recovered": self.recovered,
+            "recovered_past_hold": self.recovered_past_hold,
+            "longest_recovered_s": round(self.longest_recovered, 6),
+            "open_at_end": self.open_status,
+            "open_age_s": round(self.open_age, 6),
+        }
+
+
+RANK = {"": 0, "joints_late": 1, "joints_stale": 2, "joints_lost": 3}
+"""How far past ``joint_timeout`` each rule of a gap lies."""
 
 
 class TorqueGuard:
@@ -75,6 +132,8 @@ class TorqueGuard:
         self._ramp_from: FloatArray | None = None
         self._ramp_start = 0.0
         self._held: FloatArray | None = None  # the torque held since the joint states stopped
+        self.gaps = JointGaps()
+        """The gaps in the joint states so far."""
 
     def start_from(self, effort: FloatArray | None, now: float) -> None:
         """Take the measured effort (n_v,) [N*m] (None: zero) as the torque sent last, so that
@@ -94,8 +153,10 @@ class TorqueGuard:
         if not joint_age <= limits.joint_timeout:
             self._ramp_from = None
             held, status = self._without_joints(joint_age)
+            self.gaps.late(joint_age, status)
             return self._sent(held, now, status)
         self._held = None
+        self.gaps.fresh()
         self.start_from(None, now)
         if not pose_age <= limits.pose_timeout:
             return self._sent(self._ramp(now), now, "pose_stale")

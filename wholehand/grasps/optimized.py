@@ -170,8 +170,8 @@ def batch_size(wanted: int, found: int, tried: int, room: int) -> int:
     success rate so far (``found`` grasps of ``tried`` candidates, smoothed so that a fresh
     object counts as one grasp from one candidate), between :data:`MIN_BATCH` and
     :data:`BATCH`, and at most ``room`` (what is left of the candidate budget). An object held
-    in the air, where most candidates pass, gets one batch of about 1.5 times ``count``
-    starts rather than :data:`BATCH`; a hard one gets full batches from the second on."""
+    in the air, where most candidates pass, gets one batch of about twice ``count`` starts
+    rather than :data:`BATCH`; a hard one gets full batches from the second on."""
     rate = (found + 1) / (tried + 1)
     need = math.ceil(SPARE * max(wanted, 1) / rate)
     return max(1, min(room, BATCH, max(MIN_BATCH, need)))

@@ -56,6 +56,7 @@ from wholehand.robot.guard import TorqueGuard
 from wholehand.ros2.config import HardwareConfig
 from wholehand.ros2.config_file import load_hardware_config
 from wholehand.ros2.inputs import JointSample, JointStateReader, arm_command_dofs, command_dofs
+from wholehand.ros2.joint_sync import JointSync
 from wholehand.ros2.messages import (
     FLOAT64_ARRAY,
     JOINT_TRAJECTORY,
@@ -113,9 +114,9 @@ class Ros2Backend(Backend):
         rejected: rejected messages per reason (``malformed``, ``not_finite``,
             ``unknown_joint``, ``wrong_length``, ``out_of_range``, ``wrong_frame``, ...).
         guard: the safety rules; ``guard.counts`` says how often each acted.
-        sync: cycles by how they met the joint states (``fresh``: the newest was fresh;
-            ``waited``: the next arrived within the wait; ``timed_out``: it did not).
-        sync_wait: time the cycles spent waiting for joint states [s], in all.
+        joint_sync: the wait for a fresh joint state before each cycle
+            (:class:`~wholehand.ros2.joint_sync.JointSync`); ``sync`` and ``sync_wait`` are its
+            counts by how the cycles met the joint states and its time waited [s].
         trace: ``(sequence number, stamp_q of the joint state used [s], publish time [ns])`` per
             torque message when ``trace`` is on.
     """
@@ -171,15 +172,7 @@ class Ros2Backend(Backend):
         self.trace: deque[tuple[int, float, int]] | None = (
             deque(maxlen=TRACE_SAMPLES) if trace else None
         )
-        self.sync: Counter[str] = Counter()
-        self.sync_wait = 0.0
-        joint_period = 1.0 / config.joint_state_rate
-        self._fresh_age = 0.25 * joint_period
-        self._max_sync_wait = (
-            min(1.25 * joint_period, 0.4 / config.control_rate)
-            if config.sync_to_joint_states
-            else 0.0
-        )
+        self.joint_sync = JointSync(config, self._clock)
         self._lock = threading.Lock()
         """Guards the torque guard, the publishers and the apply time (loop and watchdog)."""
         self._stamp_q_seen = np.nan
@@ -263,6 +256,7 @@ class Ros2Backend(Backend):
             joint, joint_age = latest.joint, now - latest.joint_received
             pose_age = self._pose_age(now, latest)
             self._last_apply = now
+            self.joint_sync.computed(now)
             if joint is not None:
                 self.guard.start_from(joint.effort, now)
             positions, position_pub = None, self._hand_position
@@ -389,14 +383,17 @@ class Ros2Backend(Backend):
         (:mod:`wholehand.ros2.config_file`; counted in :attr:`sync`)."""
         if duration > 0.0:
             time.sleep(duration)
-        if self._max_sync_wait > 0.0:
-            self._wait_for_fresh_joints()
+        self.joint_sync.wait(self.streams)
 
-    def _wait_for_fresh_joints(self) -> None:
-        how, waited = self.streams.wait_for_fresh_joint(self._fresh_age, self._max_sync_wait)
-        if how != "none":  # nothing to wait for before a first joint state: bad_state
-            self.sync[how] += 1
-            self.sync_wait += waited
+    @property
+    def sync(self) -> Counter[str]:
+        """Cycles by how they met the joint states (:class:`JointSync`'s ``counts``)."""
+        return self.joint_sync.counts
+
+    @property
+    def sync_wait(self) -> float:
+        """Time the cycles spent waiting for joint states [s], in all."""
+        return self.joint_sync.waited
 
     @property
     def time(self) -> float:

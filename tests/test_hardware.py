@@ -51,6 +51,7 @@ def test_config_defaults_and_file(tmp_path):
     assert load_hardware_config().sync_to_joint_states
     config = load_hardware_config(path)
     assert not config.sync_to_joint_states
+    assert config.thread_priority == 0 and load_hardware_config().thread_priority == 0
     assert config.domain_id == 7 and config.topics["joint_states"] == "/hand/joint_states"
     assert config.qos_of("object_pose").reliability == "best_effort"
     assert config.safety.pose_timeout == 0.1 and config.safety.pose_ramp == 0.5
@@ -87,6 +88,10 @@ def test_the_controller_predicts_poses_unless_told_not_to():
         ({"joints": {"command": []}}, "[joints] command is empty"),
         ({"joints": {"command": ["a", "b", "a"]}}, "lists ['a'] more than once"),
         ({"rates": {"sync_to_joint_states": 1}}, "sync_to_joint_states must be true or false"),
+        ({"rates": {"thread_priority": 100}}, "thread_priority must be a whole number"),
+        ({"rates": {"thread_priority": -1}}, "thread_priority must be a whole number"),
+        ({"rates": {"thread_priority": True}}, "thread_priority must be a whole number"),
+        ({"rates": {"thread_priority": 50.0}}, "thread_priority must be a whole number"),
     ],
 )
 def test_config_errors_name_the_problem(raw, named):
@@ -94,6 +99,58 @@ def test_config_errors_name_the_problem(raw, named):
     with pytest.raises(ConfigError) as err:
         parse_hardware_config(raw, "hw.toml")
     assert named in str(err.value) and "hw.toml" in str(err.value)
+
+
+def test_the_control_thread_runs_at_the_priority_asked_for_and_returns_after():
+    """SCHED_FIFO for the calling thread inside the block, its policy back after; 0 changes
+    nothing. (Runs where the test may set it: root, CAP_SYS_NICE or an rtprio limit.)"""
+    import os
+
+    from wholehand.robot.realtime import realtime_priority
+
+    before = os.sched_getscheduler(0)
+    with realtime_priority(0):
+        assert os.sched_getscheduler(0) == before
+    try:
+        with realtime_priority(10):
+            assert os.sched_getscheduler(0) == os.SCHED_FIFO
+            assert os.sched_getparam(0).sched_priority == 10
+    except ConfigError as err:
+        pytest.skip(f"this computer refuses SCHED_FIFO: {err}")
+    assert os.sched_getscheduler(0) == before
+
+
+def test_the_loop_runs_on_a_frozen_heap_that_thaws_after():
+    """Inside the block every object alive at its start is out of the collector's walks (a
+    collection walks only newer ones); after it, they are collectable again."""
+    import gc
+
+    from wholehand.robot.realtime import frozen_heap
+
+    assert gc.get_freeze_count() == 0
+    kept = [[i] for i in range(1000)]  # containers alive before the loop
+    with frozen_heap():
+        frozen = gc.get_freeze_count()
+        assert frozen >= len(kept)
+        made = [[i] for i in range(10)]
+        assert sum(map(gc.is_tracked, made)) == 10 and gc.get_freeze_count() == frozen
+    assert gc.get_freeze_count() == 0 and gc.is_tracked(kept[0])
+
+
+def test_a_refused_priority_names_the_fix_before_the_robot_is_commanded(monkeypatch):
+    import os
+
+    from wholehand.robot.realtime import check_priority
+
+    def refuse(*_: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with pytest.raises(ConfigError, match=r"thread_priority = 50: .*ulimit -r 50.*CAP_SYS_NICE"):
+        check_priority(50)
+    check_priority(0)  # off: nothing to refuse
+    with pytest.raises(ConfigError, match="0 \\(off\\) or 1-99"):
+        check_priority(120)
 
 
 def test_config_missing_file_is_named(tmp_path):
@@ -968,3 +1025,40 @@ def test_the_double_withholds_joint_states_during_a_gap():
             DoubleSpec(joint_gaps=bad)
         with pytest.raises(ConfigError, match="joint-state gap needs START >= 0"):
             EpisodeDoubleSpec(joint_gaps=bad)
+
+
+def test_the_wait_for_a_fresh_joint_state_leaves_time_for_the_cycles_computation():
+    """At 200 Hz and 500 Hz the wait is at most 2 ms; after a cycle that computed 3.5 ms it is
+    at most 1 ms (5 - 3.5 - 0.5), after one of 4.8 ms none (``no_time``), and a slow cycle is
+    forgotten over the following ones."""
+    from wholehand.ros2.joint_sync import DECAY, MARGIN, JointSync
+
+    class Streams:
+        def __init__(self) -> None:
+            self.asked: list[float] = []
+
+        def wait_for_fresh_joint(self, fresh_age: float, max_wait: float) -> tuple[str, float]:
+            self.asked.append(max_wait)
+            return ("timed_out", max_wait) if max_wait > 0.0 else ("timed_out", 0.0)
+
+    now = [0.0]
+    sync = JointSync(HardwareConfig(), lambda: now[0])
+    streams = Streams()
+    sync.wait(streams)
+    assert streams.asked[-1] == pytest.approx(0.002)
+    now[0] += 0.0035
+    sync.computed(now[0])
+    assert sync.compute_high == pytest.approx(0.0035)
+    sync.wait(streams)
+    assert streams.asked[-1] == pytest.approx(0.005 - 0.0035 - MARGIN)
+    now[0] += 0.0048
+    sync.computed(now[0])
+    sync.wait(streams)
+    assert streams.asked[-1] == 0.0 and sync.counts == {"timed_out": 2, "no_time": 1}
+    sync.computed(now[0] + 0.0005)  # fast cycles: the slow one fades
+    assert sync.compute_high == pytest.approx(0.0048 * DECAY)
+    sync.computed(now[0] + 0.001)  # no wait began since: not a cycle
+    assert sync.compute_high == pytest.approx(0.0048 * DECAY)
+    off = JointSync(dataclasses.replace(HardwareConfig(), sync_to_joint_states=False), time.time)
+    off.wait(streams)
+    assert off.counts == {} and len(streams.asked) == 3

@@ -48,6 +48,7 @@ from wholehand.reaching.pipeline import (
 )
 from wholehand.reaching.pregrasp import GraspPlan, usable_on_table
 from wholehand.reaching.stages import PREGRASP, REGULATE, HoldStage, ReachPlanner
+from wholehand.robot.realtime import check_priority, frozen_heap, realtime_priority
 from wholehand.robot.stopping import signals_set
 from wholehand.ros2.config import HardwareConfig
 from wholehand.ros2.inputs import model_joint_name
@@ -294,6 +295,7 @@ def run_controller(
         ConfigError: no joint state or object pose within ``wait`` [s]; an assembly without an
             arm topic or workspace in ``config``.
     """
+    check_priority(config.thread_priority)
     estimator = registry.load(
         "contact_estimators", spec.estimator, hand=hand, obj=obj, **spec.estimator_params
     )
@@ -334,7 +336,8 @@ def run_controller(
                 observers=[*watchers, status],
                 gate=gate,
             )
-            report = loop.run(duration)
+            with frozen_heap(), realtime_priority(config.thread_priority):
+                report = loop.run(duration)
         # After the backend's last commands (the exit ramp, when it closed), so they count.
         stats = backend.stats()
         stats["gate_refused"] = dict(gate.refused)

@@ -128,6 +128,9 @@ class HardwareConfig:
     object_pose_rate: float = 30.0
     sync_to_joint_states: bool = True
     """Start each cycle on a fresh joint state (the module docstring)."""
+    thread_priority: int = 0
+    """``SCHED_FIFO`` priority (1-99) of the controller's control thread, 0 for the operating
+    system's normal scheduling (:mod:`wholehand.robot.realtime`)."""
     qos: dict[str, QoS] = field(default_factory=dict)
     frame_id: str = "world"
     stamp_source: StampSource = "header"

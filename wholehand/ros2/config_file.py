@@ -60,6 +60,8 @@ Schema (times in s, rates in Hz, torques in N*m; every key optional, defaults be
     joint_states = 500.0            # what the robot publishes (hw-sim uses it)
     object_pose = 30.0              # what the tracker publishes (hw-sim uses it)
     sync_to_joint_states = true     # start each cycle on a fresh joint state (below)
+    thread_priority = 0             # SCHED_FIFO priority (1-99) of the control thread, as
+                                    # ros2_control's; needs CAP_SYS_NICE or `ulimit -r`; 0: off
 
     [qos]                           # per topic: reliability, history, depth
     torque_command = { reliability = "reliable", history = "keep_last", depth = 1 }
@@ -89,8 +91,9 @@ Cycles synchronised to the joint states (``sync_to_joint_states``). A cycle that
 the newest joint state as it found it would use one up to a joint-state period old (2 ms at
 500 Hz), which adds to the delay from measurement to torque. So, when a cycle's time comes and
 the newest joint state arrived more than a quarter of a joint-state period ago, the controller
-waits for the next one, at most 1.25 joint-state periods and never more than 40 % of the control
-period; the schedule of cycles stays that of the control rate.
+waits for the next one, at most 1.25 joint-state periods, never more than 40 % of the control
+period, and never so long that the recent cycles' computation would no longer fit in the period
+(:mod:`wholehand.ros2.joint_sync`); the schedule of cycles stays that of the control rate.
 """
 
 from __future__ import annotations
@@ -362,12 +365,21 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
     if not (isinstance(rename, dict) and all(isinstance(v, str) for v in rename.values())):
         raise ConfigError(f"{_where(path)}: [joints] rename must map joint names to names")
     rates = _table(
-        raw, "rates", ("control", "joint_states", "object_pose", "sync_to_joint_states"), path
+        raw,
+        "rates",
+        ("control", "joint_states", "object_pose", "sync_to_joint_states", "thread_priority"),
+        path,
     )
     sync = rates.get("sync_to_joint_states", True)
     if not isinstance(sync, bool):
         raise ConfigError(
             f"{_where(path)}: [rates] sync_to_joint_states must be true or false, got {sync!r}"
+        )
+    priority = rates.get("thread_priority", 0)
+    if isinstance(priority, bool) or not isinstance(priority, int) or not 0 <= priority <= 99:
+        raise ConfigError(
+            f"{_where(path)}: [rates] thread_priority must be a whole number, 0 (the normal "
+            f"scheduling) or a SCHED_FIFO priority 1-99 (ros2_control uses 50), got {priority!r}"
         )
     qos = {
         topic: _qos(value, topic, path) for topic, value in _table(raw, "qos", TOPICS, path).items()
@@ -404,6 +416,7 @@ def parse_hardware_config(raw: dict[str, Any], path: str = "") -> HardwareConfig
         joint_state_rate=_number(rates.get("joint_states", 500.0), "[rates] joint_states", path),
         object_pose_rate=_number(rates.get("object_pose", 30.0), "[rates] object_pose", path),
         sync_to_joint_states=sync,
+        thread_priority=priority,
         qos=qos,
         frame_id=str(pose.get("frame_id", "world")),
         stamp_source=stamp_source,

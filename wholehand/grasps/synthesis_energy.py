@@ -10,7 +10,6 @@ sum per joint, not one Jacobian per point.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -21,6 +20,7 @@ from wholehand.jit import CACHE
 from wholehand.models.batch_kinematics import BatchKinematics, cross
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
+from wholehand.models.sample_spheres import chunks_along_links, clusters
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -29,10 +29,11 @@ BoolArray = npt.NDArray[np.bool_]
 SELF_STRIDE = 3
 """Every this-many-th sample of the fingers' links enters the fingers-apart term."""
 CHUNK = 8
-"""Most samples of the fingers-apart term in one bounding sphere (:func:`_chunked`)."""
+"""Most samples of the fingers-apart term in one bounding sphere
+(:func:`~wholehand.models.sample_spheres.chunks_along_links`)."""
 CLUSTER = 8
 """Most hand samples in one bounding sphere of the penetration and table terms' cull
-(:func:`_clusters`)."""
+(:func:`~wholehand.models.sample_spheres.clusters`)."""
 
 
 @dataclass(frozen=True)
@@ -141,8 +142,8 @@ class SynthesisEnergy:
         self.self_samples, self.self_finger = self._finger_samples()
         self._self_p = self.samples.p_joint[self.self_samples]
         self._self_joint = self.samples.joint[self.self_samples]
-        self._cluster_order, self._clusters = _clusters(
-            self.samples.p_joint, self.samples.joint, self.samples.link
+        self._cluster_order, self._clusters = clusters(
+            self.samples.p_joint, self.samples.joint, self.samples.link, CLUSTER
         )
 
     def _finger_samples(self) -> tuple[IntArray, IntArray]:
@@ -161,8 +162,8 @@ class SynthesisEnergy:
             rows, finger = [np.zeros(0, dtype=np.intp)], [np.zeros(0, dtype=np.intp)]
         order = np.concatenate(rows).astype(np.intp)
         fingers = np.concatenate(finger).astype(np.intp)
-        order, fingers, self._chunks, self._links = _chunked(
-            s.p_joint, s.joint, s.link, order, fingers
+        order, fingers, self._chunks, self._links = chunks_along_links(
+            s.p_joint, s.joint, s.link, order, fingers, CHUNK
         )
         return order, fingers
 
@@ -341,100 +342,6 @@ class SynthesisEnergy:
         probes = (x[:, None, :] + offsets[None]).reshape(-1, 3)
         g = self.sdf.query_with_gradient(probes)[1].reshape(-1, 6, 3)
         return np.transpose((g[:, :3] - g[:, 3:]) / (2.0 * h), (0, 2, 1))  # [n, a, b] = dg_a/dx_b
-
-
-class Spheres(NamedTuple):
-    """Bounding spheres of groups of consecutive items (hand samples, or smaller groups): group
-    ``g`` holds items ``bounds[g]:bounds[g + 1]``; its sphere's centre (G, 3) [m] is given in
-    the frame of joint ``joint[g]``, and its radius (G,) [m] bounds the distance from it of
-    every sample the group holds."""
-
-    bounds: IntArray
-    centre: FloatArray
-    joint: IntArray
-    radius: FloatArray
-
-
-def _sphere(points: FloatArray) -> tuple[FloatArray, float]:
-    """A sphere around ``points`` (N, 3): the centre of their box, the farthest one's distance
-    (a little more, so that rounding never leaves a point out)."""
-    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
-    return centre, float(np.linalg.norm(points - centre, axis=1).max()) * (1.0 + 1e-9) + 1e-12
-
-
-def _clusters(
-    p_joint: FloatArray, joint: IntArray, link: IntArray, most: int = CLUSTER
-) -> tuple[IntArray, Spheres]:
-    """Every sample in compact groups of at most ``most`` of one link: each link's samples
-    halved across their widest extent until each part is small enough (a k-d split, so that
-    the groups' spheres are about as small as their samples' spacing allows). Returns the
-    samples in group order and the groups' spheres (bounds into that order)."""
-    order: list[IntArray] = []
-    made: list[tuple[FloatArray, float]] = []
-    on_joint: list[int] = []
-
-    def split(rows: IntArray) -> None:
-        points = p_joint[rows]
-        if rows.size <= most:
-            order.append(rows)
-            made.append(_sphere(points))
-            on_joint.append(int(joint[rows[0]]))
-            return
-        axis = int(np.argmax(points.max(axis=0) - points.min(axis=0)))
-        ranked = rows[np.argsort(points[:, axis], kind="stable")]
-        split(ranked[: rows.size // 2])
-        split(ranked[rows.size // 2 :])
-
-    for k in np.unique(link):
-        split(np.flatnonzero(link == k).astype(np.intp))
-    bounds = np.concatenate(([0], np.cumsum([rows.size for rows in order]))).astype(np.intp)
-    spheres = Spheres(
-        bounds,
-        np.array([c for c, _ in made]).reshape(-1, 3),
-        np.asarray(on_joint, dtype=np.intp),
-        np.array([r for _, r in made]),
-    )
-    return np.concatenate(order).astype(np.intp), spheres
-
-
-def _chunked(
-    p_joint: FloatArray, joint: IntArray, link: IntArray, rows: IntArray, finger: IntArray
-) -> tuple[IntArray, IntArray, Spheres, Spheres]:
-    """The samples ``rows`` (with their ``finger``) ordered by link and, within a link, along
-    its longest extent, cut into chunks of at most :data:`CHUNK`; the chunks' spheres (over
-    the rows) and the links' (over the chunks)."""
-    out_rows, out_finger = [], []
-    chunk_bounds, link_bounds = [0], [0]
-    chunk_spheres, link_spheres = [], []
-    for k in np.unique(link[rows]):
-        on = np.flatnonzero(link[rows] == k)
-        points = p_joint[rows[on]]
-        axis = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)[2][0]
-        on = on[np.argsort(points @ axis, kind="stable")]
-        for part in range(0, on.size, CHUNK):
-            piece = on[part : part + CHUNK]
-            out_rows.append(rows[piece])
-            out_finger.append(finger[piece])
-            chunk_bounds.append(chunk_bounds[-1] + piece.size)
-            chunk_spheres.append(_sphere(p_joint[rows[piece]]))
-        link_bounds.append(len(chunk_spheres))
-        link_spheres.append(_sphere(points))
-    joint_of = [int(joint[rows[link[rows] == k][0]]) for k in np.unique(link[rows])]
-    chunk_joint = np.repeat(joint_of, np.diff(link_bounds)).astype(np.intp)
-
-    def spheres(bounds: list[int], made: list[tuple[FloatArray, float]], on: IntArray) -> Spheres:
-        return Spheres(
-            np.asarray(bounds, dtype=np.intp),
-            np.array([c for c, _ in made]).reshape(-1, 3),
-            on,
-            np.array([r for _, r in made]),
-        )
-
-    order = np.concatenate(out_rows).astype(np.intp) if out_rows else rows
-    fingers = np.concatenate(out_finger).astype(np.intp) if out_finger else finger
-    chunks = spheres(chunk_bounds, chunk_spheres, chunk_joint)
-    links = spheres(link_bounds, link_spheres, np.asarray(joint_of, dtype=np.intp))
-    return order, fingers, chunks, links
 
 
 @numba.njit(cache=CACHE, nogil=True, inline="always")

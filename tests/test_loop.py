@@ -422,6 +422,24 @@ def test_a_wall_clock_overrun_is_measured_not_absorbed(allegro, cube):
     assert report.cycles == 18  # 3 cycles per 0.1 s: fewer than 0.6 s x 50 Hz
 
 
+def test_a_slow_preload_before_the_first_cycle_is_not_a_late_cycle(allegro, cube):
+    """A process's first loads (the stages' preload, the observers' start) may take longer than
+    a period on a wall clock; the schedule starts after them, so the cycles are on time."""
+    rate = 50.0
+    clock = FakeWallClock()
+    backend = WallClockBackend(grasp_backend(allegro, cube), clock)
+
+    class SlowPreload(SlowStage):
+        def preload(self, context):
+            clock.t += 3.0 / rate  # three periods of first loads
+
+    seen = Last()
+    stage = SlowPreload(1.0 / rate, clock, slow=False)
+    report = ControlLoop(backend, allegro, cube, stage, rate=rate, observers=[seen]).run(0.2)
+    assert report.overruns == 0 and report.cycles == 10
+    np.testing.assert_allclose(seen.cycles[0].t, 3.0 / rate)
+
+
 def _thumb_dofs(hand):
     links = [i for i, f in enumerate(hand.link_finger) if f == hand.config.thumb]
     joints = sorted({int(hand.link_joint[i]) for i in links} - {0})

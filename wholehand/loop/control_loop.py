@@ -189,16 +189,15 @@ class ControlLoop:
         if duration is not None and not (np.isfinite(duration) and duration >= 0.0):
             raise ConfigError(f"ControlLoop.run: duration must be >= 0 [s], got {duration!r}")
         backend = self.backend
-        t0 = backend.time
         if not self._preloaded:
             self._preloaded = True
-            self._preload(t0)
+            self._preload(backend.time)
         for observer in self.observers:
             observer.on_start(self)
+        t0 = backend.time  # after the preload: a process's first loads make no late cycle
         report = self.report
         n_run = 0  # cycles of this run
-        deadline = t0  # wall clock: cycles start on a fixed schedule, so sleep overshoot never
-        # accumulates into a lower rate; a cycle more than a period late restarts the schedule
+        deadline = t0  # wall clock: a fixed schedule (sleep overshoot never lowers the rate)
         try:
             while True:
                 t = backend.time

@@ -123,7 +123,9 @@ def _group_summary(group: list[dict[str, Any]]) -> dict[str, Any]:
             cell = styles.setdefault(style, {"objects_with_grasp": 0, "grasps": 0, "seconds": 0.0})
             cell["objects_with_grasp"] += int(got["grasps"] > 0)
             cell["grasps"] += int(got["grasps"])
-            cell["seconds"] = round(cell["seconds"] + float(got["seconds"]), 1)
+            cell["seconds"] += float(got["seconds"])
+    for cell in styles.values():
+        cell["seconds"] = round(cell["seconds"], 1)
     return {
         "n_objects": len(valid),
         "n_errors": len(group) - len(valid),

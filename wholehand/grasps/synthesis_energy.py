@@ -196,8 +196,8 @@ class SynthesisEnergy:
         # The depths: the exact lookup only where the nearest node allows a negative distance.
         maybe = sdf.nearest_below(X, sdf.spacing)
         d = sdf.query(X[maybe])
-        inside, inside_x = flat[maybe][d < 0.0], X[maybe][d < 0.0]
-        depth = -d[d < 0.0]
+        below_surface = maybe[d < 0.0]
+        inside, inside_x, depth = flat[below_surface], X[below_surface], -d[d < 0.0]
         start_of = inside // m
         e_pen = np.bincount(start_of, weights=depth, minlength=n).astype(np.float64)
         max_depth = np.zeros(n)

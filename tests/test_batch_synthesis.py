@@ -112,9 +112,11 @@ def test_near_spheres_drops_only_balls_with_no_point_below_the_threshold(ball, s
 
 @pytest.mark.parametrize("table", [None, [0.0, 0.0, 1.0]])
 def test_the_culled_energies_are_those_of_every_sample(allegro, ball, table, monkeypatch):
-    """Hands pushed into the ball and onto the table: the energies and gradients with the
-    cluster cull equal those computed over every hand sample."""
+    """Hands pushed into the ball and onto the table: the numpy form's energies and gradients
+    with the cluster cull equal those computed over every hand sample (the compiled form's
+    cull: tests/test_synthesis_kernel.py)."""
     syn = GraspSynthesizer(allegro, ball, allegro.config.grasp_styles["power"], table_up=table)
+    syn.compiled = False
     rng = np.random.default_rng(8)
     starts = [syn.start(rng) for _ in range(12)]
     oMb = np.stack([st.oMb for st in starts])

@@ -17,6 +17,7 @@ from wholehand_plugins.mesh_sdf.reference import sdf_query, top_k_per_link
 from wholehand.bench.contacts import grasp_like_states
 from wholehand.errors import ConfigError
 from wholehand.grasps.store import load_grasps
+from wholehand.models import sdf_lookup
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.object_catalogue import load_object
 from wholehand.models.objects import ObjectModel
@@ -61,12 +62,12 @@ def reference(hand, obj, kin, wMo, d_thresh, k, links=None):
 
 @numba.njit
 def kernel_values(values, dims, geom, points):
-    """(P,) ``kernels.sdf_value`` (the lookup of the cull and the threshold) at (P, 3) points."""
+    """(P,) ``sdf_lookup.sdf_value`` (the lookup of the cull and the threshold) at (P, 3) points."""
     shape = (dims[0], dims[1], dims[2])
     g = (geom[0], geom[1], geom[2], geom[3], geom[4])
     out = np.empty(points.shape[0])
     for i in range(points.shape[0]):
-        out[i] = kernels.sdf_value(values, shape, g, points[i, 0], points[i, 1], points[i, 2])
+        out[i] = sdf_lookup.sdf_value(values, shape, g, points[i, 0], points[i, 1], points[i, 2])
     return out
 
 
@@ -212,7 +213,7 @@ def test_lookups_equal_the_grid_bit_for_bit(request, obj_name):
     nan = inside[:3].copy()
     nan[np.arange(3), np.arange(3)] = np.nan
     points = np.concatenate([inside, around, nodes, faces, nan])
-    args = kernels.grid_arguments(grid)
+    args = sdf_lookup.grid_arguments(grid)
     d, g = sdf_query(*args, points)
     d_ref, g_ref = grid.query_with_gradient(points)
     np.testing.assert_array_equal(d, d_ref)
@@ -247,7 +248,7 @@ def test_kernel_ties_keep_row_order(k):
         centre,
         np.ones(n_clusters),
         np.zeros(n_clusters, dtype=np.intp),
-        *kernels.grid_arguments(grid),
+        *sdf_lookup.grid_arguments(grid),
         0.0,
         k,
         np.zeros(link.size, dtype=np.bool_),
@@ -281,7 +282,7 @@ def test_kept_samples_keep_their_place_unless_one_is_closer_by_the_margin(seed):
     eye = np.eye(4)
     *_, distance, rows = kernels.mesh_sdf_contacts(
         eye, eye, np.eye(3)[None], np.zeros((1, 3)), p_joint, link, start, centre,
-        np.ones(2), np.zeros(2, dtype=np.intp), *kernels.grid_arguments(grid),
+        np.ones(2), np.zeros(2, dtype=np.intp), *sdf_lookup.grid_arguments(grid),
         d_thresh, k, kept, hysteresis,
     )  # fmt: skip
     d = p_joint[:, 0]

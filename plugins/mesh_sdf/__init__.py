@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from wholehand_plugins.mesh_sdf.kernels import grid_arguments, mesh_sdf_contacts
+from wholehand_plugins.mesh_sdf.kernels import mesh_sdf_contacts
 
 from wholehand import defaults
 from wholehand.contacts.base import ContactEstimator, ContactSet
@@ -13,6 +13,7 @@ from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
 from wholehand.models.poses import check_pose
+from wholehand.models.sdf_lookup import grid_arguments
 from wholehand.models.surface import farthest_point_sampling
 
 FloatArray = npt.NDArray[np.float64]

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 import numpy.typing as npt
-from wholehand_plugins.mesh_sdf.kernels import grid_tuples, sdf_value_and_gradient
 
 from wholehand.jit import CACHE
+from wholehand.models.sdf_lookup import grid_tuples, sdf_value_and_gradient
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]

@@ -48,7 +48,7 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from wholehand.errors import ConfigError
-from wholehand.grasps.synthesis_energy import Energies, Energy, SynthesisEnergy
+from wholehand.grasps.synthesis_energy import Energy, SynthesisEnergy
 from wholehand.grasps.synthesis_params import SynthesisParams
 from wholehand.models.grasp_styles import style_arrays
 from wholehand.models.hand import HandModel
@@ -264,12 +264,11 @@ class GraspSynthesizer(SynthesisEnergy):
 
     def _results(self, oMb: FloatArray, a: FloatArray, contacts: IntArray) -> list[SynthesisResult]:
         """The batch's end states as results, lowest energy first."""
-        terms = self._terms(oMb, a, contacts)
-        energies: Energies = terms.energies
+        energies, dc, gc = self.contact_terms(oMb, a, contacts)
         q = self.q_of(a)
         out = [
             SynthesisResult(
-                oMb[k].copy(), q[k], contacts[k].copy(), terms.gc[k], terms.dc[k], energies.at(k), k
+                oMb[k].copy(), q[k], contacts[k].copy(), gc[k], dc[k], energies.at(k), k
             )
             for k in range(len(oMb))
         ]

@@ -5,6 +5,10 @@ array carries the batch first: ``B`` starts, ``P`` hand surface samples, ``C`` c
 The gradient goes from each point's ``dE/dx`` to the variables through the starts' Jacobian
 columns (:meth:`~wholehand.models.batch_kinematics.BatchKinematics.generalized_forces`): one
 sum per joint, not one Jacobian per point.
+
+Two forms compute it: the numpy form here, the reference, for any field with the grid's query
+methods; and one compiled pass (:mod:`wholehand.grasps.synthesis_kernel`), which the synthesis
+uses on an object's SDF grid (:attr:`SynthesisEnergy.compiled`).
 """
 
 from __future__ import annotations
@@ -15,12 +19,15 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.grasps.synthesis_kernel import ENERGY_COLUMNS, HandPoints, Scene, batch_energy
 from wholehand.grasps.synthesis_params import SynthesisParams
 from wholehand.jit import CACHE
 from wholehand.models.batch_kinematics import BatchKinematics, cross
 from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
 from wholehand.models.sample_spheres import chunks_along_links, clusters
+from wholehand.models.sdf import SignedDistanceGrid
+from wholehand.models.sdf_lookup import grid_arguments
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -145,6 +152,10 @@ class SynthesisEnergy:
         self._cluster_order, self._clusters = clusters(
             self.samples.p_joint, self.samples.joint, self.samples.link, CLUSTER
         )
+        self.compiled = True
+        """Whether :meth:`energies` takes the compiled pass (on an SDF grid; else always the
+        numpy form)."""
+        self._kernel_args: tuple[Scene, HandPoints] | None = None
 
     def _finger_samples(self) -> tuple[IntArray, IntArray]:
         """The samples of the fingers-apart term (every :data:`SELF_STRIDE`-th of each
@@ -183,10 +194,78 @@ class SynthesisEnergy:
     ) -> tuple[Energies, dict[str, FloatArray]]:
         """The energies of a batch and, with ``gradient``, their gradients: ``t`` (B, 3)
         [1/m], ``w`` (B, 3) about each base origin [1/rad], ``a`` (B, n_a) [1/rad]."""
+        if self.compiled and isinstance(self.sdf, SignedDistanceGrid):
+            energies, grad, _, _ = self._compiled(oMb, a, contacts, gradient)
+            return energies, grad
         terms = self._terms(oMb, a, contacts)
         if not gradient:
             return terms.energies, {}
         return terms.energies, self._gradient(contacts, terms)
+
+    def contact_terms(
+        self, oMb: FloatArray, a: FloatArray, contacts: IntArray
+    ) -> tuple[Energies, FloatArray, FloatArray]:
+        """The energies of a batch with the contacts' signed distances (B, C) [m] and unit
+        SDF gradients (B, C, 3) (object frame)."""
+        if self.compiled and isinstance(self.sdf, SignedDistanceGrid):
+            energies, _, dc, gc = self._compiled(oMb, a, contacts, False)
+            return energies, dc, gc
+        terms = self._terms(oMb, a, contacts)
+        return terms.energies, terms.dc, terms.gc
+
+    def _compiled(
+        self, oMb: FloatArray, a: FloatArray, contacts: IntArray, gradient: bool
+    ) -> tuple[Energies, dict[str, FloatArray], FloatArray, FloatArray]:
+        """:meth:`energies` by :func:`~wholehand.grasps.synthesis_kernel.batch_energy`, with
+        the contacts' distances and gradients."""
+        kin = self.batch_kin
+        kin.update(self.q_of(a), oMb)
+        scene, points = self._kernel_args or self._kernel_inputs()
+        base = np.ascontiguousarray(oMb[:, :3, 3])
+        values, force, moment, tau, dc, gc = batch_energy(
+            scene,
+            points,
+            (kin.R, kin.t, kin.v, kin.w, base, kin.support),
+            np.ascontiguousarray(contacts, dtype=np.intp),
+            gradient,
+        )
+        energies = Energies(*(values[:, k] for k in range(len(ENERGY_COLUMNS))))
+        if not gradient:
+            return energies, {}, dc, gc
+        grad_a = tau @ self.hand.coupling if self.hand.coupled else tau[:, self.act]
+        return energies, {"t": force, "w": moment, "a": grad_a}, dc, gc
+
+    def _kernel_inputs(self) -> tuple[Scene, HandPoints]:
+        """The compiled pass's fixed inputs, made once."""
+        sdf, p, s = self.sdf, self.params, self.samples
+        assert isinstance(sdf, SignedDistanceGrid)
+        up = self.table_up if self.table_up is not None else np.zeros(3)
+        scene = Scene(
+            *grid_arguments(sdf),
+            0.0 <= sdf.spacing < sdf._boundary_min,
+            self.com,
+            self.radius,
+            self.table_up is not None,
+            np.ascontiguousarray(up, dtype=np.float64),
+            (self.table_height, p.table_margin),
+            np.array([p.w_dis, p.w_fc, p.w_align, p.w_pen, p.w_table, p.w_self]),
+            p.self_gap,
+        )
+        links = self._links
+        points = HandPoints(
+            np.ascontiguousarray(s.p_joint, dtype=np.float64),
+            np.ascontiguousarray(s.n_joint, dtype=np.float64),
+            np.ascontiguousarray(s.joint, dtype=np.intp),
+            self._clusters,
+            self._cluster_order,
+            np.ascontiguousarray(self._self_p, dtype=np.float64),
+            np.ascontiguousarray(self._self_joint, dtype=np.intp),
+            self._chunks,
+            links,
+            self.self_finger[self._chunks.bounds[links.bounds[:-1]]].astype(np.intp),
+        )
+        self._kernel_args = (scene, points)
+        return scene, points
 
     def _terms(self, oMb: FloatArray, a: FloatArray, contacts: IntArray) -> _Terms:
         p, kin, s, sdf = self.params, self.batch_kin, self.samples, self.sdf

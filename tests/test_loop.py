@@ -422,6 +422,57 @@ def test_a_wall_clock_overrun_is_measured_not_absorbed(allegro, cube):
     assert report.cycles == 18  # 3 cycles per 0.1 s: fewer than 0.6 s x 50 Hz
 
 
+class WaitingBackend(WallClockBackend):
+    """A wall-clock backend that waits for a fresh joint state after each sleep: 1 ms before
+    every even cycle, none before odd ones, summed in ``sync_wait`` as the ROS 2 backend's."""
+
+    def __init__(self, sim, clock: FakeWallClock):
+        super().__init__(sim, clock)
+        self.sync_wait, self.steps = 0.0, 0
+
+    def step(self, duration):
+        self.steps += 1
+        wait = 0.001 if self.steps % 2 == 0 else 0.0
+        self.clock_.t += duration + wait
+        self.sync_wait += wait
+
+
+def test_late_cycles_keep_what_each_overrun_cycle_was_doing(allegro, cube):
+    """The slow cycles (three periods each, a garbage collection in each) are the late ones:
+    one record per overrun, with the stage, the time to the next cycle on the loop's clock and
+    the joint-state wait before the cycle."""
+    import gc
+
+    from wholehand.robot.late_cycles import LateCycles
+
+    rate = 50.0
+    clock = FakeWallClock()
+    backend = WaitingBackend(grasp_backend(allegro, cube), clock)
+
+    class CollectingStage(SlowStage):
+        def step(self, context):
+            if self.n % 3 == 2:  # the next step is a slow one
+                gc.collect()
+            return super().step(context)
+
+    late, seen = LateCycles(), Last()
+    stage = CollectingStage(1.0 / rate, clock)
+    report = ControlLoop(backend, allegro, cube, stage, rate=rate, observers=[seen, late]).run(0.6)
+    assert report.overruns >= 2 and late.count == report.overruns == len(late.kept)
+    slow = [c for c in seen.cycles if (c.index + 1) % 3 == 0]
+    assert [r.t for r in late.kept] == [c.t for c in slow[: late.count]]
+
+    def wait_before(index: int) -> float:
+        return 0.001 if index % 2 == 0 and index > 0 else 0.0
+
+    for record, cycle in zip(late.kept, slow, strict=False):
+        assert record.stage == "slow" and record.status == "ok" and record.period_s == 0.02
+        assert record.to_next_s == pytest.approx(3.0 / rate + wait_before(cycle.index + 1))
+        assert record.joint_wait_s == pytest.approx(wait_before(cycle.index))
+        assert record.collections >= 1 and record.cycle_s == cycle.cycle_time
+    assert late._collected not in gc.callbacks  # removed at the end of the run
+
+
 def test_a_slow_preload_before_the_first_cycle_is_not_a_late_cycle(allegro, cube):
     """A process's first loads (the stages' preload, the observers' start) may take longer than
     a period on a wall clock; the schedule starts after them, so the cycles are on time."""

@@ -342,3 +342,30 @@ def test_table_one_totals_keep_the_largest_torque_rate_the_drives_measured():
 
     assert _totals([row(12.5), row(19.75), row(3.0)])["max_torque_rate_Nm_s"] == 19.75
     assert _totals([row(), row()])["max_torque_rate_Nm_s"] is None
+
+
+def test_the_late_cycles_totals_say_where_each_late_cycles_time_went():
+    """A cycle that alone took more than its period, one that did only with the joint-state
+    wait before it, one that did neither (its time went elsewhere), over two episodes."""
+    from wholehand.bench.pipeline import _late_summary
+
+    def late(stage: str, cycle: float, wait: float, collections: int = 0) -> dict:
+        return {
+            "stage": stage, "status": "ok", "period_s": 0.005, "cycle_s": cycle,
+            "joint_wait_s": wait, "collections": collections,
+        }  # fmt: skip
+
+    summary = _late_summary(
+        [
+            late("regulate", 0.0061, 0.0),
+            late("regulate", 0.004, 0.0015, 1),
+            late("home", 0.001, 0.0),
+        ]
+    )
+    assert summary["kept"] == 3
+    assert summary["by_stage"] == {"regulate/ok": 2, "home/ok": 1}
+    assert summary["cycle_over_period"] == 1
+    assert summary["wait_and_cycle_over_period"] == 1
+    assert summary["elsewhere"] == 1
+    assert summary["with_collection"] == 1 and summary["cycle_s_max"] == 0.0061
+    assert _late_summary([])["kept"] == 0 and _late_summary([])["cycle_s_max"] is None

@@ -19,6 +19,7 @@ import os
 import subprocess
 import sys
 import tempfile
+from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -111,6 +112,7 @@ def over_ros(
         **row,
         "cycle_ms": percentiles(cycle_ms),
         "overruns": loop["overruns"],
+        "late_cycles": result["late_cycles"],
         "late_cycles_double": robot["late_cycles"],
         "joint_states_withheld": robot["joint_states_withheld"],
         "max_torque_rate_Nm_s": robot["max_torque_rate_Nm_s"],
@@ -154,6 +156,26 @@ def _paired(a: list[dict[str, Any]], b: list[dict[str, Any]], key: str) -> dict[
     return {"difference": float(d.mean()), "se": se}
 
 
+def _late_summary(late: list[dict[str, Any]]) -> dict[str, Any]:
+    """The late cycles of all episodes by stage and status, and where their time went: the
+    cycle alone took more than its period; the joint-state wait before it and the cycle did;
+    neither did (the observers, the sleep's overshoot, the operating system). Also how many
+    saw a garbage collection."""
+    alone = [c["cycle_s"] > c["period_s"] for c in late]
+    with_wait = [c["cycle_s"] + c["joint_wait_s"] > c["period_s"] for c in late]
+    return {
+        "kept": len(late),
+        "by_stage": dict(Counter(f"{c['stage']}/{c['status']}" for c in late).most_common()),
+        "cycle_over_period": sum(alone),
+        "wait_and_cycle_over_period": sum(
+            w and not a for a, w in zip(alone, with_wait, strict=True)
+        ),
+        "elsewhere": sum(not w for w in with_wait),
+        "with_collection": sum(c["collections"] > 0 for c in late),
+        "cycle_s_max": max((c["cycle_s"] for c in late), default=None),
+    }
+
+
 def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
     regrasp = [t for r in rows for t in r["time_to_regrasp_s"]]
     grasp = [r["time_to_grasp_s"] for r in rows if r["time_to_grasp_s"] is not None]
@@ -176,6 +198,7 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "cycle_ms_p50_median": float(np.median(cycles_p50)) if cycles_p50 else None,
         "cycle_ms_p99_max": float(max(cycles_p99)) if cycles_p99 else None,
         "overruns": sum(r["overruns"] for r in rows),
+        "late_cycles": _late_summary([c for r in rows for c in r.get("late_cycles", ())]),
         "max_torque_rate_Nm_s": max(rates) if rates else None,
         # Joint-state gaps that ended mid-episode (those open at the end: the double stopped).
         "joint_gaps_mid_episode": sum(g["recovered"] for g in gaps) if gaps else None,

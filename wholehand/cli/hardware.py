@@ -81,7 +81,9 @@ def _cmd_control(args: argparse.Namespace) -> int:
         announce=lambda line: print(line, file=sys.stderr, flush=True),
         observers=_recorders(args, spec, config.distro),
     )
-    _write(result, args.json, {k: v for k, v in result.items() if k != "trace"})
+    shown = {k: v for k, v in result.items() if k not in ("trace", "late_cycles")}
+    shown["late_cycles"] = len(result["late_cycles"])  # each one's parts: the --json file
+    _write(result, args.json, shown)
     return 0
 
 

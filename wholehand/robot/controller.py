@@ -48,6 +48,7 @@ from wholehand.reaching.pipeline import (
 )
 from wholehand.reaching.pregrasp import GraspPlan, usable_on_table
 from wholehand.reaching.stages import PREGRASP, REGULATE, HoldStage, ReachPlanner
+from wholehand.robot.late_cycles import LateCycles
 from wholehand.robot.realtime import check_priority, frozen_heap, realtime_priority
 from wholehand.robot.stopping import signals_set
 from wholehand.ros2.config import HardwareConfig
@@ -285,7 +286,9 @@ def run_controller(
 ) -> dict[str, Any]:
     """Wait for the robot's streams, then run the pipeline (an arm-hand assembly) or force
     regulation (a hand alone) against it; returns a JSON-ready report (``mode``, ``loop`` with
-    the stage transitions, ``backend`` counts, ``cycle_time_ms`` percentiles; with ``trace``,
+    the stage transitions, ``backend`` counts, ``cycle_time_ms`` percentiles, the
+    :class:`~wholehand.robot.late_cycles.LateCycle` records of the cycles past their period in
+    ``late_cycles``; with ``trace``,
     the ``trace`` of published torques and every kept cycle's time in ``cycle_times_s``).
     ``announce`` is called with a line once the streams are up and at each switch between
     stages (``stage <from> -> <to> at <t> s: <reason>``); the run also ends on the first
@@ -309,7 +312,8 @@ def run_controller(
     stopped = threading.Event()
     stopper = _StopWhen(stopped, stop)
     announcer = [] if announce is None else [_AnnounceTransitions(announce)]
-    watchers: list[Observer] = [stopper, *announcer, *observers]
+    late = LateCycles()
+    watchers: list[Observer] = [stopper, late, *announcer, *observers]
     with signals_set(stopped):
         with registry.load(
             "backends", "ros2", hand=hand, obj=obj, config=config, trace=trace
@@ -348,6 +352,7 @@ def run_controller(
         "backend": stats,
         "degenerate_normals": _regulation_of(stages).degenerate_normals,
         "cycle_time_ms": percentiles(np.asarray(stopper.cycle_times) * 1e3),
+        "late_cycles": late.as_list(),
     }
     if trace:
         out["trace"] = traced

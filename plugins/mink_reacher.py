@@ -17,6 +17,13 @@ fingers to the object and then shapes them; a posture task toward the target joi
 The QP's velocity is scaled down as a whole to the speed limits, which keeps every collision
 bound that was not violated already.
 
+A robot's measured state can violate a limit (a finger a little below the table's clearance)
+while another one holds a joint at its range's end, so that no velocity meets them all: then
+the step keeps each violated row's violation from growing instead of undoing it this period
+(:class:`HeldViolations`, counted as ``relaxed`` in :attr:`MinkReacher.faults`), and if that
+has no solution either, the hand stays where it is (``held``). The next step tries the full
+limits again.
+
 The IK runs on its own MuJoCo model (:func:`build_reach_model`), never the simulation's: the
 hand on a free joint (a floating wrist) or the arm fixed at its mount, the object and the table
 on mocap bodies.
@@ -24,6 +31,7 @@ on mocap bodies.
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Any
 
 import mink
@@ -183,6 +191,23 @@ class TableLimit(mink.Limit):
         return mink.limits.Constraint(G=G, h=h)
 
 
+class HeldViolations(mink.Limit):
+    """A limit whose violated rows (``h < 0``: the step must undo a violation) only keep the
+    violation from growing (``h = 0``): with every limit so wrapped, standing still is a
+    solution."""
+
+    def __init__(self, limit: mink.Limit) -> None:
+        self.limit = limit
+
+    def compute_qp_inequalities(
+        self, configuration: mink.Configuration, dt: float
+    ) -> mink.limits.Constraint:
+        G, h = self.limit.compute_qp_inequalities(configuration, dt)
+        if G is None or h is None:
+            return mink.limits.Constraint(G, h)
+        return mink.limits.Constraint(G=G, h=np.maximum(h, 0.0))
+
+
 class MinkReacher(Reacher):
     """Fingertip-plus-palm IK with collision limits (see the module docstring).
 
@@ -239,6 +264,8 @@ class MinkReacher(Reacher):
         if min(max_speed) <= 0.0:
             raise ConfigError(f"MinkReacher: max_speed must be > 0, got {max_speed}")
         self.hand, self.obj, self.table = hand, obj, table
+        self.faults: Counter[str] = Counter()
+        """Steps taken with the limits' violations held (``relaxed``) or not taken (``held``)."""
         self.model, hand_geoms, object_geoms, arm_geoms = build_reach_model(hand, obj, table)
         self.configuration = mink.Configuration(self.model)
         m = self.model
@@ -340,12 +367,35 @@ class MinkReacher(Reacher):
         self.posture.set_target(posture)
         tasks.append(self.posture)
         limits = self.limits + ([self.object_limit] if targets.avoid_object else [])
-        velocity = mink.solve_ik(
-            self.configuration, tasks, dt, self.solver, damping=self.damping, limits=limits
-        )
+        velocity = self._solve(tasks, dt, limits)
         velocity *= self._speed_scale(velocity)
         self.configuration.integrate_inplace(velocity, dt)
         return self.hand_state()
+
+    def fault_counts(self) -> dict[str, int]:
+        return dict(self.faults)
+
+    def _solve(self, tasks: list[Any], dt: float, limits: list[Any]) -> FloatArray:
+        """The IK velocity under ``limits``; where they have no common solution, under the
+        limits with their violations held (module docstring; counted in :attr:`faults`)."""
+        try:
+            return np.asarray(
+                mink.solve_ik(
+                    self.configuration, tasks, dt, self.solver, damping=self.damping, limits=limits
+                )
+            )
+        except mink.NoSolutionFound:
+            pass
+        held = [HeldViolations(limit) for limit in limits]
+        try:
+            velocity = mink.solve_ik(
+                self.configuration, tasks, dt, self.solver, damping=self.damping, limits=held
+            )
+        except mink.NoSolutionFound:
+            self.faults["held"] += 1
+            return np.zeros(self.configuration.model.nv)
+        self.faults["relaxed"] += 1
+        return np.asarray(velocity)
 
     def _speed_scale(self, velocity: FloatArray) -> float:
         """Largest factor <= 1 that keeps the wrist (or arm joint) and finger speeds within

@@ -101,6 +101,58 @@ def test_reacher_keeps_the_hand_above_the_table(allegro, cube) -> None:
     assert 0.004 < lowest < 0.006, lowest  # came down to the clearance, never closer
 
 
+class RowLimit:
+    """One inequality row ``sign * dq[dof] <= h`` of a mink limit."""
+
+    def __init__(self, nv: int, dof: int, sign: float, h: float) -> None:
+        self.G = np.zeros((1, nv))
+        self.G[0, dof] = sign
+        self.h = np.array([h])
+
+    def compute_qp_inequalities(self, configuration, dt):
+        import mink
+
+        return mink.limits.Constraint(G=self.G.copy(), h=self.h.copy())
+
+
+def test_limits_with_no_common_solution_hold_their_violations(allegro, cube, monkeypatch) -> None:
+    """A finger joint that one limit says must turn back (a violation to undo) and another says
+    cannot (at its range's end): the step holds the violation instead (``relaxed``) and the
+    other joints still move; where no step is found at all, the hand stays (``held``)."""
+    import mink
+    from wholehand_plugins.mink_reacher import HeldViolations
+
+    reacher = registry.load("reachers", "mink", hand=allegro, obj=cube, table=None)
+    joint = 3  # a finger joint: q[joint] turns IK dof reacher._dof[joint]
+    nv, dof = reacher.model.nv, int(reacher._dof[joint])
+    undo, blocked = RowLimit(nv, dof, 1.0, -0.5), RowLimit(nv, dof, -1.0, 0.0)
+    held = HeldViolations(undo).compute_qp_inequalities(reacher.configuration, 0.005)
+    np.testing.assert_array_equal(held.G, undo.G)
+    np.testing.assert_array_equal(held.h, [0.0])
+    reacher.limits += [undo, blocked]
+    q0 = allegro.neutral()
+    wMb = np.eye(4)
+    wMb[:3, 3] = [0.0, 0.0, 0.5]
+    goal = ReachTargets(tip_and_palm_poses(allegro, q0 + 0.2, wMb), q0 + 0.2, allegro.palm_link)
+    far_object = np.eye(4)
+    far_object[:3, 3] = [1.0, 1.0, 1.0]
+    with pytest.raises(mink.NoSolutionFound):
+        mink.solve_ik(reacher.configuration, [], 0.005, "daqp", limits=reacher.limits)
+    q, _ = reacher.step(q0, wMb, far_object, goal, 0.005)
+    assert reacher.fault_counts() == {"relaxed": 1}
+    moved = np.abs(q - q0)
+    assert moved[joint] < 1e-9 and moved.max() > 1e-4
+
+    def no_solution(*args, **kwargs):
+        raise mink.NoSolutionFound("daqp")
+
+    monkeypatch.setattr(mink, "solve_ik", no_solution)
+    q_held, wMb_held = reacher.step(q0, wMb, far_object, goal, 0.005)
+    assert reacher.fault_counts() == {"relaxed": 1, "held": 1}
+    np.testing.assert_allclose(q_held, q0, atol=1e-12)
+    np.testing.assert_allclose(wMb_held, wMb, atol=1e-12)
+
+
 def test_tip_weight_rises_from_far_to_near(allegro, cube) -> None:
     reacher = registry.load(
         "reachers", "mink", hand=allegro, obj=cube, near=0.03, far=0.15, tip_weight_far=0.05

@@ -113,6 +113,7 @@ def over_ros(
         "cycle_ms": percentiles(cycle_ms),
         "overruns": loop["overruns"],
         "late_cycles": result["late_cycles"],
+        "reacher_faults": result["reacher_faults"],
         "late_cycles_double": robot["late_cycles"],
         "joint_states_withheld": robot["joint_states_withheld"],
         "max_torque_rate_Nm_s": robot["max_torque_rate_Nm_s"],
@@ -139,6 +140,7 @@ def in_process(hand: str, obj: str, seed: int) -> dict[str, Any]:
         **row,
         "cycle_ms": percentiles([1e-3 * t for t in cycles]),
         "overruns": 0,
+        "reacher_faults": summary["reacher_faults"],
         "events": summary["events"],
     }
 
@@ -199,6 +201,9 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "cycle_ms_p99_max": float(max(cycles_p99)) if cycles_p99 else None,
         "overruns": sum(r["overruns"] for r in rows),
         "late_cycles": _late_summary([c for r in rows for c in r.get("late_cycles", ())]),
+        "reacher_faults": dict(
+            sum((Counter(r.get("reacher_faults", {})) for r in rows), Counter())
+        ),
         "max_torque_rate_Nm_s": max(rates) if rates else None,
         # Joint-state gaps that ended mid-episode (those open at the end: the double stopped).
         "joint_gaps_mid_episode": sum(g["recovered"] for g in gaps) if gaps else None,

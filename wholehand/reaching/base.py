@@ -53,3 +53,8 @@ class Reacher(abc.ABC):
             targets: the targets of this cycle.
             dt: control period [s].
         """
+
+    def fault_counts(self) -> dict[str, int]:
+        """The steps this reacher could not take as asked, by kind (none by default; e.g. the
+        ``mink`` reacher's ``relaxed`` and ``held``)."""
+        return {}

@@ -49,7 +49,13 @@ from wholehand.reaching.episode_spec import EpisodeSpec
 from wholehand.reaching.person import PERTURBATIONS, ContactHolds, Person, loss_cause
 from wholehand.reaching.pipeline import grasp_hand_of, grasp_plans, pipeline_stages
 from wholehand.reaching.pregrasp import GraspPlan, hand_clearance, usable_on_table
-from wholehand.reaching.stages import PREGRASP, REGULATE, ReachPlanner, ReachStage
+from wholehand.reaching.stages import (
+    PREGRASP,
+    REGULATE,
+    ReachPlanner,
+    ReachStage,
+    reacher_faults,
+)
 from wholehand.timing import percentiles
 from wholehand.trials.trial import load_allocator, tracking_filters
 
@@ -273,6 +279,7 @@ def run_episode(
     report = loop.run(spec.duration)
     reacher_us = [1e6 * t for stage in reaching for t in stage.reacher_times]
     summary = _episode_summary(spec, scene, report, person, timer, reacher_us)
+    summary["reacher_faults"] = reacher_faults(reaching)
     if samples:
         summary["cycle_samples_us"] = timer.times
         summary["reacher_samples_us"] = reacher_us

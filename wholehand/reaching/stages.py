@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections import deque
-from collections.abc import Callable
+from collections import Counter, deque
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -406,6 +406,16 @@ class ReachStage(Stage):
             reason = f"no grasp within {self.timeout} s (touching: {sorted(fingers)})"
             return StageOutput(command, "reaching", next=PREGRASP, reason=reason)
         return StageOutput(command, "reaching")
+
+
+def reacher_faults(stages: Iterable[Stage]) -> dict[str, int]:
+    """The reachers' :meth:`~wholehand.reaching.base.Reacher.fault_counts` over ``stages``'
+    reach stages (each reacher once)."""
+    reachers = {id(s.reacher): s.reacher for s in stages if isinstance(s, ReachStage)}
+    total: Counter[str] = Counter()
+    for reacher in reachers.values():
+        total.update(reacher.fault_counts())
+    return dict(total)
 
 
 class HoldStage(Stage):

@@ -47,7 +47,13 @@ from wholehand.reaching.pipeline import (
     pipeline_stages,
 )
 from wholehand.reaching.pregrasp import GraspPlan, usable_on_table
-from wholehand.reaching.stages import PREGRASP, REGULATE, HoldStage, ReachPlanner
+from wholehand.reaching.stages import (
+    PREGRASP,
+    REGULATE,
+    HoldStage,
+    ReachPlanner,
+    reacher_faults,
+)
 from wholehand.robot.late_cycles import LateCycles
 from wholehand.robot.realtime import check_priority, frozen_heap, realtime_priority
 from wholehand.robot.stopping import signals_set
@@ -288,7 +294,7 @@ def run_controller(
     regulation (a hand alone) against it; returns a JSON-ready report (``mode``, ``loop`` with
     the stage transitions, ``backend`` counts, ``cycle_time_ms`` percentiles, the
     :class:`~wholehand.robot.late_cycles.LateCycle` records of the cycles past their period in
-    ``late_cycles``; with ``trace``,
+    ``late_cycles``, the reacher's ``reacher_faults``; with ``trace``,
     the ``trace`` of published torques and every kept cycle's time in ``cycle_times_s``).
     ``announce`` is called with a line once the streams are up and at each switch between
     stages (``stage <from> -> <to> at <t> s: <reason>``); the run also ends on the first
@@ -353,6 +359,7 @@ def run_controller(
         "degenerate_normals": _regulation_of(stages).degenerate_normals,
         "cycle_time_ms": percentiles(np.asarray(stopper.cycle_times) * 1e3),
         "late_cycles": late.as_list(),
+        "reacher_faults": reacher_faults(stages.values()) if isinstance(stages, dict) else {},
     }
     if trace:
         out["trace"] = traced

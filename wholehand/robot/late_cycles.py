@@ -4,9 +4,10 @@ On a wall clock the loop counts an overrun when the wait for a fresh joint state
 and the cycle itself (its reading, the stage, the command, the observers) take more than the
 period (:class:`~wholehand.loop.control_loop.ControlLoop`). :class:`LateCycles` watches the
 loop's count and keeps, for each cycle after which it grew, the parts of that cycle's time: the
-stage and its status, the contact estimation and the allocation's solve within the cycle, the
-joint-state wait before it, the time from its start to the next cycle's start and the garbage
-collections that ran meanwhile. The controller's report carries them as ``late_cycles``.
+stage and its status, the contact estimation and the allocation's solve (with the QP solver's
+part of it) within the cycle, the joint-state wait before it, the time from its start to the
+next cycle's start and the garbage collections that ran meanwhile. The controller's report
+carries them as ``late_cycles``.
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ class LateCycle:
     """Kinematics and contact estimation, part of ``cycle_s``."""
     solve_s: float
     """The allocation's solve (0 without one), part of ``cycle_s``."""
+    solver_s: float
+    """The part of ``solve_s`` inside the QP solver's calls."""
     contacts: int
     """Contacts the stage used."""
     joint_wait_s: float
@@ -97,6 +100,7 @@ class LateCycles(Observer):
             cycle_s=late.cycle_time,
             estimate_s=output.estimate_time,
             solve_s=0.0 if allocation is None else allocation.solve_time,
+            solver_s=0.0 if allocation is None else allocation.solver_time,
             contacts=0 if contacts is None else len(contacts),
             joint_wait_s=self._wait_before_previous,
             to_next_s=next_start - late.t,

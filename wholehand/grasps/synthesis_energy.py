@@ -19,7 +19,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from wholehand.grasps.synthesis_kernel import ENERGY_COLUMNS, HandPoints, Scene, batch_energy
+from wholehand.grasps import synthesis_kernel as kernel
 from wholehand.grasps.synthesis_params import SynthesisParams
 from wholehand.jit import CACHE
 from wholehand.models.batch_kinematics import BatchKinematics, cross
@@ -27,7 +27,6 @@ from wholehand.models.hand import HandModel
 from wholehand.models.objects import ObjectModel
 from wholehand.models.sample_spheres import chunks_along_links, clusters
 from wholehand.models.sdf import SignedDistanceGrid
-from wholehand.models.sdf_lookup import grid_arguments
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -155,7 +154,7 @@ class SynthesisEnergy:
         self.compiled = True
         """Whether :meth:`energies` takes the compiled pass (on an SDF grid; else always the
         numpy form)."""
-        self._kernel_args: tuple[Scene, HandPoints] | None = None
+        self._kernel_args: tuple[kernel.Scene, kernel.HandPoints] | None = None
 
     def _finger_samples(self) -> tuple[IntArray, IntArray]:
         """The samples of the fingers-apart term (every :data:`SELF_STRIDE`-th of each
@@ -222,37 +221,28 @@ class SynthesisEnergy:
         kin.update(self.q_of(a), oMb)
         scene, points = self._kernel_args or self._kernel_inputs()
         base = np.ascontiguousarray(oMb[:, :3, 3])
-        values, force, moment, tau, dc, gc = batch_energy(
+        values, force, moment, tau, dc, gc = kernel.batch_energy(
             scene,
             points,
             (kin.R, kin.t, kin.v, kin.w, base, kin.support),
             np.ascontiguousarray(contacts, dtype=np.intp),
             gradient,
         )
-        energies = Energies(*(values[:, k] for k in range(len(ENERGY_COLUMNS))))
+        energies = Energies(*(values[:, k] for k in range(len(kernel.ENERGY_COLUMNS))))
         if not gradient:
             return energies, {}, dc, gc
         grad_a = tau @ self.hand.coupling if self.hand.coupled else tau[:, self.act]
         return energies, {"t": force, "w": moment, "a": grad_a}, dc, gc
 
-    def _kernel_inputs(self) -> tuple[Scene, HandPoints]:
+    def _kernel_inputs(self) -> tuple[kernel.Scene, kernel.HandPoints]:
         """The compiled pass's fixed inputs, made once."""
-        sdf, p, s = self.sdf, self.params, self.samples
-        assert isinstance(sdf, SignedDistanceGrid)
-        up = self.table_up if self.table_up is not None else np.zeros(3)
-        scene = Scene(
-            *grid_arguments(sdf),
-            0.0 <= sdf.spacing < sdf._boundary_min,
-            self.com,
-            self.radius,
-            self.table_up is not None,
-            np.ascontiguousarray(up, dtype=np.float64),
-            (self.table_height, p.table_margin),
-            np.array([p.w_dis, p.w_fc, p.w_align, p.w_pen, p.w_table, p.w_self]),
-            p.self_gap,
+        s = self.samples
+        assert isinstance(self.sdf, SignedDistanceGrid)
+        scene = kernel.make_scene(
+            self.sdf, (self.com, self.radius), (self.table_up, self.table_height), self.params
         )
         links = self._links
-        points = HandPoints(
+        points = kernel.HandPoints(
             np.ascontiguousarray(s.p_joint, dtype=np.float64),
             np.ascontiguousarray(s.n_joint, dtype=np.float64),
             np.ascontiguousarray(s.joint, dtype=np.intp),

@@ -23,10 +23,13 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from wholehand.grasps.synthesis_params import SynthesisParams
 from wholehand.jit import CACHE
 from wholehand.models.sample_spheres import Spheres
+from wholehand.models.sdf import SignedDistanceGrid
 from wholehand.models.sdf_lookup import (
     ball_may_reach,
+    grid_arguments,
     grid_tuples,
     nearest_node_value,
     sdf_value_and_gradient,
@@ -69,6 +72,29 @@ class Scene(NamedTuple):
     table: tuple[float, float]
     weights: FloatArray
     gap: float
+
+
+def make_scene(
+    sdf: SignedDistanceGrid,
+    shape: tuple[FloatArray, float],
+    table: tuple[FloatArray | None, float],
+    params: SynthesisParams,
+) -> Scene:
+    """The :class:`Scene` of an object's grid, its ``shape`` (centre of mass (3,) [m], radius
+    [m]), a ``table`` (unit up direction (3,) or None, height along it [m]) and the weights."""
+    up, height = table
+    p = params
+    return Scene(
+        *grid_arguments(sdf),
+        sdf.culls_below(sdf.spacing),
+        np.ascontiguousarray(shape[0], dtype=np.float64),
+        float(shape[1]),
+        up is not None,
+        np.ascontiguousarray(np.zeros(3) if up is None else up, dtype=np.float64),
+        (float(height), float(p.table_margin)),
+        np.array([p.w_dis, p.w_fc, p.w_align, p.w_pen, p.w_table, p.w_self]),
+        float(p.self_gap),
+    )
 
 
 class HandPoints(NamedTuple):

@@ -276,12 +276,17 @@ class SignedDistanceGrid:
         (a point outside the box could then be below it), every ball may."""
         c = np.ascontiguousarray(centres, dtype=np.float64).reshape(-1, 3)
         r = np.ascontiguousarray(np.broadcast_to(radius, c.shape[:1]), dtype=np.float64)
-        if not 0.0 <= threshold < self._boundary_min:
+        if not self.culls_below(threshold):
             return np.ones(c.shape[0], dtype=np.bool_)
         return cast(
             npt.NDArray[np.bool_],
             _near_spheres(c, r, self.origin, self.spacing, self.values, float(threshold)),
         )
+
+    def culls_below(self, threshold: float) -> bool:
+        """Whether :meth:`near_spheres` may rule a ball out at ``threshold`` [m]: in [0, the
+        values on the box's faces)."""
+        return 0.0 <= threshold < self._boundary_min
 
     # --- persistence ---------------------------------------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -430,6 +430,9 @@ def test_a_seeded_episode_grasps_loses_and_regrasps() -> None:
     text = format_summary(summary)
     assert "duration [s]  perturbations  grasps  losses  recovered  complete" in text
     assert "person snatches the object" in text and "reach_grasp -> regulate" in text
+    assert summary["reacher_faults"] == {} and "not taken as asked" not in text
+    faulty = format_summary({**summary, "reacher_faults": {"relaxed": 3}})
+    assert "reacher steps not taken as asked: {'relaxed': 3}" in faulty
 
 
 def test_the_paper_balance_drops_the_cube_that_balancing_its_weight_holds() -> None:

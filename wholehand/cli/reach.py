@@ -176,6 +176,8 @@ def format_summary(s: dict[str, Any]) -> str:
     if s["reacher_us"]:
         r = s["reacher_us"]
         lines.append(f"reacher step: p50 {r['p50']:.0f} us, p99 {r['p99']:.0f} us")
+    if s.get("reacher_faults"):
+        lines.append(f"reacher steps not taken as asked: {s['reacher_faults']}")
     warnings = {k: v for k, v in s["mujoco_warnings"].items() if v}
     if warnings:
         lines.append(f"MuJoCo warnings: {warnings}")

@@ -27,6 +27,12 @@ from wholehand.errors import AssetError, ConfigError
 from wholehand.jit import CACHE
 from wholehand.models import cache
 from wholehand.models.sdf_build import DEFAULT_EXACT_BAND, compute_grid_values
+from wholehand.models.sdf_lookup import (
+    ball_may_reach,
+    grid_arguments,
+    grid_tuples,
+    nearest_node_value,
+)
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -76,6 +82,9 @@ class SignedDistanceGrid:
     _strides: FloatArray = field(init=False, repr=False)
     _corner_offsets: IntArray = field(init=False, repr=False)
     _boundary_min: float = field(init=False, repr=False)
+    _lookup: tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], FloatArray] = field(
+        init=False, repr=False
+    )
 
     def __post_init__(self) -> None:
         origin = np.array(self.origin, dtype=np.float64).reshape(-1)
@@ -112,6 +121,7 @@ class SignedDistanceGrid:
         box_faces = (values[0], values[-1], values[:, 0], values[:, -1], values[..., 0])
         lowest = min(float(face.min()) for face in (*box_faces, values[..., -1]))
         set_(self, "_boundary_min", lowest)
+        set_(self, "_lookup", grid_arguments(self))
 
     # --- geometry of the grid ------------------------------------------------------------------
     @property
@@ -256,7 +266,7 @@ class SignedDistanceGrid:
             )
         return cast(
             IntArray,
-            _nearest_below(p, self.origin, self.spacing, self.values, float(threshold)),
+            _nearest_below(p, *self._lookup, float(threshold)),
         )
 
     def near_spheres(
@@ -280,7 +290,7 @@ class SignedDistanceGrid:
             return np.ones(c.shape[0], dtype=np.bool_)
         return cast(
             npt.NDArray[np.bool_],
-            _near_spheres(c, r, self.origin, self.spacing, self.values, float(threshold)),
+            _near_spheres(c, r, *self._lookup, float(threshold)),
         )
 
     def culls_below(self, threshold: float) -> bool:
@@ -416,31 +426,22 @@ def _checked_sizes(spacing: float, padding: float, exact_band: float) -> tuple[f
 @numba.njit(cache=CACHE, nogil=True)
 def _nearest_below(
     points: FloatArray,
-    origin: FloatArray,
-    spacing: float,
     values: npt.NDArray[np.float32],
+    dims: npt.NDArray[np.int64],
+    geom: FloatArray,
     threshold: float,
 ) -> IntArray:  # pragma: no cover - jit
     """Indices of ``points`` (P, 3) whose nearest node's value, plus the distance outside the
-    grid box, is below ``threshold`` (:meth:`SignedDistanceGrid.query_nearest`)."""
+    grid box, is below ``threshold`` (:meth:`SignedDistanceGrid.query_nearest`); the grid as
+    :func:`~wholehand.models.sdf_lookup.grid_arguments` gives it."""
+    shape, g = grid_tuples(dims, geom)
     out = np.empty(points.shape[0], dtype=np.intp)
     found = 0
-    nx, ny, nz = values.shape
-    scale = 1.0 / spacing
     for i in range(points.shape[0]):
-        ux = (points[i, 0] - origin[0]) * scale
-        uy = (points[i, 1] - origin[1]) * scale
-        uz = (points[i, 2] - origin[2]) * scale
-        if not (np.isfinite(ux) and np.isfinite(uy) and np.isfinite(uz)):
-            continue
-        cx = min(max(ux, 0.0), nx - 1.0)
-        cy = min(max(uy, 0.0), ny - 1.0)
-        cz = min(max(uz, 0.0), nz - 1.0)
-        d = values[int(np.rint(cx)), int(np.rint(cy)), int(np.rint(cz))]
-        excess = (ux - cx) ** 2 + (uy - cy) ** 2 + (uz - cz) ** 2
-        if excess > 0.0:
-            d += np.sqrt(excess) * spacing
-        if d < threshold:
+        value, outside = nearest_node_value(
+            values, shape, g, points[i, 0], points[i, 1], points[i, 2]
+        )
+        if value + outside < threshold:  # NaN: never
             out[found] = i
             found += 1
     return out[:found]
@@ -450,27 +451,15 @@ def _nearest_below(
 def _near_spheres(
     centres: FloatArray,
     radius: FloatArray,
-    origin: FloatArray,
-    spacing: float,
     values: npt.NDArray[np.float32],
+    dims: npt.NDArray[np.int64],
+    geom: FloatArray,
     threshold: float,
 ) -> npt.NDArray[np.bool_]:  # pragma: no cover - jit
     """:meth:`SignedDistanceGrid.near_spheres` for a threshold in [0, the box faces' values)."""
-    out = np.ones(centres.shape[0], dtype=np.bool_)
-    nx, ny, nz = values.shape
-    scale = 1.0 / spacing
-    half_diagonal = 0.5 * np.sqrt(3.0) * spacing
+    shape, g = grid_tuples(dims, geom)
+    out = np.empty(centres.shape[0], dtype=np.bool_)
     for i in range(centres.shape[0]):
-        ux = (centres[i, 0] - origin[0]) * scale
-        uy = (centres[i, 1] - origin[1]) * scale
-        uz = (centres[i, 2] - origin[2]) * scale
-        if not (np.isfinite(ux) and np.isfinite(uy) and np.isfinite(uz)):
-            continue  # NaN: say "may", the points' own lookup rejects them
-        cx = min(max(ux, 0.0), nx - 1.0)
-        cy = min(max(uy, 0.0), ny - 1.0)
-        cz = min(max(uz, 0.0), nz - 1.0)
-        v = values[int(np.rint(cx)), int(np.rint(cy)), int(np.rint(cz))]
-        outside = np.sqrt((ux - cx) ** 2 + (uy - cy) ** 2 + (uz - cz) ** 2) * spacing
-        lower = max(v - outside - 2.0 * half_diagonal, outside)  # the true distance is above
-        out[i] = lower - radius[i] - half_diagonal - 1e-6 < threshold
+        centre = (centres[i, 0], centres[i, 1], centres[i, 2])
+        out[i] = ball_may_reach(values, shape, g, centre, radius[i], threshold)
     return out

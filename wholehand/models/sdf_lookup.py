@@ -24,21 +24,36 @@ with unsigned integers, which spares numba's negative-index wraparound on each o
 from __future__ import annotations
 
 import math
+from typing import Protocol
 
 import numba
 import numpy as np
 import numpy.typing as npt
 
 from wholehand.jit import CACHE
-from wholehand.models.sdf import SignedDistanceGrid
 
 FloatArray = npt.NDArray[np.float64]
+
+
+class Grid(Protocol):
+    """What :func:`grid_arguments` reads of a :class:`~wholehand.models.sdf.SignedDistanceGrid`
+    (which uses these lookups itself, so this module does not import it)."""
+
+    @property
+    def values(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def origin(self) -> FloatArray: ...
+    @property
+    def spacing(self) -> float: ...
+    @property
+    def shape(self) -> tuple[int, int, int]: ...
+
 
 _F32_TINY = np.float32(1e-30)  # floor of the gradient norm, as in SignedDistanceGrid
 
 
 def grid_arguments(
-    sdf: SignedDistanceGrid,
+    sdf: Grid,
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], FloatArray]:
     """The kernels' view of an SDF grid: ``(values, dims, geom)`` (module docstring).
 

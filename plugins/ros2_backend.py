@@ -53,6 +53,7 @@ from wholehand.backends.command import Command
 from wholehand.backends.observation import HISTORY_SAMPLES, JointHistory, Observation
 from wholehand.robot.arm_guard import ArmGuard
 from wholehand.robot.guard import TorqueGuard
+from wholehand.robot.realtime import DeliveryPriority, delivery_priority
 from wholehand.ros2.config import HardwareConfig
 from wholehand.ros2.config_file import load_hardware_config
 from wholehand.ros2.inputs import JointSample, JointStateReader, arm_command_dofs, command_dofs
@@ -189,7 +190,9 @@ class Ros2Backend(Backend):
                 else None
             )
             self._status = transport.publisher("status", STRING) if config.topic("status") else None
-            self.streams = RobotStreams(config, self.reader, transport, clock)
+            self.delivery = DeliveryPriority(delivery_priority(config.thread_priority))
+            """Raises the transport's delivering threads (``[rates] thread_priority``)."""
+            self.streams = RobotStreams(config, self.reader, transport, clock, self.delivery)
         except Exception:
             transport.close()
             raise
@@ -432,6 +435,11 @@ class Ros2Backend(Backend):
                 "status_messages": self.status_messages,
                 "sync": dict(self.sync),
                 "sync_wait_s": self.sync_wait,
+                "delivery_threads": {
+                    "priority": self.delivery.priority,
+                    "raised": self.delivery.raised,
+                    "refused": self.delivery.refused,
+                },
             }
 
     def close(self) -> None:

@@ -1062,3 +1062,55 @@ def test_the_wait_for_a_fresh_joint_state_leaves_time_for_the_cycles_computation
     off = JointSync(dataclasses.replace(HardwareConfig(), sync_to_joint_states=False), time.time)
     off.wait(streams)
     assert off.counts == {} and len(streams.asked) == 3
+
+
+def test_delivering_threads_are_raised_once_each_one_below_the_control_thread(monkeypatch):
+    """[rates] thread_priority raises the transport's delivering threads too (each once, on
+    its own first message), one priority below the control thread; a refusal inside a
+    delivery is counted, not raised."""
+    import os
+    import threading
+
+    from wholehand.robot.realtime import DeliveryPriority, delivery_priority
+
+    assert (delivery_priority(0), delivery_priority(1), delivery_priority(50)) == (0, 1, 49)
+    calls: list[tuple[int, int, int]] = []
+
+    def record(pid: int, policy: int, param: os.sched_param) -> None:
+        calls.append((threading.get_ident(), policy, param.sched_priority))
+
+    monkeypatch.setattr(os, "sched_setscheduler", record)
+    raise_thread = DeliveryPriority(49)
+    alive = threading.Barrier(2)  # both threads alive at once: their idents differ
+
+    def deliver_twice(wait: bool = True) -> None:
+        raise_thread()
+        raise_thread()
+        if wait:
+            alive.wait()
+
+    workers = [threading.Thread(target=deliver_twice) for _ in range(2)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    deliver_twice(wait=False)
+    assert len(calls) == 3 and len({c[0] for c in calls}) == 3
+    assert all(c[1:] == (os.SCHED_FIFO, 49) for c in calls)
+    assert (raise_thread.raised, raise_thread.refused) == (3, 0)
+
+    calls.clear()
+    off = DeliveryPriority(0)
+    off()
+    assert calls == [] and off.raised == 0
+
+    def refuse(*_: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    refused = DeliveryPriority(49)
+    for _ in range(3):
+        refused()  # one thread: tried once, never raised out of the delivery
+    assert (refused.raised, refused.refused) == (0, 1)
+    with pytest.raises(ConfigError, match="0-99"):
+        DeliveryPriority(100)

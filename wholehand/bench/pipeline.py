@@ -13,6 +13,7 @@ the standard errors of the rates and of their paired differences.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -33,6 +34,7 @@ from wholehand.models.object_catalogue import load_object
 from wholehand.provenance import provenance
 from wholehand.reaching.stages import HOME, PREGRASP, REGULATE
 from wholehand.robot.controller import ControllerSpec, run_controller
+from wholehand.robot.realtime import check_priority
 from wholehand.ros2.config_file import hand_hardware_config, load_hardware_config
 from wholehand.studies.base import derive_seed
 from wholehand.timing import percentiles
@@ -75,11 +77,15 @@ def over_ros(
     duration: float,
     transport: str = "zenoh",
     joint_gaps: Sequence[tuple[float, float]] = (),
+    thread_priority: int | None = None,
 ) -> dict[str, Any]:
     """One episode through the double (a second process) and the controller (this one), over
     ``transport`` (:func:`~wholehand.bench.loopback.loopback`); the double publishes no joint
-    state during each of ``joint_gaps`` (``(start, duration)`` [s] of the episode)."""
+    state during each of ``joint_gaps`` (``(start, duration)`` [s] of the episode). The
+    controller runs at ``thread_priority`` (None: the config's)."""
     hw_config, link = loopback(load_hardware_config(config), transport)
+    if thread_priority is not None:
+        hw_config = dataclasses.replace(hw_config, thread_priority=thread_priority)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "sim.json"
         argv = [sys.executable, "-m", "wholehand.cli.main", "hw-sim", "--config", str(config),
@@ -121,6 +127,7 @@ def over_ros(
         "rejected": result["backend"]["rejected"],
         "guard": result["backend"]["guard"],
         "joint_gaps": result["backend"]["joint_gaps"],
+        "delivery_threads": result["backend"]["delivery_threads"],
         "arm_guard": result["backend"]["arm_guard"],
         "events": robot["events"],
     }
@@ -185,6 +192,7 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
     cycles_p99 = [r["cycle_ms"]["p99"] for r in rows if r["cycle_ms"]["p99"] is not None]
     rates = [r["max_torque_rate_Nm_s"] for r in rows if "max_torque_rate_Nm_s" in r]
     gaps = [r["joint_gaps"] for r in rows if "joint_gaps" in r]
+    delivery = [r["delivery_threads"] for r in rows if "delivery_threads" in r]
     return {
         "episodes": len(rows),
         "acquired": sum(r["acquired"] for r in rows),
@@ -205,6 +213,7 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
             sum((Counter(r.get("reacher_faults", {})) for r in rows), Counter())
         ),
         "max_torque_rate_Nm_s": max(rates) if rates else None,
+        "delivery_threads_refused": sum(d["refused"] for d in delivery) if delivery else None,
         # Joint-state gaps that ended mid-episode (those open at the end: the double stopped).
         "joint_gaps_mid_episode": sum(g["recovered"] for g in gaps) if gaps else None,
         "joint_gaps_mid_episode_past_hold": (
@@ -227,22 +236,29 @@ def run_pipeline_benchmark(
     progress: Callable[[str], None] | None = None,
     transport: str = "zenoh",
     joint_gaps: Sequence[tuple[float, float]] = (),
+    thread_priority: int | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` seeded episodes per object over ROS (``transport``: zenoh or dds; no
     joint states from the double during ``joint_gaps``, ``(start, duration)`` [s] of each
-    episode) and in process (seeds as ``wholehand study reach`` derives them); JSON-ready rows
-    and totals per mode, with the paired differences of acquisition and completion."""
+    episode; the controller at ``thread_priority``, None: the config's) and in process (seeds
+    as ``wholehand study reach`` derives them); JSON-ready rows and totals per mode, with the
+    paired differences of acquisition and completion."""
     if episodes < 1:
         raise ConfigError(f"bench pipeline: episodes must be >= 1, got {episodes}")
     config_path = hand_hardware_config(hand) if config is None else Path(config)
+    priority = load_hardware_config(config_path).thread_priority
+    if thread_priority is not None:
+        check_priority(thread_priority)  # a refusal is a ConfigError before any episode
+        priority = thread_priority
     made_by = provenance()  # the code the episodes run, not a commit made meanwhile
     ros, local, rows = [], [], []
     for oi, obj in enumerate(objects):
         for episode in range(episodes):
             episode_seed = derive_seed(seed, oi, episode)
             a = over_ros(
-                hand, obj, episode_seed, config_path, latency, duration, transport, joint_gaps
-            )
+                hand, obj, episode_seed, config_path, latency, duration, transport, joint_gaps,
+                priority,
+            )  # fmt: skip
             b = in_process(hand, obj, episode_seed)
             ros.append(a)
             local.append(b)
@@ -261,6 +277,7 @@ def run_pipeline_benchmark(
         "episodes_per_object": episodes,
         "transport": transport,
         "joint_gaps_s": [list(gap) for gap in joint_gaps],
+        "thread_priority": priority,
         "tracker": {
             "rate_hz": load_hardware_config(config_path).object_pose_rate,
             "latency_s": latency,

@@ -189,6 +189,7 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
         progress=lambda line: print(line, file=sys.stderr, flush=True),
         transport=args.transport,
         joint_gaps=joint_gaps(args),
+        thread_priority=args.thread_priority,
     )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -389,5 +390,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="zenoh on a loopback TCP port, or DDS unicast on loopback",
     )
     add_joint_gaps(p, "of each episode")
+    p.add_argument(
+        "--thread-priority",
+        type=int,
+        help="the controller's SCHED_FIFO priority, 1-99, or 0 for none (default: the config's "
+        "[rates] thread_priority; docs/hardware.md)",
+    )
     p.add_argument("--out", help="also write the JSON (with every episode's row) here")
     p.set_defaults(func=_cmd_pipeline)

@@ -53,7 +53,6 @@ from wholehand.backends.command import Command
 from wholehand.backends.observation import HISTORY_SAMPLES, JointHistory, Observation
 from wholehand.robot.arm_guard import ArmGuard
 from wholehand.robot.guard import TorqueGuard
-from wholehand.robot.realtime import DeliveryPriority, delivery_priority
 from wholehand.ros2.config import HardwareConfig
 from wholehand.ros2.config_file import load_hardware_config
 from wholehand.ros2.inputs import JointSample, JointStateReader, arm_command_dofs, command_dofs
@@ -190,9 +189,7 @@ class Ros2Backend(Backend):
                 else None
             )
             self._status = transport.publisher("status", STRING) if config.topic("status") else None
-            self.delivery = DeliveryPriority(delivery_priority(config.thread_priority))
-            """Raises the transport's delivering threads (``[rates] thread_priority``)."""
-            self.streams = RobotStreams(config, self.reader, transport, clock, self.delivery)
+            self.streams = RobotStreams(config, self.reader, transport, clock)
         except Exception:
             transport.close()
             raise
@@ -256,6 +253,7 @@ class Ros2Backend(Backend):
         stop = latest.stop_requested
         with self._lock:
             now, stamp_ns = self._clock(), time.time_ns()
+            stamp = 1e-9 * stamp_ns  # the guard limits the rate between stamps too
             joint, joint_age = latest.joint, now - latest.joint_received
             pose_age = self._pose_age(now, latest)
             self._last_apply = now
@@ -265,7 +263,7 @@ class Ros2Backend(Backend):
             positions, position_pub = None, self._hand_position
             self._hand_in_position = False
             if stop:
-                tau = self.guard.ramp_down(now, self.config.safety.pose_ramp, "stop")
+                tau = self.guard.ramp_down(now, self.config.safety.pose_ramp, "stop", stamp)
             elif position_pub is not None and joint_age <= self.config.safety.joint_timeout:
                 positions = self._hand_targets(command)
             if positions is not None and position_pub is not None:
@@ -278,7 +276,7 @@ class Ros2Backend(Backend):
             else:
                 if not stop:
                     wanted = self._hand_torques(command, joint, latest.previous)
-                    tau, _ = self.guard.filter(wanted, now, joint_age, pose_age)
+                    tau, _ = self.guard.filter(wanted, now, joint_age, pose_age, stamp)
                 self._publish(tau, stamp_ns)
             arm = self._arm_target(command, joint, joint_age, now, stop)
         if arm is not None:
@@ -410,7 +408,7 @@ class Ros2Backend(Backend):
             with self._lock:
                 now, stamp_ns = self._clock(), time.time_ns()
                 if np.isfinite(self._last_apply) and now - self._last_apply > limit:
-                    self._publish(self.guard.watchdog(now), stamp_ns)
+                    self._publish(self.guard.watchdog(now, 1e-9 * stamp_ns), stamp_ns)
 
     # --- extras ---------------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:
@@ -435,11 +433,6 @@ class Ros2Backend(Backend):
                 "status_messages": self.status_messages,
                 "sync": dict(self.sync),
                 "sync_wait_s": self.sync_wait,
-                "delivery_threads": {
-                    "priority": self.delivery.priority,
-                    "raised": self.delivery.raised,
-                    "refused": self.delivery.refused,
-                },
             }
 
     def close(self) -> None:
@@ -482,10 +475,10 @@ class Ros2Backend(Backend):
             return
         start = self._clock()
         while True:
-            now = self._clock()
+            now, stamp_ns = self._clock(), time.time_ns()
             with self._lock:
-                tau = self.guard.ramp_down(now, duration, "exit")
-                self._publish(tau, time.time_ns())
+                tau = self.guard.ramp_down(now, duration, "exit", 1e-9 * stamp_ns)
+                self._publish(tau, stamp_ns)
             if not tau.any():
                 break
             time.sleep(max(0.0, min(period, start + duration - now)))

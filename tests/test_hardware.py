@@ -468,6 +468,31 @@ def test_a_late_command_steps_no_more_than_one_period_allows():
         TorqueGuard([0.5], LIMITS, period=0.0)
 
 
+def test_the_rate_holds_between_the_stamps_when_they_advance_less_than_the_loops_clock():
+    """Commands at 100 Hz on the loop's clock whose stamps (the clock a receiver measures the
+    rate by) came 10, 7 and 13 ms apart: the thread was held between reading the two clocks.
+    Each step is sized by the shorter of the two intervals, so by the stamps no pair changes
+    faster than the limit; unstamped commands keep the loop clock's steps."""
+    times = [0.0, 0.01, 0.02, 0.03]
+    stamps = [100.0, 100.01, 100.017, 100.03]
+    guard = TorqueGuard([0.5], LIMITS, period=0.01)
+    guard.start_from(np.zeros(1), 0.0)
+    sent = [
+        guard.filter(np.array([0.5]), t, 0.0, 0.0, stamp)[0][0]
+        for t, stamp in zip(times, stamps, strict=True)
+    ]
+    np.testing.assert_allclose(sent, [0.0, 0.02, 0.034, 0.054])  # 7 ms of 2 N*m/s: 0.014
+    assert (np.diff(sent) / np.diff(stamps)).max() <= LIMITS.torque_rate * (1 + 1e-9)
+    assert guard.stamp_last == stamps[-1]
+    unstamped = TorqueGuard([0.5], LIMITS, period=0.01)
+    unstamped.start_from(np.zeros(1), 0.0)
+    loop_only = [unstamped.filter(np.array([0.5]), t, 0.0, 0.0)[0][0] for t in times]
+    np.testing.assert_allclose(loop_only, [0.0, 0.02, 0.04, 0.06])  # 0.02 in 7 ms by the stamps
+    # A send without a stamp (or a ramp) leaves none to compare with: the loop's clock decides.
+    guard.watchdog(0.04)
+    assert guard.stamp_last is None
+
+
 def test_watchdog_ramps_the_last_torque_to_zero():
     guard = TorqueGuard([0.2], LIMITS)
     guard.start_from(np.array([0.2]), 0.0)
@@ -1062,55 +1087,3 @@ def test_the_wait_for_a_fresh_joint_state_leaves_time_for_the_cycles_computation
     off = JointSync(dataclasses.replace(HardwareConfig(), sync_to_joint_states=False), time.time)
     off.wait(streams)
     assert off.counts == {} and len(streams.asked) == 3
-
-
-def test_delivering_threads_are_raised_once_each_one_below_the_control_thread(monkeypatch):
-    """[rates] thread_priority raises the transport's delivering threads too (each once, on
-    its own first message), one priority below the control thread; a refusal inside a
-    delivery is counted, not raised."""
-    import os
-    import threading
-
-    from wholehand.robot.realtime import DeliveryPriority, delivery_priority
-
-    assert (delivery_priority(0), delivery_priority(1), delivery_priority(50)) == (0, 1, 49)
-    calls: list[tuple[int, int, int]] = []
-
-    def record(pid: int, policy: int, param: os.sched_param) -> None:
-        calls.append((threading.get_ident(), policy, param.sched_priority))
-
-    monkeypatch.setattr(os, "sched_setscheduler", record)
-    raise_thread = DeliveryPriority(49)
-    alive = threading.Barrier(2)  # both threads alive at once: their idents differ
-
-    def deliver_twice(wait: bool = True) -> None:
-        raise_thread()
-        raise_thread()
-        if wait:
-            alive.wait()
-
-    workers = [threading.Thread(target=deliver_twice) for _ in range(2)]
-    for w in workers:
-        w.start()
-    for w in workers:
-        w.join()
-    deliver_twice(wait=False)
-    assert len(calls) == 3 and len({c[0] for c in calls}) == 3
-    assert all(c[1:] == (os.SCHED_FIFO, 49) for c in calls)
-    assert (raise_thread.raised, raise_thread.refused) == (3, 0)
-
-    calls.clear()
-    off = DeliveryPriority(0)
-    off()
-    assert calls == [] and off.raised == 0
-
-    def refuse(*_: object) -> None:
-        raise PermissionError(1, "Operation not permitted")
-
-    monkeypatch.setattr(os, "sched_setscheduler", refuse)
-    refused = DeliveryPriority(49)
-    for _ in range(3):
-        refused()  # one thread: tried once, never raised out of the delivery
-    assert (refused.raised, refused.refused) == (0, 1)
-    with pytest.raises(ConfigError, match="0-99"):
-        DeliveryPriority(100)

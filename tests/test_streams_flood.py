@@ -136,32 +136,3 @@ def test_the_wait_for_a_fresh_joint_state_decodes_the_one_kept_first(allegro, st
     assert s.received["joint_states"] == DECODE_BURST
     assert s.wait_for_fresh_joint(fresh_age=1.0, max_wait=0.0)[0] == "fresh"
     assert s.received["joint_states"] == DECODE_BURST + 1  # decoded before the check
-
-
-def test_every_delivered_message_first_calls_the_delivery_hook_on_its_thread(allegro):
-    """The backend raises the delivering threads' priority through this hook: it must run for
-    each message of each stream, on the thread that delivers it, before the message is read
-    (a flood's kept message is decoded later on the controller's thread, without it)."""
-    import threading
-
-    calls: list[int] = []
-    wires = Wires()
-    config = HardwareConfig(topics={**HardwareConfig().topics, "stop": "/wholehand/stop"})
-    s = RobotStreams(
-        config,
-        JointStateReader(allegro, config),
-        wires,
-        StoppedClock(),
-        lambda: calls.append(threading.get_ident()),
-    )
-    t0 = time.time() - 1.0
-    joints, pose, stop = (wires.callbacks[k] for k in ("joint_states", "object_pose", "stop"))
-    joints(_state(allegro, t0), META, 0.0)
-    pose(msgs.encode_pose(t0, "world", np.eye(4)), META, 0.0)
-    worker = threading.Thread(target=stop, args=(msgs.encode_bool(True), META, 0.0))
-    worker.start()
-    worker.join()
-    joints(b"\x00garbage", META, 0.0)  # rejected messages are delivered too
-    assert len(calls) == 4
-    assert calls.count(threading.get_ident()) == 3 and calls[2] != threading.get_ident()
-    assert s.received["joint_states"] == 1 and s.received["object_pose"] == 1 and s.stops == 1

@@ -127,7 +127,6 @@ def over_ros(
         "rejected": result["backend"]["rejected"],
         "guard": result["backend"]["guard"],
         "joint_gaps": result["backend"]["joint_gaps"],
-        "delivery_threads": result["backend"]["delivery_threads"],
         "arm_guard": result["backend"]["arm_guard"],
         "events": robot["events"],
     }
@@ -192,7 +191,6 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
     cycles_p99 = [r["cycle_ms"]["p99"] for r in rows if r["cycle_ms"]["p99"] is not None]
     rates = [r["max_torque_rate_Nm_s"] for r in rows if "max_torque_rate_Nm_s" in r]
     gaps = [r["joint_gaps"] for r in rows if "joint_gaps" in r]
-    delivery = [r["delivery_threads"] for r in rows if "delivery_threads" in r]
     return {
         "episodes": len(rows),
         "acquired": sum(r["acquired"] for r in rows),
@@ -213,7 +211,6 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
             sum((Counter(r.get("reacher_faults", {})) for r in rows), Counter())
         ),
         "max_torque_rate_Nm_s": max(rates) if rates else None,
-        "delivery_threads_refused": sum(d["refused"] for d in delivery) if delivery else None,
         # Joint-state gaps that ended mid-episode (those open at the end: the double stopped).
         "joint_gaps_mid_episode": sum(g["recovered"] for g in gaps) if gaps else None,
         "joint_gaps_mid_episode_past_hold": (

@@ -19,9 +19,12 @@ in this order (the names are the statuses it counts):
    torque sent last, and no command changes it by more than one control period's worth
    (``torque_rate / control_rate``): a cycle that comes late does not send a larger step, so
    a robot that receives two commands close together (a late one, then one on time) never
-   sees the torque change faster than the limit. The first command starts from the measured
-   effort (the torque the drives apply now), so a controller restarted mid-grasp resumes
-   without a jump.
+   sees the torque change faster than the limit. Given the stamp each command goes out with,
+   the step is also no larger than the limit times the time since the last command's stamp:
+   the rate a receiver measures between stamps then holds the limit even when the loop's
+   clock and the stamps' clock advanced differently between two commands (a thread preempted
+   between the two readings). The first command starts from the measured effort (the torque
+   the drives apply now), so a controller restarted mid-grasp resumes without a jump.
 
 ``watchdog``: when the loop sends nothing for ``watchdog`` seconds (a cycle stuck past its
 deadline), :meth:`TorqueGuard.watchdog` gives the ramp from the last torque to zero, which the
@@ -36,7 +39,8 @@ publishing first). A verdict on stale joint states counts the first kind.
 ``stop`` and ``exit``: :meth:`TorqueGuard.ramp_down` gives the same ramp over a given time, for a
 stop request (``pose_ramp``) and for the last commands of every exit (``exit_ramp``).
 
-Times are on one monotonic clock [s]; torques are (n_v,) in the hand's joint order [N*m].
+Times are on one monotonic clock [s], stamps on the messages' clock (the system clock) [s];
+torques are (n_v,) in the hand's joint order [N*m].
 """
 
 from __future__ import annotations
@@ -129,6 +133,8 @@ class TorqueGuard:
         self.last: FloatArray | None = None
         """(n_v,) the torque sent last [N*m]; None before the first."""
         self.t_last = 0.0
+        self.stamp_last: float | None = None
+        """The stamp the torque sent last went out with [s]; None: not given."""
         self._ramp_from: FloatArray | None = None
         self._ramp_start = 0.0
         self._held: FloatArray | None = None  # the torque held since the joint states stopped
@@ -144,22 +150,28 @@ class TorqueGuard:
             self.t_last = now
 
     def filter(
-        self, tau: FloatArray, now: float, joint_age: float, pose_age: float
+        self,
+        tau: FloatArray,
+        now: float,
+        joint_age: float,
+        pose_age: float,
+        stamp: float | None = None,
     ) -> tuple[FloatArray, str]:
         """The torque to send for the loop's ``tau`` (n_v,) at time ``now`` [s], given the ages of
-        the newest joint state and object pose [s] (inf: none yet); and the rule that decided
-        (``ok`` when none changed it)."""
+        the newest joint state and object pose [s] (inf: none yet) and the stamp the torque will
+        go out with [s] (None: not stamped); and the rule that decided (``ok`` when none changed
+        it)."""
         limits = self.limits
         if not joint_age <= limits.joint_timeout:
             self._ramp_from = None
             held, status = self._without_joints(joint_age)
             self.gaps.late(joint_age, status)
-            return self._sent(held, now, status)
+            return self._sent(held, now, status, stamp)
         self._held = None
         self.gaps.fresh()
         self.start_from(None, now)
         if not pose_age <= limits.pose_timeout:
-            return self._sent(self._ramp(now), now, "pose_stale")
+            return self._sent(self._ramp(now), now, "pose_stale", stamp)
         self._ramp_from = None
         status = "ok"
         # np.clip's results; its wrapper and np.array_equal's cost more than the arithmetic.
@@ -167,11 +179,14 @@ class TorqueGuard:
         if not (out == tau).all():
             status = "clamped"
         assert self.last is not None
-        step = limits.torque_rate * min(max(now - self.t_last, 0.0), self.max_step_time)
+        elapsed = min(now - self.t_last, self.max_step_time)
+        if stamp is not None and self.stamp_last is not None:
+            elapsed = min(elapsed, stamp - self.stamp_last)
+        step = limits.torque_rate * max(elapsed, 0.0)
         limited = np.minimum(np.maximum(out, self.last - step), self.last + step)
         if not (limited == out).all():
             status = "rate_limited"
-        return self._sent(limited, now, status)
+        return self._sent(limited, now, status, stamp)
 
     def _without_joints(self, joint_age: float) -> tuple[FloatArray, str]:
         """The torque and status while the joint states are ``joint_age`` [s] old (past
@@ -186,15 +201,18 @@ class TorqueGuard:
             return self._held, "joints_late"
         return self._held * (1.0 - past_hold / limits.joint_ramp), "joints_stale"
 
-    def watchdog(self, now: float) -> FloatArray:
+    def watchdog(self, now: float, stamp: float | None = None) -> FloatArray:
         """The torque the watchdog sends when the loop is late: the last torque ramped to zero
-        over ``pose_ramp`` from the first late call on."""
-        return self._sent(self._ramp(now), now, "watchdog")[0]
+        over ``pose_ramp`` from the first late call on (``stamp``: as :meth:`filter`'s)."""
+        return self._sent(self._ramp(now), now, "watchdog", stamp)[0]
 
-    def ramp_down(self, now: float, duration: float, status: str) -> FloatArray:
+    def ramp_down(
+        self, now: float, duration: float, status: str, stamp: float | None = None
+    ) -> FloatArray:
         """The last torque ramped linearly to zero over ``duration`` [s] from the first call of
-        a ramp on (counted as ``status``); a command through :meth:`filter` ends the ramp."""
-        return self._sent(self._ramp(now, duration), now, status)[0]
+        a ramp on (counted as ``status``; ``stamp``: as :meth:`filter`'s); a command through
+        :meth:`filter` ends the ramp."""
+        return self._sent(self._ramp(now, duration), now, status, stamp)[0]
 
     def _ramp(self, now: float, duration: float | None = None) -> FloatArray:
         if self._ramp_from is None:
@@ -204,8 +222,11 @@ class TorqueGuard:
         left = max(0.0, 1.0 - (now - self._ramp_start) / duration) if duration > 0.0 else 0.0
         return self._ramp_from * left
 
-    def _sent(self, tau: FloatArray, now: float, status: str) -> tuple[FloatArray, str]:
+    def _sent(
+        self, tau: FloatArray, now: float, status: str, stamp: float | None
+    ) -> tuple[FloatArray, str]:
         self.counts[status] += 1
         self.last = tau
         self.t_last = now
+        self.stamp_last = stamp
         return tau, status

@@ -5,16 +5,9 @@ On a computer that runs other programs beside the controller (the robot's driver
 recorder), the operating system may preempt the control thread for a few milliseconds and a
 cycle comes past its period. Linux's ``SCHED_FIFO`` policy runs a ready thread of a higher
 priority before every normal one, as ros2_control's controller manager runs its update thread
-(its ``thread_priority``, 50 by default on a real-time kernel). The loop sleeps between cycles,
-so the other programs keep the rest of the time.
-
-The transport's threads that deliver the robot's messages run Python (the decoding and checks
-of :mod:`wholehand.ros2.streams`), so they hold the interpreter's lock while they do. Preempted
-by another program in the middle of a message, such a thread keeps the lock, and the control
-thread, however high its priority, waits for it: a priority inversion, a control cycle late by
-the scheduler's time slice (4-14 ms seen on 2 cores shared with the robot double). Each of
-those threads is raised to one priority below the control thread's when it first delivers a
-message (:class:`DeliveryPriority`); the watchdog keeps the normal policy.
+(its ``thread_priority``, 50 by default on a real-time kernel). Only the control thread gets it:
+the transport's threads that deliver the robot's messages, and the watchdog, keep the normal
+policy. The loop sleeps between cycles, so the other programs keep the rest of the time.
 
 Python's cyclic garbage collector, when it collects its oldest generation, walks every
 container object the process holds: 30-50 ms with the models, plans and caches of an arm-hand
@@ -30,15 +23,11 @@ refuses is a :class:`~wholehand.errors.ConfigError` before the robot is commande
 from __future__ import annotations
 
 import gc
-import logging
 import os
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 from wholehand.errors import ConfigError
-
-log = logging.getLogger(__name__)
 
 MAX_PRIORITY = 99
 """The highest ``SCHED_FIFO`` priority Linux accepts."""
@@ -85,56 +74,6 @@ def check_priority(priority: int) -> None:
     control thread held it then)."""
     with realtime_priority(priority):
         pass
-
-
-def delivery_priority(priority: int) -> int:
-    """The ``SCHED_FIFO`` priority of the threads that deliver messages when the control thread
-    runs at ``priority``: one below it (at least 1), 0 (normal scheduling) when it is 0."""
-    return 0 if priority == 0 else max(1, priority - 1)
-
-
-class DeliveryPriority:
-    """Raises each thread that calls it to ``SCHED_FIFO`` at ``priority`` the first time it
-    calls (module docstring); ``priority`` 0 does nothing. Called from the transport's threads,
-    so it never raises: a refusal (checked beforehand by :func:`check_priority`, so only if the
-    limits changed since) is logged once and counted.
-
-    Attributes:
-        raised: threads raised so far.
-        refused: threads whose raise the operating system refused.
-    """
-
-    def __init__(self, priority: int) -> None:
-        if not 0 <= priority <= MAX_PRIORITY:
-            raise ConfigError(
-                f"DeliveryPriority: priority must be 0-{MAX_PRIORITY}, got {priority}"
-            )
-        self.priority = priority
-        self.raised = 0
-        self.refused = 0
-        self._seen = threading.local()
-        self._count = threading.Lock()
-
-    def __call__(self) -> None:
-        if self.priority == 0 or getattr(self._seen, "done", False):
-            return
-        self._seen.done = True
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
-        except (OSError, AttributeError) as err:  # AttributeError: no SCHED_FIFO here
-            with self._count:
-                self.refused += 1
-                first = self.refused == 1
-            if first:
-                log.warning(
-                    "could not raise a message-delivery thread to SCHED_FIFO %d (%s); it keeps "
-                    "the normal scheduling",
-                    self.priority,
-                    err,
-                )
-            return
-        with self._count:
-            self.raised += 1
 
 
 @contextmanager

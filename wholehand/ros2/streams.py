@@ -60,10 +60,6 @@ PENDING_MAX = 1024
 FloatArray = npt.NDArray[np.float64]
 
 
-def _nothing() -> None:
-    pass
-
-
 @dataclass(frozen=True)
 class Latest:
     """The newest good samples and when they arrived."""
@@ -98,12 +94,8 @@ class RobotStreams:
         reader: JointStateReader,
         transport: Transport,
         clock: Callable[[], float] = time.monotonic,
-        on_delivery: Callable[[], None] | None = None,
     ):
         self.config, self.reader, self.clock = config, reader, clock
-        self.on_delivery = on_delivery or _nothing
-        """Called first on the transport's thread for every message (the backend raises the
-        thread's priority with it: :class:`~wholehand.robot.realtime.DeliveryPriority`)."""
         self.received: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
         self.last_rejection = ""
@@ -145,7 +137,6 @@ class RobotStreams:
             log.warning("rejected a message (%s): %s", reason, detail)
 
     def _on_joints(self, payload: bytes, meta: SampleMeta, _: float) -> None:
-        self.on_delivery()
         received = self.clock()
         with self._lock:
             self.arrived["joint_states"] += 1
@@ -190,7 +181,6 @@ class RobotStreams:
             self.received["joint_states"] += 1
 
     def _on_pose(self, payload: bytes, meta: SampleMeta, _: float) -> None:
-        self.on_delivery()
         received = self.clock()
         self.arrived["object_pose"] += 1
         config = self.config
@@ -214,7 +204,6 @@ class RobotStreams:
             self.received["object_pose"] += 1
 
     def _on_stop(self, payload: bytes, meta: SampleMeta, received: float) -> None:
-        self.on_delivery()
         try:
             stop = decode_bool(payload)
         except MessageError as err:

@@ -178,6 +178,7 @@ class Ros2Backend(Backend):
         self._stamp_q_seen = np.nan
         self._last_apply = -np.inf
         self._closed = threading.Event()
+        self._stamp0 = time.time_ns()
         self.transport = transport = open_transport(config, NODE_NAME)
         try:
             self._torque = transport.publisher("torque_command", FLOAT64_ARRAY)
@@ -253,7 +254,7 @@ class Ros2Backend(Backend):
         stop = latest.stop_requested
         with self._lock:
             now, stamp_ns = self._clock(), time.time_ns()
-            stamp = 1e-9 * stamp_ns  # the guard limits the rate between stamps too
+            stamp = self._guard_stamp(stamp_ns)  # the guard limits the rate between stamps too
             joint, joint_age = latest.joint, now - latest.joint_received
             pose_age = self._pose_age(now, latest)
             self._last_apply = now
@@ -281,6 +282,11 @@ class Ros2Backend(Backend):
             arm = self._arm_target(command, joint, joint_age, now, stop)
         if arm is not None:
             self._publish_arm(arm)
+
+    def _guard_stamp(self, stamp_ns: int) -> float:
+        """A message stamp [ns] as the guard takes it: [s] since this backend started (exact to
+        the nanosecond, where seconds since 1970 in a float are not)."""
+        return 1e-9 * (stamp_ns - self._stamp0)
 
     def _pose_age(self, now: float, latest: Latest) -> float:
         """Age of the newest pose [s]: since it arrived, or, with header stamps, how much older
@@ -408,7 +414,7 @@ class Ros2Backend(Backend):
             with self._lock:
                 now, stamp_ns = self._clock(), time.time_ns()
                 if np.isfinite(self._last_apply) and now - self._last_apply > limit:
-                    self._publish(self.guard.watchdog(now, 1e-9 * stamp_ns), stamp_ns)
+                    self._publish(self.guard.watchdog(now, self._guard_stamp(stamp_ns)), stamp_ns)
 
     # --- extras ---------------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:
@@ -477,7 +483,7 @@ class Ros2Backend(Backend):
         while True:
             now, stamp_ns = self._clock(), time.time_ns()
             with self._lock:
-                tau = self.guard.ramp_down(now, duration, "exit", 1e-9 * stamp_ns)
+                tau = self.guard.ramp_down(now, duration, "exit", self._guard_stamp(stamp_ns))
                 self._publish(tau, stamp_ns)
             if not tau.any():
                 break

@@ -243,7 +243,8 @@ def run_pipeline_benchmark(
     if episodes < 1:
         raise ConfigError(f"bench pipeline: episodes must be >= 1, got {episodes}")
     config_path = hand_hardware_config(hand) if config is None else Path(config)
-    priority = load_hardware_config(config_path).thread_priority
+    hw_config = load_hardware_config(config_path)
+    priority = hw_config.thread_priority
     if thread_priority is not None:
         check_priority(thread_priority)  # a refusal is a ConfigError before any episode
         priority = thread_priority
@@ -276,7 +277,7 @@ def run_pipeline_benchmark(
         "joint_gaps_s": [list(gap) for gap in joint_gaps],
         "thread_priority": priority,
         "tracker": {
-            "rate_hz": load_hardware_config(config_path).object_pose_rate,
+            "rate_hz": hw_config.object_pose_rate,
             "latency_s": latency,
         },  # fmt: skip
         "ros2": _totals(ros),

@@ -8,10 +8,12 @@ fingers to the object and then shapes them; a posture task toward the target joi
 
 - joint positions (mink's ``ConfigurationLimit``);
 - hand-table clearance for every hand surface sample near the table (:class:`TableLimit`);
-- hand-object clearance from MuJoCo geom distances (mink's ``CollisionAvoidanceLimit``) to the
-  convex parts of the object's decomposition (a mesh geom's distance is to its convex hull,
-  which would fill cavities), dropped when ``targets.avoid_object`` is False (the grasp stage);
-- an arm's links: clearance from the table and the object, always;
+- hand-object clearance for the hand surface samples nearest the object, from its SDF
+  (:class:`ObjectClearanceLimit`), dropped when ``targets.avoid_object`` is False (the grasp
+  stage);
+- an arm's links: clearance from the table and the object, always, from MuJoCo geom distances
+  (mink's ``CollisionAvoidanceLimit``) to the convex parts of the object's decomposition (a mesh
+  geom's distance is to its convex hull, which would fill cavities);
 - on request, finger-finger clearance (``self_collision``).
 
 The QP's velocity is scaled down as a whole to the speed limits, which keeps every collision
@@ -51,6 +53,7 @@ from .mujoco.object_spec import add_object_geoms
 from .mujoco.poses import mujoco_quat, pose_from_mujoco
 from .mujoco.scene import add_table
 from .mujoco.scene_options import SceneOptions
+from .reach_limits import HeldViolations, ObjectClearanceLimit, TableLimit
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -118,96 +121,6 @@ def finger_pairs(hand: HandModel, model: mujoco.MjModel) -> list[tuple[list[str]
     return [(geoms[a], geoms[b]) for i, a in enumerate(fingers) for b in fingers[i + 1 :]]
 
 
-class TableLimit(mink.Limit):
-    """Keeps the hand's surface samples above the table top (a half-space), point by point.
-
-    mink's ``CollisionAvoidanceLimit`` constrains one witness point per geom pair; when a box
-    face comes down parallel to the table that point is arbitrary on the face, and a small
-    rotation about it lowers another corner unconstrained (measured: a palm box 7.5 mm into the
-    table). Here every sample within ``detection`` of the plane gets its own row,
-    ``-dz/dq v <= gain (z - top - clearance) / dt``, the lowest ``per_link`` of each link.
-    Only the links whose bounding sphere (about their joint's origin) comes that near the
-    plane have their samples transformed: away from the table the limit costs one pass of
-    forward kinematics.
-    """
-
-    def __init__(
-        self,
-        reacher: MinkReacher,
-        table: Table,
-        gain: float,
-        clearance: float,
-        detection: float,
-        per_link: int = 8,
-    ) -> None:
-        hand, m = reacher.hand, reacher.model
-        self.reacher, self.table = reacher, table
-        self.gain, self.clearance, self.detection = gain, clearance, detection
-        self.per_link = per_link
-        self._body = np.array([m.body(name).id for name in hand.link_names], dtype=np.intp)
-        self._kin = HandKinematics(hand)
-        self._jac = np.zeros((3, m.nv))
-        samples = hand.samples
-        self._rows = [np.flatnonzero(samples.link == i) for i in range(len(hand.link_names))]
-        self._joint = np.asarray(hand.link_joint, dtype=np.intp)
-        self._radius = np.array(
-            [
-                np.linalg.norm(samples.p_joint[r], axis=1).max() if r.size else 0.0
-                for r in self._rows
-            ]
-        )
-
-    def compute_qp_inequalities(
-        self, configuration: mink.Configuration, dt: float
-    ) -> mink.limits.Constraint:
-        hand, top = self.reacher.hand, self.table.top
-        q, wMb = self.reacher.hand_state()
-        self._kin.update(q, wMb)
-        samples = hand.samples
-        reach = top + self.clearance + self.detection
-        origins = self._kin.transform_points(np.zeros((len(self._joint), 3)), self._joint)
-        links = np.flatnonzero(origins[:, 2] - self._radius < reach)
-        if links.size == 0:
-            return mink.limits.Constraint()
-        candidates = np.concatenate([self._rows[i] for i in links])
-        points = np.zeros((len(samples.link), 3))
-        points[candidates] = self._kin.transform_points(
-            samples.p_joint[candidates], samples.joint[candidates]
-        )
-        near = candidates[points[candidates, 2] < reach]
-        if near.size == 0:
-            return mink.limits.Constraint()
-        rows = []
-        for link in np.unique(samples.link[near]):
-            mine = near[samples.link[near] == link]
-            rows.extend(mine[np.argsort(points[mine, 2])[: self.per_link]].tolist())
-        G = np.empty((len(rows), configuration.model.nv))
-        h = np.empty(len(rows))
-        for k, i in enumerate(rows):
-            body = int(self._body[samples.link[i]])
-            mujoco.mj_jac(configuration.model, configuration.data, self._jac, None, points[i], body)
-            G[k] = -self._jac[2]
-            h[k] = self.gain * (points[i, 2] - top - self.clearance) / dt
-        return mink.limits.Constraint(G=G, h=h)
-
-
-class HeldViolations(mink.Limit):
-    """A limit whose violated rows (``h < 0``: the step must undo a violation) only keep the
-    violation from growing (``h = 0``): with every limit so wrapped, standing still is a
-    solution."""
-
-    def __init__(self, limit: mink.Limit) -> None:
-        self.limit = limit
-
-    def compute_qp_inequalities(
-        self, configuration: mink.Configuration, dt: float
-    ) -> mink.limits.Constraint:
-        G, h = self.limit.compute_qp_inequalities(configuration, dt)
-        if G is None or h is None:
-            return mink.limits.Constraint(G, h)
-        return mink.limits.Constraint(G=G, h=np.maximum(h, 0.0))
-
-
 class MinkReacher(Reacher):
     """Fingertip-plus-palm IK with collision limits (see the module docstring).
 
@@ -225,7 +138,7 @@ class MinkReacher(Reacher):
             joint [rad/s]), finger joints [rad/s].
         clearance: least hand-table and hand-object distance [m] (mink's
             ``minimum_distance_from_collisions``).
-        detection: distance below which a pair (and a hand sample over the table) is
+        detection: distance below which a hand sample (and an arm link's geom pair) is
             constrained [m]. Within one 5 ms cycle the speed limits move a point a few mm at most
             (about 6 mm for a hand at the end of a 0.8 m arm turning at 1.5 rad/s), so 2 cm
             leaves a margin; 4 cm constrained more pairs and made the reacher's tail longer.
@@ -266,8 +179,11 @@ class MinkReacher(Reacher):
         self.hand, self.obj, self.table = hand, obj, table
         self.faults: Counter[str] = Counter()
         """Steps taken with the limits' violations held (``relaxed``) or not taken (``held``)."""
-        self.model, hand_geoms, object_geoms, arm_geoms = build_reach_model(hand, obj, table)
+        self.model, _, object_geoms, arm_geoms = build_reach_model(hand, obj, table)
         self.configuration = mink.Configuration(self.model)
+        self._kin = HandKinematics(hand)
+        self._kin_fresh = False
+        self._wMo = np.eye(4)
         m = self.model
         self.floating = not hand.arm_dofs.any()
         self._wrist_q = self._wrist_v = -1
@@ -308,9 +224,8 @@ class MinkReacher(Reacher):
                     collision_detection_distance=detection,
                 )
             )
+        self.object_limit = ObjectClearanceLimit(self, obj, 0.85, clearance, detection)
         # The arm's links keep clear of the object too, even at the grasp stage.
-        object_pairs = [(hand_geoms, object_geoms)]
-        self.object_limit = mink.CollisionAvoidanceLimit(m, object_pairs, **collide)
         if arm_geoms:
             arm_pairs = [(arm_geoms, object_geoms)]
             self.limits.append(mink.CollisionAvoidanceLimit(m, arm_pairs, **collide))
@@ -336,7 +251,21 @@ class MinkReacher(Reacher):
         data.qpos[self._qpos] = q
         data.mocap_pos[self._mocap] = wMo[:3, 3]
         data.mocap_quat[self._mocap] = mujoco_quat(wMo)
+        self._wMo = np.array(wMo, dtype=float)
         self.configuration.update()
+        self._kin_fresh = False
+
+    def hand_kinematics(self) -> HandKinematics:
+        """The hand's kinematics at the IK model's current joint angles and base pose (one
+        forward pass per step, shared by the limits)."""
+        if not self._kin_fresh:
+            self._kin.update(*self.hand_state())
+            self._kin_fresh = True
+        return self._kin
+
+    def object_pose(self) -> FloatArray:
+        """(4, 4) the object's pose in the IK model [m]."""
+        return self._wMo
 
     def tip_weight(self, palm_distance: float) -> float:
         """Fingertip task weight (fraction of full) at a palm-to-target distance [m]."""
@@ -370,6 +299,7 @@ class MinkReacher(Reacher):
         velocity = self._solve(tasks, dt, limits)
         velocity *= self._speed_scale(velocity)
         self.configuration.integrate_inplace(velocity, dt)
+        self._kin_fresh = False
         return self.hand_state()
 
     def fault_counts(self) -> dict[str, int]:

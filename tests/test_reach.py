@@ -120,7 +120,7 @@ def test_limits_with_no_common_solution_hold_their_violations(allegro, cube, mon
     cannot (at its range's end): the step holds the violation instead (``relaxed``) and the
     other joints still move; where no step is found at all, the hand stays (``held``)."""
     import mink
-    from wholehand_plugins.mink_reacher import HeldViolations
+    from wholehand_plugins.reach_limits import HeldViolations
 
     reacher = registry.load("reachers", "mink", hand=allegro, obj=cube, table=None)
     joint = 3  # a finger joint: q[joint] turns IK dof reacher._dof[joint]

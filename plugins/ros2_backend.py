@@ -20,17 +20,19 @@ position and the hand torques ramp to zero over ``exit_ramp``.
 Topics, joint names, rates, QoS and the safety limits come from a hardware config
 (:mod:`wholehand.ros2.config_file`); messages go over zenoh as rmw_zenoh writes them
 (:mod:`wholehand.ros2.rmw_zenoh`) or over DDS as rmw_cyclonedds and rmw_fastrtps write them
-(:mod:`wholehand.ros2.ros2_dds`), by ``[ros2] transport``, so no ROS installation is needed.
+(:mod:`wholehand.ros2.ros2_dds`), by ``[ros2] transport``, so no ROS installation is
+needed.
 
 Every joint state is kept in the joint history, so the contacts of a pose are estimated at the
 joint configuration of the pose's stamp (paper Sec. V-D). With ``sync_to_joint_states`` (the
 default) a cycle whose newest joint state is no longer fresh waits for the next one, briefly
 (:mod:`wholehand.ros2.config_file`), so that the torque answers a joint state just measured.
-Incoming messages are read by :class:`~wholehand.ros2.streams.RobotStreams`, between cycles:
-those that fail their checks (:mod:`wholehand.ros2.inputs`), and samples the transport drops
-(zenoh's without rmw_zenoh's attachment), are counted by reason; the last good sample stays.
-Every outgoing torque passes the safety rules of :class:`~wholehand.robot.guard.TorqueGuard`,
-and a watchdog thread ramps the torque down when the loop stops sending.
+Incoming messages are read by :class:`~wholehand.ros2.streams.RobotStreams`: those that
+fail their checks (:mod:`wholehand.ros2.inputs`), and samples the transport drops (on zenoh
+those without rmw_zenoh's attachment, as rmw_zenoh drops them), are counted by reason and the
+last good sample stays. Every outgoing torque passes the safety rules of
+:class:`~wholehand.robot.guard.TorqueGuard`, and a watchdog thread ramps the torque down when
+the loop stops sending.
 """
 
 from __future__ import annotations
@@ -384,13 +386,11 @@ class Ros2Backend(Backend):
             self.status_messages += 1
 
     def step(self, duration: float) -> None:
-        """Between cycles (messages are delivered only then: :meth:`RobotStreams.start_cycle`):
-        wait ``duration`` [s], then, with ``sync_to_joint_states``, for a fresh joint state."""
-        self.streams.end_cycle()
+        """Wait ``duration`` [s], then, with ``sync_to_joint_states``, for a fresh joint state
+        (:mod:`wholehand.ros2.config_file`; counted in :attr:`sync`)."""
         if duration > 0.0:
             time.sleep(duration)
         self.joint_sync.wait(self.streams)
-        self.streams.start_cycle()
 
     @property
     def sync(self) -> Counter[str]:
@@ -446,7 +446,6 @@ class Ros2Backend(Backend):
         network."""
         if self._closed.is_set():
             return
-        self.streams.end_cycle()
         self._closed.set()
         self._watchdog.join()
         self.release()

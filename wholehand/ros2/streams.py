@@ -16,13 +16,6 @@ robots send (up to 1 kHz, jitter and bursts included) every message is still dec
 checked on arrival; under a flood the transport's threads decode 2000 a second and the
 controller one per cycle, and every message delivered is counted once: accepted, rejected (by
 reason) or superseded.
-
-Deliveries wait while a control cycle runs (:meth:`RobotStreams.start_cycle` to
-:meth:`~RobotStreams.end_cycle`): a transport's thread that decodes a message holds the
-interpreter's lock, and the cycle's compiled kernels and MuJoCo calls let it take that lock; had
-the operating system preempted that thread then (another program on its core), the cycle would
-wait for it, a late cycle whatever its own priority. Held back, the messages are read in a
-burst while the controller sleeps, and a cycle still reads the newest state before it starts.
 """
 
 from __future__ import annotations
@@ -33,7 +26,6 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -109,9 +101,6 @@ class RobotStreams:
         self.last_rejection = ""
         self.stops = 0
         self._lock = threading.Lock()
-        self._cycle = threading.Lock()
-        """Held by the controller's thread while a cycle runs (module docstring)."""
-        self._in_cycle = False
         self._changed = threading.Condition(self._lock)
         """Notified on every message, accepted or rejected."""
         self._pending: deque[JointSample] = deque(maxlen=PENDING_MAX)
@@ -129,23 +118,12 @@ class RobotStreams:
         self._pose: tuple[FloatArray, float] | None = None
         self._pose_received = -np.inf
         self._stop = False
-        gated = self._between_cycles
-        reject = gated(self.reject)
         self._subs: list[TopicSubscriber] = [
-            transport.subscriber("joint_states", JOINT_STATE, gated(self._on_joints), reject),
-            transport.subscriber("object_pose", POSE_STAMPED, gated(self._on_pose), reject),
+            transport.subscriber("joint_states", JOINT_STATE, self._on_joints, self.reject),
+            transport.subscriber("object_pose", POSE_STAMPED, self._on_pose, self.reject),
         ]
         if config.topic("stop"):
-            self._subs.append(transport.subscriber("stop", BOOL, gated(self._on_stop), reject))
-
-    def _between_cycles(self, deliver: Callable[..., None]) -> Callable[..., None]:
-        """``deliver`` run on a transport's thread once no cycle runs (module docstring)."""
-
-        def gated(*args: Any) -> None:
-            with self._cycle:
-                deliver(*args)
-
-        return gated
+            self._subs.append(transport.subscriber("stop", BOOL, self._on_stop, self.reject))
 
     # --- the transport's threads ----------------------------------------------------------------
     def reject(self, reason: str, detail: str) -> None:
@@ -242,20 +220,6 @@ class RobotStreams:
             self._stop = stop
 
     # --- the controller's thread ----------------------------------------------------------------
-    def start_cycle(self) -> None:
-        """A control cycle starts: deliveries wait until :meth:`end_cycle` (after the one
-        under way, if any)."""
-        if not self._in_cycle:
-            self._cycle.acquire()
-            self._in_cycle = True
-
-    def end_cycle(self) -> None:
-        """The cycle is over: the messages held back are delivered. Every wait for messages
-        and :meth:`close` end the cycle first."""
-        if self._in_cycle:
-            self._in_cycle = False
-            self._cycle.release()
-
     @property
     def stop_requested(self) -> bool:
         """A stop message asked the robot to stop (until one that releases it)."""
@@ -312,7 +276,6 @@ class RobotStreams:
     def wait_until(self, condition: Callable[[RobotStreams], bool], timeout: float) -> bool:
         """Block until ``condition(self)`` holds, checked under the streams' lock at every
         message (accepted or rejected), at most ``timeout`` [s]; whether it holds."""
-        self.end_cycle()
         with self._changed:
             return self._changed.wait_for(lambda: condition(self), timeout)
 
@@ -321,7 +284,6 @@ class RobotStreams:
         [s] for the next; returns how (``fresh``, ``waited``, ``timed_out``; ``none`` before
         a first joint state) and the time waited [s]. A joint state kept undecoded under a
         flood is decoded first: it is the newest."""
-        self.end_cycle()
         self._read_deferred()
         with self._changed:
             received = self._joint_received
@@ -336,7 +298,6 @@ class RobotStreams:
             return ("waited" if arrived else "timed_out"), self.clock() - started
 
     def close(self) -> None:
-        self.end_cycle()
         for sub in self._subs:
             sub.close()
         self._subs.clear()

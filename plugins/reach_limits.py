@@ -20,6 +20,7 @@ import numpy.typing as npt
 from wholehand_plugins.mesh_sdf import MeshSDFEstimator
 
 from wholehand.backends.table import Table
+from wholehand.errors import ConfigError
 from wholehand.models.hand import HandModel
 from wholehand.models.kinematics import HandKinematics
 from wholehand.models.objects import ObjectModel
@@ -140,9 +141,16 @@ class ObjectClearanceLimit(mink.Limit):
     ) -> None:
         self.state = state
         self.gain, self.clearance = gain, clearance
-        self.nearest = MeshSDFEstimator(
-            state.hand, obj, d_thresh=detection, k=per_link, hysteresis=0.0
-        )
+        try:
+            self.nearest = MeshSDFEstimator(
+                state.hand, obj, d_thresh=detection, k=per_link, hysteresis=0.0
+            )
+        except ConfigError as err:
+            raise ConfigError(
+                f"mink reacher: its object clearance looks {detection} m (detection) out from "
+                f"{obj.name!r}, past the object's SDF grid ({err}); build the object with "
+                f"sdf_padding above {detection} m or give the reacher a smaller detection"
+            ) from None
         self._body = _link_bodies(state)
         self._jac = np.zeros((3, state.model.nv))
 

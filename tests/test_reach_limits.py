@@ -91,3 +91,13 @@ def test_far_from_the_object_the_limit_has_no_rows(allegro, near_cube) -> None:
     reacher._set_state(allegro.neutral(), np.eye(4), far)
     constraint = _limit(reacher).compute_qp_inequalities(reacher.configuration, DT)
     assert constraint.G is None and constraint.h is None
+
+
+def test_an_object_grid_too_small_for_the_detection_distance_is_named(allegro) -> None:
+    from wholehand.errors import ConfigError
+    from wholehand.models.objects import ObjectModel
+
+    small = ObjectModel.sphere(0.03, mass=0.1, name="ball", sdf_padding=0.012)
+    with pytest.raises(ConfigError, match=r"detection.*'ball'.*sdf_padding above 0.02 m"):
+        registry.load("reachers", "mink", hand=allegro, obj=small, table=None)
+    registry.load("reachers", "mink", hand=allegro, obj=small, table=None, detection=0.008)

@@ -31,6 +31,7 @@ def test_every_example_is_tested():
         "contacts_per_link.py",
         "tracking_latency.py",
         "feedforward_pose_error.py",
+        "criteria_by_hand.py",
     }
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
 
@@ -83,3 +84,28 @@ def test_feedforward_pose_error_compares_the_torques_with_and_without_the_error(
     cosine, change, flips = float(row[2]), float(row[3]), int(row[4])
     assert -1.0 <= cosine < 1.0 and change > 0.0 and flips >= 0  # the error moves the torques
     assert "cosine median" in out.splitlines()[-1]
+
+
+def test_criteria_by_hand_prints_the_stored_runs_rates(tmp_path):
+    """Each printed row carries the rates the study's own summary.json recorded for that run,
+    method and angle, and the plot is written."""
+    import json
+
+    png = tmp_path / "criteria.png"
+    out = _run("criteria_by_hand.py", "--png", str(png))
+    printed = {}
+    for line in out.splitlines()[1:]:
+        f = line.split()
+        if len(f) == 10 and f[4] == "+-":
+            printed[(f[0], f[1], float(f[2]))] = (float(f[3]), float(f[6]), int(f[9]))
+    data = EXAMPLES.parent / "docs" / "data"
+    expected = {}
+    for folder, label in (("perturbation-strict", "Allegro"), ("unseen-hands/inspire", "Inspire")):
+        for g in json.loads((data / folder / "summary.json").read_text())["groups"]:
+            key = (label, g["method"], float(g["theta_deg"]))
+            expected[key] = (100 * g["success"], 100 * g["success_strict"], g["n_grasps"])
+    for key, (paper, strict, grasps) in expected.items():
+        assert printed[key][0] == pytest.approx(paper, abs=0.051)
+        assert printed[key][1] == pytest.approx(strict, abs=0.051)
+        assert printed[key][2] == grasps
+    assert png.stat().st_size > 10_000

@@ -2,11 +2,16 @@
 holds a limit's violations instead of undoing them.
 
 Both clearance limits constrain surface samples of the hand (:attr:`HandModel.samples`), one
-row per sample, ``-dd/dq v <= gain (d - clearance) / dt`` with ``d`` the sample's distance to
-the table top or to the object: the velocity may close the gap by at most ``gain`` of what is
-left above ``clearance`` in one period. A sample is constrained once it is within ``detection``
-of the surface, the nearest ``per_link`` of each link, so that the number of rows, and with it
-the step's time, has a bound that does not depend on the object's shape.
+row per sample, ``-dd/dq dq <= gain (d - clearance)`` with ``d`` the sample's distance to the
+table top or to the object and ``dq`` the step's displacement (mink's QP variable, the velocity
+times ``dt``): one step may close at most ``gain`` of the gap left above ``clearance``, and
+a sample within the clearance must move out by ``gain`` of its violation. (mink's
+``CollisionAvoidanceLimit`` divides that bound by ``dt`` as if the variable were the velocity:
+200 times too loose above the clearance at 200 Hz, and within it a demand to move out by 170
+times the violation in one step, which the other limits then seldom allow.) A sample is
+constrained once it is within ``detection`` of the surface, the nearest ``per_link`` of each
+link, so that the number of rows, and with it the step's time, has a bound that does not depend
+on the object's shape.
 """
 
 from __future__ import annotations
@@ -48,6 +53,19 @@ def _link_bodies(state: ReachState) -> npt.NDArray[np.intp]:
     return np.array([state.model.body(name).id for name in state.hand.link_names], dtype=np.intp)
 
 
+def _hull_samples(rows: npt.NDArray[np.intp], p_joint: FloatArray) -> npt.NDArray[np.intp]:
+    """Those of the samples ``rows`` (one link's, in its joint's frame) that are vertices of
+    their convex hull; all of them where the hull is degenerate (fewer than 4, or flat)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if rows.size < 4:
+        return rows
+    try:
+        return rows[np.sort(ConvexHull(p_joint[rows]).vertices)]
+    except QhullError:
+        return rows
+
+
 class TableLimit(mink.Limit):
     """Keeps the hand's surface samples above the table top (a half-space), point by point.
 
@@ -55,7 +73,10 @@ class TableLimit(mink.Limit):
     face comes down parallel to the table that point is arbitrary on the face, and a small
     rotation about it lowers another corner unconstrained (measured: a palm box 7.5 mm into the
     table). Here every sample within ``detection`` of the plane gets its own row, the lowest
-    ``per_link`` of each link. Only the links whose bounding sphere (about their joint's origin)
+    ``per_link`` of each link among the vertices of the convex hull of its samples: a rigid
+    link's lowest point is one of them, so that a face coming down flat is held at its
+    corners, not at the few samples that happen to be lowest (a turn about those lowers the
+    rest). Only the links whose bounding sphere (about their joint's origin)
     comes that near the plane have their samples transformed: away from the table the limit
     costs one pass of forward kinematics.
     """
@@ -75,7 +96,10 @@ class TableLimit(mink.Limit):
         self._body = _link_bodies(state)
         self._jac = np.zeros((3, state.model.nv))
         samples = state.hand.samples
-        self._rows = [np.flatnonzero(samples.link == i) for i in range(len(self._body))]
+        self._rows = [
+            _hull_samples(np.flatnonzero(samples.link == i), samples.p_joint)
+            for i in range(len(self._body))
+        ]
         self._joint = np.asarray(state.hand.link_joint, dtype=np.intp)
         self._radius = np.array(
             [
@@ -113,7 +137,7 @@ class TableLimit(mink.Limit):
             body = int(self._body[samples.link[i]])
             mujoco.mj_jac(configuration.model, configuration.data, self._jac, None, points[i], body)
             G[k] = -self._jac[2]
-            h[k] = self.gain * (points[i, 2] - top - self.clearance) / dt
+            h[k] = self.gain * (points[i, 2] - top - self.clearance)
         return mink.limits.Constraint(G=G, h=h)
 
 
@@ -166,7 +190,7 @@ class ObjectClearanceLimit(mink.Limit):
             p = near.p_world[k]
             mujoco.mj_jac(configuration.model, configuration.data, self._jac, None, p, body)
             G[k] = -(near.n_world[k] @ self._jac)
-        h = self.gain * (near.distance - self.clearance) / dt
+        h = self.gain * (near.distance - self.clearance)
         return mink.limits.Constraint(G=G, h=h)
 
 

@@ -471,6 +471,7 @@ def test_reach_study_rows_and_summary(tmp_path) -> None:
     (group,) = result.summary["groups"]
     assert group["episodes"] == 1 and group["acquired"] == int(row["acquired"])
     assert group["recovered"] <= group["losses"] <= group["perturbations"]
+    assert group["reacher_relaxed"] == row["reacher_relaxed"] >= 0 and row["reacher_held"] >= 0
     assert (tmp_path / "reach.png").stat().st_size > 0
 
 
@@ -1043,10 +1044,11 @@ def test_the_robot_conditions_study_adds_each_condition_on_the_same_seeds(monkey
         return {"complete": True, "grasps": 1, "time_to_grasp_s": 1.0, "losses": 1,
                 "loss_causes": ["gravity"], "recovered": 1, "perturbations": 4,
                 "duration_s": 7.0, "loop": {"cycles": 100, "n_errors": 0},
-                "mujoco_warnings": {}}  # fmt: skip
+                "mujoco_warnings": {}, "reacher_faults": {"relaxed": 2}}  # fmt: skip
 
     monkeypatch.setattr(episode_module, "run_episode", fake_episode)
     rows = [episode_row(job) for job in jobs[:7]]
+    assert all(r["reacher_relaxed"] == 2 and r["reacher_held"] == 0 for r in rows)
     plain, tracked, hurried, both, predicted, touched, servoed = seen
     assert all(s.person_sees == "stage" for s in seen[:5]) and touched.person_sees == "contacts"
     assert all(s.hand_servo == "step" for s in seen[:6]) and servoed.hand_servo == "command"

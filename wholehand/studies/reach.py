@@ -130,6 +130,8 @@ def episode_row(job: TrialJob) -> dict[str, Any]:
         "duration_s": round(float(summary["duration_s"]), 6),
         "cycles": int(loop["cycles"]),
         "stage_errors": int(loop["n_errors"]),
+        "reacher_relaxed": int(summary["reacher_faults"].get("relaxed", 0)),
+        "reacher_held": int(summary["reacher_faults"].get("held", 0)),
         "step_retries": int(warnings.get("step_retries", 0)),
         "step_retries_failed": int(warnings.get("step_retries_failed", 0)),
         "failure_stage": "" if summary["complete"] else "episode",
@@ -158,6 +160,7 @@ def _counts(group: list[dict[str, Any]]) -> dict[str, Any]:
         "losses_per_perturbation": losses / perturbations if perturbations else 0.0,
         "recovered": recovered,
         "step_retries_failed": sum(int(r.get("step_retries_failed", 0)) for r in group),
+        "reacher_relaxed": sum(int(r.get("reacher_relaxed", 0)) for r in group),
         "regrasp_success": recovered / losses if losses else float("nan"),
         "completed": sum(bool(r["held"]) for r in group),
     }

@@ -52,6 +52,20 @@ def _row_distances(reacher, limit):
     return limit.nearest.estimate(reacher.hand_kinematics(), reacher.object_pose()).distance
 
 
+def _palm_step_down(reacher, limit, depth: float) -> None:
+    """One IK step of ``reacher``'s model whose only task sends the palm ``depth`` [m] down
+    (world z), under ``limit`` alone."""
+    import mink
+
+    configuration, palm_link = reacher.configuration, reacher.hand.palm_link
+    palm = configuration.get_transform_frame_to_world(palm_link, "body").as_matrix()
+    palm[2, 3] -= depth
+    task = mink.FrameTask(palm_link, "body", position_cost=1.0, orientation_cost=1.0)
+    task.set_target(mink.SE3.from_matrix(palm))
+    v = mink.solve_ik(configuration, [task], DT, reacher.solver, damping=1e-6, limits=[limit])
+    configuration.integrate_inplace(v, DT)
+
+
 def test_the_rows_are_the_samples_nearest_the_object_per_link(allegro, near_cube) -> None:
     """Rows: the nearest samples per link (brute force over every sample); bounds: ``gain
     (d - clearance)``, a displacement (mink's variable), negative within the clearance."""
@@ -102,8 +116,6 @@ def test_one_step_closes_at_most_gain_of_each_gap(allegro, cube, near_cube) -> N
     palm 5 cm into the cube leaves each constrained sample at least ``(1 - gain)`` of its gap
     above the clearance (distances by brute force after the step; first order: within
     0.3 mm). A bound divided by dt, as for a velocity, lets the hand into the cube."""
-    import mink
-
     reacher, points, _, wMo = near_cube
     away = wMo.copy()
     away[:3, 3] += [0.0, 0.0, -0.03]  # every sample 1 cm or more from the cube
@@ -114,13 +126,7 @@ def test_one_step_closes_at_most_gain_of_each_gap(allegro, cube, near_cube) -> N
     assert len(before) >= 3 and before.min() > CLEARANCE  # every row above the clearance
     distance = cube.sdf.query(points - away[:3, 3])
     rows = [int(np.argmin(np.abs(distance - d))) for d in before]  # each row's sample
-    configuration = reacher.configuration
-    palm = configuration.get_transform_frame_to_world(allegro.palm_link, "body").as_matrix()
-    palm[2, 3] -= 0.05
-    task = mink.FrameTask(allegro.palm_link, "body", position_cost=1.0, orientation_cost=1.0)
-    task.set_target(mink.SE3.from_matrix(palm))
-    v = mink.solve_ik(configuration, [task], DT, reacher.solver, damping=1e-6, limits=[limit])
-    configuration.integrate_inplace(v, DT)
+    _palm_step_down(reacher, limit, 0.05)
     kin = HandKinematics(allegro)
     kin.update(*reacher.hand_state())
     samples = allegro.samples
@@ -135,9 +141,8 @@ def test_one_step_closes_at_most_gain_of_each_gap(allegro, cube, near_cube) -> N
 
 def test_one_step_above_the_table_closes_at_most_gain_of_each_gap(allegro, cube) -> None:
     """The table's limit bounds the step's displacement the same way: the palm pulled 5 cm
-    down from 15 mm above the clearance's reach, every sample stays at least ``(1 - gain)``
+    down from 15 mm above the table top, every sample stays at least ``(1 - gain)``
     of its gap above the clearance, and the lowest ends at that bound (first order)."""
-    import mink
     from wholehand_plugins.reach_limits import TableLimit
 
     from wholehand.backends.table import Table
@@ -156,13 +161,7 @@ def test_one_step_above_the_table_closes_at_most_gain_of_each_gap(allegro, cube)
     kin.update(q, wMb)
     before = kin.transform_points(samples.p_joint, samples.joint)[:, 2]
     assert before.min() == pytest.approx(0.015)
-    configuration = reacher.configuration
-    palm = configuration.get_transform_frame_to_world(allegro.palm_link, "body").as_matrix()
-    palm[2, 3] -= 0.05
-    task = mink.FrameTask(allegro.palm_link, "body", position_cost=1.0, orientation_cost=1.0)
-    task.set_target(mink.SE3.from_matrix(palm))
-    v = mink.solve_ik(configuration, [task], DT, reacher.solver, damping=1e-6, limits=[limit])
-    configuration.integrate_inplace(v, DT)
+    _palm_step_down(reacher, limit, 0.05)
     kin.update(*reacher.hand_state())
     after = kin.transform_points(samples.p_joint, samples.joint)[:, 2]
     near = before < CLEARANCE + DETECTION

@@ -121,7 +121,6 @@ def test_one_step_closes_at_most_gain_of_each_gap(allegro, cube, near_cube) -> N
     away[:3, 3] += [0.0, 0.0, -0.03]  # every sample 1 cm or more from the cube
     reacher._set_state(allegro.neutral(), np.eye(4), away)
     limit = _limit(reacher)
-    G, h = limit.compute_qp_inequalities(reacher.configuration, DT)
     before = _row_distances(reacher, limit)
     assert len(before) >= 3 and before.min() > CLEARANCE  # every row above the clearance
     distance = cube.sdf.query(points - away[:3, 3])
